@@ -1,0 +1,33 @@
+"""Shared test utilities: tolerances by dtype and small numeric helpers."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+#: Relative tolerances for comparisons against an independent oracle, by dtype.
+RTOL = {torch.float64: 1e-10, torch.float32: 1e-4, np.float64: 1e-10, np.float32: 1e-4}
+
+
+def rel_max_error(actual, expected) -> float:
+    """max|actual - expected| / max|expected|: the decoder's accuracy measure (DESIGN.md)."""
+    actual = np.asarray(actual, dtype=np.float64)
+    expected = np.asarray(expected, dtype=np.float64)
+    scale = max(float(np.max(np.abs(expected))), 1e-300)
+    return float(np.max(np.abs(actual - expected))) / scale
+
+
+def tf_coeffs(A, b, c, d=0.0):
+    """Transfer function (num, den) of one SISO system, from python-control's ss2tf."""
+    import control
+
+    A = np.atleast_2d(np.asarray(A, dtype=np.float64))
+    n = A.shape[0]
+    sys = control.ss(A, np.reshape(b, (n, 1)), np.reshape(c, (1, n)), np.reshape(d, (1, 1)))
+    tf = control.ss2tf(sys)
+    num = np.atleast_1d(np.squeeze(tf.num[0][0]))
+    den = np.atleast_1d(np.squeeze(tf.den[0][0]))
+    # Normalise to a monic denominator and pad the numerator to the denominator's length.
+    num, den = num / den[0], den / den[0]
+    num = np.concatenate([np.zeros(len(den) - len(num)), num])
+    return num, den
