@@ -1,0 +1,647 @@
+"""Tests of aeid_struct.decoder against independent oracles.
+
+Oracles: scipy's ``expm`` of the augmented matrix, ``scipy.signal.cont2discrete(method="foh")`` +
+``dlsim``, python-control's continuous-time ``forced_response`` (exact for linearly interpolated
+inputs), closed forms (free response ``expm(A t) x0``, the leg's ``cosh`` step response, CCF
+stationary value ``d + c_0 / a_0``) and ``control.dcgain``; ``gradcheck`` in float64.
+
+Accuracy is checked on ``problems.modal_system`` (well-conditioned bases, see its docstring):
+``max|y - y_oracle| <= 1e-10 max|y_oracle|`` in float64, stable and unstable, orders 1-6.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.signal
+import torch
+from helpers import RTOL, rel_max_error
+from problems import inputs, modal_system
+
+import aeid_struct as ae
+from aeid_struct import decoder
+from aeid_struct.decoder import (
+    Discrete,
+    denormalise,
+    discretise,
+    loss,
+    normalise,
+    record_scale,
+    simulate,
+    states,
+    stationary_value,
+)
+
+DT = 0.01
+STEPS = 200  # 2 s: an unstable pole at +12 rad/s grows by e^24 over the record
+ORDERS = [1, 2, 3, 4, 5, 6]
+SIGNALS = ["step", "ramp", "random", "prbs"]
+METHODS = {
+    "chunked": decoder._simulate_chunked,
+    "fft": decoder._simulate_fft,
+    "scan": decoder._simulate_scan,
+    "loop": decoder._simulate_loop,
+}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    """The decoder's tensors are small: one thread is as fast, and immune to the stalls that
+    threads waiting for each other suffer on a loaded machine. Restored after this module."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def _system(n, stable, feedthrough=True, salt=0):
+    # Seeded by the parameters: each case is the same system on every run and machine.
+    rng = np.random.default_rng([n, int(stable), int(feedthrough), salt])
+    return modal_system(n, rng, stable=stable, feedthrough=feedthrough)
+
+
+def _signal(name, steps=STEPS, dt=DT, seed=0):
+    return inputs(steps, dt, np.random.default_rng(seed))[name]
+
+
+def _augmented_expm(A, b, dt):
+    n = A.shape[0]
+    M = np.zeros((n + 2, n + 2))
+    M[:n, :n], M[:n, n], M[n, n + 1] = A * dt, b * dt, 1.0
+    E = scipy.linalg.expm(M)
+    return E[:n, :n], E[:n, n], E[:n, n + 1]
+
+
+def _torch(*arrays, dtype=torch.float64):
+    return [torch.as_tensor(np.asarray(a), dtype=dtype) for a in arrays]
+
+
+# ------------------------------------------------------------------------------------------------
+# Discretisation (Eq. 10)
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", ORDERS)
+@pytest.mark.parametrize("stable", [True, False])
+def test_discretise_matches_expm_of_augmented_matrix(n, stable):
+    A, b, _, _ = _system(n, stable)
+    disc = discretise(A, b, DT)
+    Phi, gamma1, gamma2 = _augmented_expm(A, b, DT)
+    assert isinstance(disc, Discrete) and disc.dt == DT
+    assert disc.Phi.shape == (n, n) and disc.gamma1.shape == disc.gamma2.shape == (n,)
+    assert rel_max_error(disc.Phi, Phi) < 1e-13
+    assert rel_max_error(disc.gamma1, gamma1) < 1e-13
+    assert rel_max_error(disc.gamma2, gamma2) < 1e-13
+    # Phi = e^{A dt} on its own, too.
+    assert rel_max_error(disc.Phi, scipy.linalg.expm(A * DT)) < 1e-13
+
+
+@pytest.mark.parametrize("n", ORDERS)
+@pytest.mark.parametrize("stable", [True, False])
+def test_discretise_relates_to_cont2discrete_foh(n, stable):
+    """cont2discrete's FOH system lives in the shifted state xi_k = x_k - gamma2 u_k.
+
+    From x_{k+1} = Phi x_k + gamma1 u_k + gamma2 (u_{k+1} - u_k):
+        xi_{k+1} = x_{k+1} - gamma2 u_{k+1} = Phi (xi_k + gamma2 u_k) + (gamma1 - gamma2) u_k
+                 = Phi xi_k + (gamma1 - gamma2 + Phi gamma2) u_k,
+        y_k = c^T x_k + d u_k = c^T xi_k + (d + c^T gamma2) u_k.
+    So Ad = Phi, Bd = gamma1 - gamma2 + Phi gamma2, Cd = c^T, Dd = d + c^T gamma2.
+    """
+    A, b, c, d = _system(n, stable)
+    disc = discretise(A, b, DT)
+    Ad, Bd, Cd, Dd, dt = scipy.signal.cont2discrete(
+        (A, b[:, None], c[None, :], [[d]]), DT, method="foh"
+    )
+    assert dt == DT
+    assert rel_max_error(disc.Phi, Ad) < 1e-13
+    assert rel_max_error(disc.gamma1 - disc.gamma2 + disc.Phi @ disc.gamma2, Bd[:, 0]) < 1e-13
+    assert rel_max_error(Cd[0], c) == 0.0
+    assert abs(d + c @ disc.gamma2 - Dd[0, 0]) <= 1e-13 * max(1.0, abs(Dd[0, 0]))
+
+
+def test_discretise_integrator_closed_form():
+    """A = 0, b = 1: Phi = 1, gamma1 = int_0^dt ds = dt, gamma2 = (1/dt) int_0^dt s ds = dt/2."""
+    disc = discretise(np.zeros((1, 1)), np.ones(1), 0.1)
+    np.testing.assert_allclose(disc.Phi, [[1.0]], rtol=1e-15)
+    np.testing.assert_allclose(disc.gamma1, [0.1], rtol=1e-15)
+    np.testing.assert_allclose(disc.gamma2, [0.05], rtol=1e-15)
+
+
+def test_discretise_batched_and_torch():
+    systems = [_system(3, s, salt=i) for i, s in enumerate([True, False, True])]
+    A = np.stack([s[0] for s in systems])
+    b = np.stack([s[1] for s in systems])
+    disc = discretise(torch.as_tensor(A, dtype=torch.float32), torch.as_tensor(b), DT)
+    assert disc.Phi.dtype == torch.float64  # promoted: b came in float64
+    assert disc.Phi.shape == (3, 3, 3) and disc.gamma1.shape == (3, 3)
+    for i, (Ai, bi, _, _) in enumerate(systems):
+        Phi, gamma1, gamma2 = _augmented_expm(np.float32(Ai).astype(float), bi, DT)
+        assert rel_max_error(disc.Phi[i], Phi) < 1e-13
+        assert rel_max_error(disc.gamma2[i], gamma2) < 1e-13
+    # One b shared by the batch.
+    shared = discretise(A, b[0], DT)
+    assert shared.gamma1.shape == (3, 3)
+    assert rel_max_error(shared.gamma1[2], _augmented_expm(A[2], b[0], DT)[1]) < 1e-13
+
+
+# ------------------------------------------------------------------------------------------------
+# Simulation (Eq. 12-13) against the oracles
+# ------------------------------------------------------------------------------------------------
+
+
+def _dlsim(A, b, c, d, u, dt):
+    """cont2discrete FOH + dlsim from rest: start at xi_0 = -gamma2 u_0 (DESIGN.md caveat)."""
+    Ad, Bd, Cd, Dd, _ = scipy.signal.cont2discrete(
+        (A, b[:, None], c[None, :], [[d]]), dt, method="foh"
+    )
+    gamma2 = _augmented_expm(A, b, dt)[2]
+    _, y, _ = scipy.signal.dlsim((Ad, Bd, Cd, Dd, dt), u, x0=-gamma2 * u[0])
+    return y[:, 0]
+
+
+def _forced(A, b, c, d, u, dt, x0=0.0):
+    sys = control.ss(A, b[:, None], c[None, :], [[d]])
+    return control.forced_response(sys, np.arange(len(u)) * dt, u, X0=x0, return_x=True)
+
+
+@pytest.mark.parametrize("signal", SIGNALS)
+@pytest.mark.parametrize("n", ORDERS)
+@pytest.mark.parametrize("stable", [True, False], ids=["stable", "unstable"])
+def test_simulate_matches_cont2discrete_dlsim(stable, n, signal):
+    A, b, c, d = _system(n, stable)
+    u = _signal(signal, seed=n)
+    y = simulate(A, b, c, d, u, DT)
+    assert isinstance(y, np.ndarray) and y.dtype == np.float64 and y.shape == (STEPS,)
+    assert rel_max_error(y, _dlsim(A, b, c, d, u, DT)) <= RTOL[np.float64]
+
+
+@pytest.mark.parametrize("signal", SIGNALS)
+@pytest.mark.parametrize("n", ORDERS)
+@pytest.mark.parametrize("stable", [True, False], ids=["stable", "unstable"])
+def test_simulate_matches_forced_response(stable, n, signal):
+    A, b, c, d = _system(n, stable, salt=1)
+    u = _signal(signal, seed=10 + n)
+    y = simulate(A, b, c, d, u, DT)
+    assert rel_max_error(y, _forced(A, b, c, d, u, DT).outputs) <= RTOL[np.float64]
+
+
+def test_the_dlsim_oracle_needs_the_shifted_start():
+    """The DESIGN.md caveat, pinned: dlsim from xi_0 = 0 is wrong for a step (u_0 != 0)."""
+    A, b, c, d = _system(2, stable=True)
+    u = _signal("step")
+    Ad, Bd, Cd, Dd, _ = scipy.signal.cont2discrete(
+        (A, b[:, None], c[None, :], [[d]]), DT, method="foh"
+    )
+    _, naive, _ = scipy.signal.dlsim((Ad, Bd, Cd, Dd, DT), u)
+    assert rel_max_error(naive[:, 0], simulate(A, b, c, d, u, DT)) > 1e-6
+
+
+@pytest.mark.parametrize("stable", [True, False], ids=["stable", "unstable"])
+@pytest.mark.parametrize("method", list(METHODS))
+def test_every_implementation_matches_forced_response(method, stable):
+    """Every implementation (default: chunked), all orders, with an initial state too."""
+    for n in ORDERS:
+        A, b, c, d = _system(n, stable, salt=2)
+        u = _signal("random", seed=n)
+        x0 = np.random.default_rng(n).normal(size=n)
+        expected = _forced(A, b, c, d, u, DT, x0=x0).outputs
+        y = METHODS[method](*(t[None] for t in _torch(A, b, c, d, u)), DT, _torch(x0)[0][None])
+        assert rel_max_error(y[0].numpy(), expected) <= RTOL[np.float64], n
+
+
+def test_unstable_leg_step_response_closed_form():
+    """Rotational leg subsystem G2 = k / (s^2 - w^2), w = 12 rad/s, over 0.5 s.
+
+    Its step response from rest is y(t) = k / w^2 (cosh(w t) - 1).
+    """
+    w, k, dt, steps = 12.0, 7.0, 0.005, 101
+    A = np.array([[0.0, 1.0], [w**2, 0.0]])
+    b, c = np.array([0.0, 1.0]), np.array([k, 0.0])
+    t = np.arange(steps) * dt
+    y = simulate(A, b, c, 0.0, np.ones(steps), dt)
+    assert rel_max_error(y, k / w**2 * (np.cosh(w * t) - 1.0)) <= RTOL[np.float64]
+
+
+@pytest.mark.parametrize("steps", [1, 2, 3, 5, 17, 64, 65, 127, 1025])
+def test_implementations_agree_on_any_length(steps):
+    """Odd lengths exercise padding (scan, chunks of K = 1..32 samples, FFT length); 1 sample."""
+    A, b, c, d = _system(3, stable=False, salt=3)
+    u = np.random.default_rng(steps).normal(size=steps)
+    x0 = np.array([0.3, -1.0, 0.5])
+    args = [t[None] for t in _torch(A, b, c, d, u)]
+    ys = {name: f(*args, DT, _torch(x0)[0][None])[0] for name, f in METHODS.items()}
+    assert ys["chunked"].shape == (steps,)
+    for name in ("fft", "scan", "loop"):
+        assert rel_max_error(ys[name].numpy(), ys["chunked"].numpy()) < 1e-12, name
+    np.testing.assert_allclose(ys["chunked"][0].item(), c @ x0 + d * u[0], rtol=1e-13)
+
+
+# ------------------------------------------------------------------------------------------------
+# Batching, broadcasting, numpy/torch, dtypes
+# ------------------------------------------------------------------------------------------------
+
+
+def _batch(count=5, n=3):
+    systems = [_system(n, i % 2 == 0, salt=10 + i) for i in range(count)]
+    A, b, c = (np.stack([s[j] for s in systems]) for j in range(3))
+    d = np.array([s[3] for s in systems])
+    u = np.stack([_signal(SIGNALS[i % 4], seed=i) for i in range(count)])
+    return A, b, c, d, u
+
+
+def test_batched_equals_per_system():
+    A, b, c, d, u = _batch()
+    y = simulate(A, b, c, d, u, DT)
+    assert y.shape == (5, STEPS)
+    for i in range(5):
+        assert rel_max_error(y[i], simulate(A[i], b[i], c[i], d[i], u[i], DT)) < 1e-13
+
+
+def test_broadcasting_over_systems_and_inputs():
+    A, b, c, d, u = _batch()
+    # One input for every system.
+    y = simulate(A, b, c, d, u[0], DT)
+    for i in range(5):
+        assert rel_max_error(y[i], simulate(A[i], b[i], c[i], d[i], u[0], DT)) < 1e-13
+    # One system for a batch of inputs (and a scalar d, and a batch-1 A).
+    y = simulate(A[:1], b[0], c[0], float(d[0]), u, DT)
+    assert y.shape == (5, STEPS)
+    for i in range(5):
+        assert rel_max_error(y[i], simulate(A[0], b[0], c[0], d[0], u[i], DT)) < 1e-13
+    # Only d batched: still a batch.
+    assert simulate(A[0], b[0], c[0], d, u[0], DT).shape == (5, STEPS)
+
+
+def test_numpy_and_torch_paths_agree():
+    A, b, c, d, u = _batch()
+    y_np = simulate(A, b, c, d, u, DT)
+    tensors = _torch(A, b, c, d, u)
+    y_t = simulate(*tensors, DT)
+    assert isinstance(y_t, torch.Tensor) and y_t.dtype == torch.float64
+    assert rel_max_error(y_t.numpy(), y_np) == 0.0
+    # Mixed: one tensor makes the result a tensor; lists are accepted as arrays.
+    y_mixed = simulate(A[0].tolist(), b[0], c[0], tensors[3][0], u[0], DT)
+    assert isinstance(y_mixed, torch.Tensor) and y_mixed.shape == (STEPS,)
+    assert rel_max_error(y_mixed.numpy(), y_np[0]) < 1e-13
+
+
+def test_float32_within_tolerance_of_float64():
+    """float32 (for training): within RTOL[float32] = 1e-4 of float64, relative to max|y|."""
+    A, b, c, d, u = _batch(count=8, n=4)
+    A, b, c, d = (x[::2] for x in (A, b, c, d))  # the stable ones
+    y64 = simulate(A, b, c, d, u[::2], DT)
+    y32 = simulate(*_torch(A, b, c, d, u[::2], dtype=torch.float32), DT)
+    assert y32.dtype == torch.float32
+    for i in range(len(y64)):
+        assert rel_max_error(y32[i].numpy(), y64[i]) <= RTOL[torch.float32]
+    assert float(record_scale(y32).min()) > 0
+
+
+def test_float32_unstable_response_keeps_per_sample_accuracy():
+    """Why the default is not the FFT form: over 2 s of a pole at +12 rad/s (growth e^24) the
+    early samples are ~1e-13 of max|y|; an FFT convolution's evenly spread float32 rounding
+    (~1e-7 max|y|) swamps them, while the default keeps every sample's own relative accuracy."""
+    w, k, dt, steps = 12.0, 7.0, 0.005, 401
+    A = torch.tensor([[0.0, 1.0], [w**2, 0.0]])
+    b, c, u = torch.tensor([0.0, 1.0]), torch.tensor([k, 0.0]), torch.ones(steps)
+    exact = k / w**2 * (np.cosh(w * np.arange(steps) * dt) - 1.0)
+
+    def per_sample(y):
+        return np.max(np.abs(y[1:] - exact[1:]) / exact[1:])
+
+    assert per_sample(simulate(A, b, c, 0.0, u, dt).double().numpy()) < 5e-4
+    y_fft = decoder._simulate_fft(A[None], b[None], c[None], torch.zeros(1), u[None], dt)
+    assert per_sample(y_fft[0].double().numpy()) > 1.0
+
+
+def test_scalar_outputs_and_shapes():
+    A, b, c, d = _system(2, True)
+    assert isinstance(stationary_value(A, b, c, d), np.floating)
+    tensor = stationary_value(*_torch(A, b, c, d))
+    assert isinstance(tensor, torch.Tensor) and tensor.shape == ()
+    assert states(A, b, np.ones(7), DT).shape == (7, 2)
+    assert states(A[None], b, np.ones(7), DT).shape == (1, 7, 2)
+
+
+# ------------------------------------------------------------------------------------------------
+# Initial state and states (Eq. 12)
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 2, 4, 6])
+@pytest.mark.parametrize("stable", [True, False], ids=["stable", "unstable"])
+def test_free_response_is_expm_At_x0(n, stable):
+    A, b, c, d = _system(n, stable, salt=4)
+    x0 = np.random.default_rng(n).normal(size=n)
+    k = np.r_[0:STEPS:7, STEPS - 1]  # every 7th sample and the last: expm is the slow part
+    X = states(A, b, np.zeros(STEPS), DT, x0=x0)
+    expected = np.stack([scipy.linalg.expm(A * DT * kk) @ x0 for kk in k])
+    assert rel_max_error(X[k], expected) <= RTOL[np.float64]
+    y = simulate(A, b, c, d, np.zeros(STEPS), DT, x0=x0)
+    assert rel_max_error(y[k], expected @ c) <= RTOL[np.float64]
+
+
+def test_superposition_of_free_and_forced_response():
+    A, b, c, d = _system(3, stable=False, salt=5)
+    u, x0 = _signal("prbs"), np.array([1.0, -0.5, 2.0])
+    both = simulate(A, b, c, d, u, DT, x0=x0)
+    parts = simulate(A, b, c, d, u, DT) + simulate(A, b, c, d, np.zeros(STEPS), DT, x0=x0)
+    assert rel_max_error(both, parts) < 1e-12
+
+
+@pytest.mark.parametrize("stable", [True, False], ids=["stable", "unstable"])
+def test_states_match_forced_response_states(stable):
+    A, b, c, d = _system(4, stable, salt=6)
+    u = _signal("random", seed=3)
+    response = _forced(A, b, c, d, u, DT)
+    X = states(A, b, u, DT)
+    assert X.shape == (STEPS, 4)
+    assert rel_max_error(X, response.states.T) <= RTOL[np.float64]
+    assert rel_max_error(X @ c + d * u, simulate(A, b, c, d, u, DT)) < 1e-12
+
+
+# ------------------------------------------------------------------------------------------------
+# Stationary value (Eq. 4)
+# ------------------------------------------------------------------------------------------------
+
+
+def test_stationary_value_ccf_closed_form_and_dcgain():
+    """CCF: G(0) = d + c_0 / a_0."""
+    a = np.array([[24.0, 2.2], [6.0, 5.0], [1.0, 0.3]])  # (a_0, a_1) per record
+    c = np.array([[1.0, 0.0], [2.0, -1.0], [0.5, 3.0]])
+    d = np.array([0.0, 0.7, -1.0])
+    A = np.zeros((3, 2, 2))
+    A[:, 0, 1], A[:, 1, :] = 1.0, -a
+    b = np.array([0.0, 1.0])
+    y_inf = stationary_value(A, b, c, d)
+    assert y_inf.shape == (3,)
+    np.testing.assert_allclose(y_inf, d + c[:, 0] / a[:, 0], rtol=1e-14)
+    for i in range(3):
+        sys = control.ss(A[i], b[:, None], c[i][None], [[d[i]]])
+        np.testing.assert_allclose(y_inf[i], control.dcgain(sys), rtol=1e-13)
+
+
+@pytest.mark.parametrize("n", ORDERS)
+def test_stationary_value_is_the_step_response_limit(n):
+    A, b, c, d = _system(n, stable=True, salt=7)
+    y_inf = stationary_value(A, b, c, d)
+    np.testing.assert_allclose(y_inf, control.dcgain(control.ss(A, b[:, None], c[None], d)))
+    # The slowest pole is >= 0.5 rad/s: after 60 s the step response has settled.
+    y = simulate(A, b, c, d, np.ones(6001), DT)
+    assert abs(y[-1] - y_inf) <= 1e-10 * max(1.0, abs(y_inf))
+
+
+# ------------------------------------------------------------------------------------------------
+# Normalisation (Eq. 15) and loss (Eq. 14)
+# ------------------------------------------------------------------------------------------------
+
+
+def test_record_scale_normalise_denormalise():
+    y = np.array([[0.0, 1.0, 4.0, 2.0], [0.0, -3.0, 1.0, -1.0]])
+    y_bar = record_scale(y)
+    np.testing.assert_array_equal(y_bar, [4.0, 3.0])
+    y_tilde = normalise(y, y_bar)
+    np.testing.assert_allclose(y_tilde, [[-1.0, -0.5, 1.0, 0.0], [-1.0, -3.0, -1 / 3, -5 / 3]])
+    assert y_tilde.min() >= -3.0 and y_tilde.max() <= 1.0  # the range of Eq. 15
+    np.testing.assert_allclose(denormalise(y_tilde, y_bar), y, atol=1e-15)
+    # Stationary values (batch,) with the records' scales, and torch in -> torch out.
+    yinf = torch.tensor([2.0, -1.5])
+    np.testing.assert_allclose(normalise(yinf, torch.as_tensor(y_bar)).numpy(), [0.0, -2.0])
+    assert record_scale(y[0]) == 4.0 and normalise(2.0, 4.0) == 0.0
+
+
+def test_loss_hand_computed():
+    """Eq. 14 by hand: record 1 SSE 0.25 + 0.5 * 1.0, record 2 SSE 1.0; m + 1 = 3."""
+    y_hat = torch.tensor([[0.0, 0.5], [1.0, 1.0]])
+    y = torch.tensor([[0.0, 1.0], [1.0, 0.0]])
+    yinf_hat, yinf = torch.tensor([1.0, 0.0]), torch.tensor([0.0, 0.0])
+    J = loss(y_hat, y, yinf_hat, yinf, gamma=0.5)
+    assert J.shape == () and J.dtype == torch.float32
+    np.testing.assert_allclose(J.item(), ((0.25 + 0.5) / 3 + 1.0 / 3) / 2, rtol=1e-7)
+    np.testing.assert_allclose(loss(y_hat, y).item(), (0.25 / 3 + 1.0 / 3) / 2, rtol=1e-7)
+    # One record, numpy in: float64 tensor out.
+    J1 = loss(np.array([0.0, 0.5]), np.array([0.0, 1.0]), 1.0, 0.0, gamma=0.5)
+    assert J1.dtype == torch.float64 and abs(J1.item() - 0.75 / 3) < 1e-15
+
+
+# ------------------------------------------------------------------------------------------------
+# Gradients (float64 gradcheck)
+# ------------------------------------------------------------------------------------------------
+
+
+def _small_batch(dtype=torch.float64):
+    A, b, c, d, u = _batch(count=2, n=2)
+    return [t.requires_grad_() for t in _torch(A, b, c, d, u[:, :6], dtype=dtype)]
+
+
+def test_gradcheck_simulate():
+    A, b, c, d, u = _small_batch()
+    x0 = torch.tensor([[0.2, -0.1], [0.0, 0.3]], dtype=torch.float64, requires_grad=True)
+    def f(A, b, c, d, u, x0):
+        return simulate(A, b, c, d, u, DT * 5, x0=x0)
+
+    assert torch.autograd.gradcheck(f, (A, b, c, d, u, x0))
+
+
+@pytest.mark.parametrize("method", ["fft", "scan", "loop"])
+def test_gradcheck_other_implementations(method):
+    A, b, c, d, u = _small_batch()
+    assert torch.autograd.gradcheck(lambda *a: METHODS[method](*a, DT * 5), (A, b, c, d, u))
+
+
+def test_gradcheck_discretise_states_stationary_value_loss():
+    A, b, c, d, u = _small_batch()
+
+    def disc(A, b):
+        out = discretise(A, b, DT * 5)
+        return out.Phi, out.gamma1, out.gamma2
+
+    assert torch.autograd.gradcheck(disc, (A, b))
+    assert torch.autograd.gradcheck(lambda A, b, u: states(A, b, u, DT * 5), (A, b, u))
+    assert torch.autograd.gradcheck(stationary_value, (A, b, c, d))
+    y_hat, y = u[:, :3], u[:, 3:].detach().clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda *a: loss(*a, gamma=0.3), (y_hat, y, d, c[:, 0]))
+    assert torch.autograd.gradcheck(normalise, (y_hat, d.detach().abs().requires_grad_()))
+
+
+def test_float32_gradients_are_finite():
+    A, b, c, d, u = _small_batch(torch.float32)
+    simulate(A, b, c, d, u, DT).square().sum().backward()
+    for t in (A, b, c, d, u):
+        assert t.grad.dtype == torch.float32 and bool(torch.isfinite(t.grad).all())
+
+
+def test_public_namespace():
+    assert ae.simulate is simulate and ae.discretise is discretise
+
+
+# ------------------------------------------------------------------------------------------------
+# Input validation: every ValueError, pinned by its message
+# ------------------------------------------------------------------------------------------------
+
+_A, _b, _c, _d = np.array([[0.0, 1.0], [-4.0, -1.0]]), np.array([0.0, 1.0]), np.ones(2), 0.0
+_u = np.ones(20)
+_NAN_U = np.ones((2, 20))
+_NAN_U[0, 12] = np.nan
+_INF_A = np.stack([_A, _A])
+_INF_A[1, 1, 0] = np.inf
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"A": np.zeros((3, 2, 4))}, r"A must be square with shape \(batch, n, n\) or \(n, n\); "
+                                     r"got \(3, 2, 4\)"),
+        ({"A": np.zeros(3)}, r"A must be square .*; got \(3,\)"),
+        ({"b": np.ones(3)}, r"b must have shape \(batch, n\) or \(n,\) with n = 2 from A; "
+                            r"got \(3,\)"),
+        ({"c": np.ones((2, 2, 2))}, r"c must have shape \(batch, n\) .*got \(2, 2, 2\)"),
+        ({"d": np.ones((2, 1))}, r"d must be a scalar or have shape \(batch,\); got \(2, 1\)"),
+        ({"u": np.ones((1, 2, 3))}, r"u must have shape \(batch, steps\) or \(steps,\) with "
+                                    r"steps >= 1; got \(1, 2, 3\)"),
+        ({"u": np.ones(0)}, r"u must have shape .*got \(0,\)"),
+        ({"x0": np.ones(3)}, r"x0 must have shape \(batch, n\) or \(n,\) with n = 2 from A"),
+        ({"A": np.stack([_A] * 4), "u": np.ones((3, 20))},
+         r"batch sizes disagree: A has 4, u has 3 \(batched arguments must share one batch "
+         r"size, or have 1\)"),
+        ({"dt": -0.01}, r"dt must be a positive finite number; got -0.01"),
+        ({"dt": 0}, r"dt must be a positive finite number; got 0"),
+        ({"dt": float("nan")}, r"dt must be a positive finite number; got nan"),
+        ({"dt": float("inf")}, r"dt must be a positive finite number; got inf"),
+        ({"dt": "0.01"}, r"dt must be a positive finite number; got '0.01'"),
+        ({"dt": None}, r"dt must be a positive finite number; got None"),
+        ({"u": _NAN_U}, r"u must be finite; got nan at record 0, sample 12"),
+        ({"A": _INF_A}, r"A must be finite; got inf at record 1, row 1, column 0"),
+        ({"d": float("nan")}, r"d must be finite; got nan$"),
+        ({"x0": np.array([0.0, np.inf])}, r"x0 must be finite; got inf at entry 1"),
+        ({"b": np.array([1j, 0])}, r"b must be a real array; got dtype complex128"),
+        ({"c": ["a", "b"]}, r"c must be a real array; got dtype <U1"),
+        ({"b": torch.ones(2, dtype=torch.float16)},
+         r"tensors must be float32 or float64; got torch.float16"),
+        ({"b": torch.ones(2, dtype=torch.complex64)}, r"b must be real; got torch.complex64"),
+        ({"b": [[1.0, 2.0], [3.0]]}, r"b must be a real array; got list"),
+        ({"c": torch.ones(2), "d": torch.zeros((), device="meta")},
+         r"all tensors must be on one device; got cpu, meta"),
+    ],
+)
+def test_simulate_rejects(kwargs, match):
+    args = {"A": _A, "b": _b, "c": _c, "d": _d, "u": _u, "dt": DT, "x0": None} | kwargs
+    with pytest.raises(ValueError, match=match):
+        simulate(**args)
+
+
+def test_states_and_discretise_reject():
+    with pytest.raises(ValueError, match=r"A must be square"):
+        discretise(np.ones((2, 3)), _b, DT)
+    with pytest.raises(ValueError, match=r"dt must be a positive finite number; got -1"):
+        discretise(_A, _b, -1)
+    with pytest.raises(ValueError, match=r"u must be finite; got nan at sample 3"):
+        states(_A, _b, np.array([0.0, 1.0, 2.0, np.nan]), DT)
+
+
+def test_stationary_value_rejects_singular_A():
+    with pytest.raises(ValueError, match=r"A must be invertible \(record 1 of 2\): Eq. 4 has no "
+                                         r"finite stationary value for a pole at s = 0"):
+        stationary_value(np.stack([_A, np.array([[0.0, 1.0], [0.0, 0.0]])]), _b, _c, _d)
+    with pytest.raises(ValueError, match=r"A must be invertible: Eq. 4"):
+        stationary_value(np.zeros((2, 2)), _b, _c, _d)
+    with pytest.raises(ValueError, match=r"c must have shape"):
+        stationary_value(_A, _b, np.ones(3), _d)
+
+
+def test_record_scale_rejects():
+    y = np.ones((8, 5))
+    y[3] = 0.0
+    with pytest.raises(ValueError, match=r"y must not be all zero \(record 3 of 8\): the "
+                                         r"normalisation y_tilde = 2 y / max\|y\| - 1 \(Eq. 15\) "
+                                         r"needs max\|y\| > 0"):
+        record_scale(y)
+    with pytest.raises(ValueError, match=r"y must not be all zero: the normalisation"):
+        record_scale(torch.zeros(5))
+    with pytest.raises(ValueError, match=r"y must have shape \(batch, steps\) or \(steps,\) with "
+                                         r"steps >= 1; got \(1, 2, 3\)"):
+        record_scale(np.ones((1, 2, 3)))
+    with pytest.raises(ValueError, match=r"y must be finite; got inf at record 1, sample 0"):
+        record_scale(np.array([[1.0, 2.0], [np.inf, 0.0]]))
+
+
+@pytest.mark.parametrize(
+    ("y", "y_bar", "match"),
+    [
+        (np.ones((2, 3)), np.ones(3), r"y_bar must be a scalar or have shape \(2,\) to match y "
+                                      r"\(2, 3\); got \(3,\)"),
+        (np.ones((2, 3)), np.ones((2, 1)), r"y_bar must be a scalar or have shape \(batch,\); "
+                                           r"got \(2, 1\)"),
+        (np.ones((2, 3, 1)), 1.0, r"y must have shape \(batch, steps\), \(batch,\) or "
+                                  r"\(steps,\); got \(2, 3, 1\)"),
+        (np.ones((2, 3)), np.array([1.0, 0.0]), r"y_bar must be positive; got 0.0"),
+        (np.ones((2, 3)), np.array([1.0, np.nan]), r"y_bar must be finite; got nan at record 1"),
+    ],
+)
+def test_normalise_rejects(y, y_bar, match):
+    with pytest.raises(ValueError, match=match):
+        normalise(y, y_bar)
+
+
+def test_denormalise_rejects():
+    with pytest.raises(ValueError, match=r"y_tilde must be finite; got nan at sample 1"):
+        denormalise(np.array([0.0, np.nan]), 1.0)
+
+
+@pytest.mark.parametrize(
+    ("args", "kwargs", "match"),
+    [
+        ((np.ones((2, 3)), np.ones((2, 4))), {}, r"y_hat must have the shape of y \(2, 4\); "
+                                                 r"got \(2, 3\)"),
+        ((np.ones(3), np.ones(3)), {"gamma": -1.0},
+         r"gamma must be a finite number >= 0; got -1.0"),
+        ((np.ones(3), np.ones(3)), {"gamma": float("nan")}, r"gamma must be a finite number"),
+        ((np.ones(3), np.ones(3)), {"gamma": 0.5}, r"gamma = 0.5 weights the stationary values: "
+                                                   r"give yinf_hat and yinf"),
+        ((np.ones(3), np.ones(3), 1.0), {}, r"yinf_hat and yinf must be given together"),
+        ((np.ones((2, 3)), np.ones((2, 3)), np.ones(3), np.ones(3)), {"gamma": 1.0},
+         r"yinf_hat must have shape \(batch,\) with batch = 2 from y; got \(3,\)"),
+        ((np.ones(3), np.array([0.0, np.nan, 0.0])), {}, r"y must be finite; got nan at sample 1"),
+        ((np.array([np.inf, 0.0, 0.0]), np.ones(3)), {}, r"y_hat must be finite; got inf"),
+        ((np.ones(3), np.ones(3), 0.0, np.nan), {}, r"yinf must be finite; got nan"),
+        ((np.ones(3), np.ones(3)), {"gamma": "1"}, r"gamma must be a finite number >= 0; got '1'"),
+    ],
+)
+def test_loss_rejects(args, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        loss(*args, **kwargs)
+
+
+def test_tensors_on_one_device_and_core_skips_checks():
+    # The private core runs without validation (for training loops): a nan passes through.
+    A, b, c, d, u = (t[None] for t in _torch(_A, _b, _c, _d, _u))
+    u[0, 3] = float("nan")
+    assert bool(torch.isnan(decoder._simulate(A, b, c, d, u, DT)).any())
+
+
+# ------------------------------------------------------------------------------------------------
+# The decoder benchmark (aeid_struct.bench, decoder part): a smoke test, tiny sizes
+# ------------------------------------------------------------------------------------------------
+
+
+def test_bench_decoder_smoke():
+    from aeid_struct.bench import DecoderTiming, bench_decoder, format_decoder_table
+
+    threads = torch.get_num_threads()
+    rows = bench_decoder(batch=4, steps=(5, 9), dtype=torch.float64, repeats=1, threads=1)
+    assert torch.get_num_threads() == threads  # restored
+    assert [r.steps for r in rows] == [5, 9] and all(isinstance(r, DecoderTiming) for r in rows)
+    r = rows[0]
+    assert r.dtype == "float64" and r.batch == 4
+    assert min(r.default_ms, r.fft_ms, r.scan_ms, r.loop_ms) > 0
+    assert r.speedup == pytest.approx(r.loop_ms / r.default_ms)
+    table = format_decoder_table(rows).splitlines()
+    assert len(table) == 4 and table[0].startswith("| batch | steps | dtype | default")
+    with pytest.raises(ValueError, match=r"steps must be a non-empty sequence of integers >= 2"):
+        bench_decoder(steps=(1,))
+    with pytest.raises(ValueError, match=r"dtype must be torch.float32 or torch.float64"):
+        bench_decoder(dtype=torch.float16)
+    with pytest.raises(ValueError, match=r"batch must be an integer >= 1; got 0"):
+        bench_decoder(batch=0)
