@@ -1,0 +1,158 @@
+"""The residual 1-D-convolutional encoder of paper Sec. III-A.
+
+The paper's network: three sequential 1-D convolution layers, a fourth convolution that shortcuts
+them, the two outputs concatenated and fed to dense layers (paper default: eight convolution
+neurons, two dense layers of ten). Each convolution neuron computes Eq. 8 followed by an
+activation, each dense neuron Eq. 7.
+
+Choices the paper leaves open, and ours:
+
+- **Input channels.** Channel 0 is the normalised output record ``y_tilde`` (Eq. 15). With
+  ``inputs=True`` the normalised input record is channel 1, so the encoder can read arbitrary
+  excitations, not only a unit step.
+- **Scalar features.** ``features`` extra scalars (e.g. ``log max|y|``, the scale that Eq. 15
+  removes) are appended to the flattened convolution features before the dense layers. A
+  canonical structure does not need them (``c`` and ``d`` are de-normalised exactly), a physical
+  one does: the static gain of the leg is ``1/k``.
+- **Pooling.** ``pool > 1`` average-pools the record before the convolutions. The leg's step
+  responses are smooth, so this loses little and divides the convolution cost by ``pool``.
+- **Padding.** "same" padding keeps the time axis, so the flattened features keep the position of
+  each pattern in time, which the dense layers need to read time constants off the record.
+- **Activation.** ``tanh`` by default: smooth, bounded, and it gave lower step errors than ReLU in
+  our training runs for these small networks (ReLU is available).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+_ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU, "silu": nn.SiLU}
+
+
+@dataclass(frozen=True, kw_only=True)
+class EncoderConfig:
+    """Shape of the encoder; validates itself.
+
+    Attributes:
+        steps: samples per record (the time axis the network is built for); 0 = unset, filled
+            in by ``train()`` from the record format.
+        outputs: raw structure parameters produced, ``p`` of the structure; 0 = unset, filled
+            in by ``train()``.
+        inputs: read the input record as a second channel.
+        features: extra scalar features appended before the dense layers.
+        width: neurons (channels) of each convolution layer (paper: 8).
+        kernel: convolution kernel size (odd, so "same" padding is symmetric).
+        depth: sequential convolution layers on the main path (paper: 3).
+        dense: widths of the hidden dense layers (paper: (10, 10)).
+        pool: average-pooling factor applied to the record first (1 = none).
+        activation: one of "tanh", "relu", "gelu", "silu".
+    """
+
+    steps: int = 0
+    outputs: int = 0
+    inputs: bool = False
+    features: int = 0
+    width: int = 8
+    kernel: int = 5
+    depth: int = 3
+    dense: tuple[int, ...] = (10, 10)
+    pool: int = 1
+    activation: str = "tanh"
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "outputs"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise ValueError(f"{name} must be a non-negative integer; got {value!r}")
+        for name in ("width", "kernel", "depth", "pool"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be a positive integer; got {value!r}")
+        if not isinstance(self.features, int) or self.features < 0:
+            raise ValueError(f"features must be a non-negative integer; got {self.features!r}")
+        if self.kernel % 2 == 0:
+            raise ValueError(f"kernel must be odd (symmetric 'same' padding); got {self.kernel}")
+        if self.steps and self.pool > self.steps:
+            raise ValueError(f"pool must be <= steps ({self.steps}); got {self.pool}")
+        dense = tuple(self.dense)
+        if not all(isinstance(w, int) and w >= 1 for w in dense):
+            raise ValueError(f"dense must be a tuple of positive integers; got {self.dense!r}")
+        object.__setattr__(self, "dense", dense)
+        if self.activation not in _ACTIVATIONS:
+            raise ValueError(
+                f"activation must be one of {sorted(_ACTIVATIONS)}; got {self.activation!r}"
+            )
+
+    @property
+    def channels(self) -> int:
+        """Input channels: the output record, and the input record when ``inputs``."""
+        return 2 if self.inputs else 1
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable form (``EncoderConfig(**d)`` rebuilds it)."""
+        d = asdict(self)
+        d["dense"] = list(self.dense)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> EncoderConfig:
+        d = dict(d)
+        d["dense"] = tuple(d.get("dense", (10, 10)))
+        return cls(**d)
+
+
+class Encoder(nn.Module):
+    """Residual 1-D CNN: records ``(batch, channels, steps)`` -> raw parameters ``(batch, p)``.
+
+    Main path: ``depth`` convolutions (Eq. 8 + activation); shortcut: one convolution from the
+    input; both concatenated along channels, flattened, optionally joined by scalar features,
+    then the dense layers (Eq. 7) and a linear output layer.
+    """
+
+    def __init__(self, config: EncoderConfig):
+        super().__init__()
+        if config.steps < 1 or config.outputs < 1:
+            raise ValueError(
+                "config.steps and config.outputs must be set (>= 1) to build an Encoder; "
+                f"got steps={config.steps}, outputs={config.outputs}"
+            )
+        self.config = config
+        act = _ACTIVATIONS[config.activation]
+        pad = config.kernel // 2
+        self.pool = nn.AvgPool1d(config.pool) if config.pool > 1 else nn.Identity()
+        layers: list[nn.Module] = []
+        channels = config.channels
+        for _ in range(config.depth):
+            layers += [nn.Conv1d(channels, config.width, config.kernel, padding=pad), act()]
+            channels = config.width
+        self.main = nn.Sequential(*layers)
+        self.shortcut = nn.Sequential(
+            nn.Conv1d(config.channels, config.width, config.kernel, padding=pad), act()
+        )
+        length = config.steps // config.pool
+        head: list[nn.Module] = []
+        width = 2 * config.width * length + config.features
+        for hidden in config.dense:
+            head += [nn.Linear(width, hidden), act()]
+            width = hidden
+        head.append(nn.Linear(width, config.outputs))
+        self.head = nn.Sequential(*head)
+
+    def forward(self, records: torch.Tensor, features: torch.Tensor | None = None) -> torch.Tensor:
+        """Map records to raw structure parameters.
+
+        Args:
+            records: ``(batch, channels, steps)``, normalised (Eq. 15).
+            features: ``(batch, features)`` scalar features, or None when ``features == 0``.
+
+        Returns:
+            ``(batch, outputs)`` raw parameters ``theta`` for the structure.
+        """
+        x = self.pool(records)
+        z = torch.cat([self.main(x), self.shortcut(x)], dim=1).flatten(1)
+        if self.config.features:
+            z = torch.cat([z, features], dim=1)
+        return self.head(z)

@@ -1,0 +1,487 @@
+"""Identifier = encoder + structure + normalisation; one forward pass identifies a system.
+
+The scale question the paper leaves open (Eq. 15 removes ``y_bar = max|y|`` before the encoder
+sees the record), and how we settle it:
+
+- The encoder reads ``y_tilde = 2 y / y_bar - 1`` (Eq. 15) and, for identifiers trained on
+  arbitrary excitation, ``u / u_bar`` with ``u_bar = max|u|``.
+- ``scale="denormalise"`` (canonical structures): the structure's output describes the
+  *normalised* system ``u / u_bar -> y / y_bar``. By linearity the measured system is the same
+  ``A, b`` with ``c = c' * y_bar / u_bar`` and ``d = d' * y_bar / u_bar``: exact, no information
+  lost, and the encoder never has to learn magnitudes.
+- ``scale="feature"`` (physical structures, or fixed non-zero ``c``/``d`` elements, where ``c``
+  cannot be rescaled freely): the structure describes the measured system itself, and the
+  encoder receives ``log(y_bar / u_bar)`` (standardised) as an extra scalar feature, because the
+  magnitude carries information (the stable leg's static gain is ``1/k``).
+
+Either way the decoded response is normalised with the *measured* ``y_bar`` before it is
+compared with the record (Eq. 14-15), as the paper prescribes.
+
+The raw encoder output is mapped affinely, ``theta = theta_mean + theta_scale * net(...)``, with
+statistics of the training family's raw parameters, so that the network works in O(1) units
+whatever the physical magnitudes; the structure then imposes its constraints.
+
+Files (``.aeid``) are safetensors: tensors plus a JSON header. Loading parses JSON and raw
+tensors only -- no pickle, so a model file never executes code.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .encoder import Encoder, EncoderConfig
+from .structures import Structure, System
+
+FORMAT = "aeid-struct/identifier/1"
+SCALE_MODES = ("denormalise", "feature")
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """An identified continuous-time model (batched or single).
+
+    Attributes:
+        A: ``(batch, n, n)`` or ``(n, n)``; b, c: ``(batch, n)`` or ``(n,)``; d: ``(batch,)`` or
+            scalar -- float64 numpy.
+        elements: the structure's named elements (e.g. ``a0``, ``c1``, ``k``), each ``(batch,)``.
+        y, u: the records the estimate was made from, ``(batch, steps)`` or ``(steps,)``.
+        dt: sample time.
+        seconds: wall time of the identification.
+        refined: whether a CasADi refinement polished the estimate.
+        info: extra diagnostics (refinement iterations, loss, ...).
+
+    ``fit``, ``y_hat`` and ``physical`` are computed on first access, so that a plain
+    identification costs one encoder pass.
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    elements: dict[str, np.ndarray]
+    y: np.ndarray
+    u: np.ndarray
+    dt: float
+    seconds: float = 0.0
+    refined: bool = False
+    info: dict = field(default_factory=dict)
+    _inverse: object = field(default=None, repr=False)
+
+    @property
+    def batched(self) -> bool:
+        return self.A.ndim == 3
+
+    @cached_property
+    def y_hat(self) -> np.ndarray:
+        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
+        from .decoder import simulate
+
+        return simulate(self.A, self.b, self.c, self.d, self.u, self.dt)
+
+    @cached_property
+    def fit(self):
+        """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record."""
+        from .metrics import nrmse_fit
+
+        fit = nrmse_fit(self.y, self.y_hat)
+        return fit if self.batched else float(fit[0])
+
+    @cached_property
+    def physical(self) -> dict[str, np.ndarray]:
+        """Physical parameters by name, where the identifier has a physical map or inverse.
+
+        From a ``Physical`` structure they are the elements themselves; for a canonical structure
+        with a CasADi inverse map (e.g. the leg's CCF -> k, d, m) they are that map's outputs.
+        Empty otherwise.
+        """
+        inverse = self._inverse
+        if inverse is None:
+            return {}
+        if isinstance(inverse, tuple) and inverse[0] == "elements":
+            return {name: self.elements[name] for name in inverse[1]}
+        A = np.asarray(self.A, dtype=np.float64)
+        A = A[None] if A.ndim == 2 else A
+        count, n = A.shape[0], A.shape[-1]
+        b = np.asarray(self.b, dtype=np.float64).reshape(count, n)
+        c = np.asarray(self.c, dtype=np.float64).reshape(count, n)
+        d = np.asarray(self.d, dtype=np.float64).reshape(count)
+        f = inverse.map(count)
+        out = f(
+            A=np.concatenate(list(A), axis=1),
+            B=b.T,
+            C=c.reshape(1, count * n),
+            D=d.reshape(1, count),
+        )
+        result = {name: np.array(out[name]).reshape(count) for name in inverse.name_out()}
+        if not self.batched:
+            result = {k: float(v[0]) for k, v in result.items()}
+        return result
+
+    def to_control(self):
+        """``control.StateSpace`` (a list for a batch)."""
+        import control
+
+        def one(A, b, c, d):
+            n = A.shape[0]
+            return control.ss(A, b.reshape(n, 1), c.reshape(1, n), np.reshape(d, (1, 1)))
+
+        if not self.batched:
+            return one(self.A, self.b, self.c, self.d)
+        return [one(*m) for m in zip(self.A, self.b, self.c, self.d, strict=True)]
+
+
+def _as_records(name: str, value, steps: int, dt: float) -> tuple[np.ndarray, bool]:
+    """Validate a record argument: ``(steps,)`` or ``(batch, steps)`` finite numbers."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of numbers; got {type(value).__name__}") \
+            from None
+    batched = arr.ndim == 2
+    if arr.ndim not in (1, 2) or arr.shape[-1] != steps:
+        raise ValueError(
+            f"{name} must have shape ({steps},) or (batch, {steps}) for this identifier "
+            f"(dt={dt}, steps={steps}); got {arr.shape}"
+        )
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(np.atleast_2d(arr)))[0]
+        raise ValueError(f"{name} must be finite; got {np.atleast_2d(arr)[tuple(bad)]} at "
+                         f"record {bad[0]}, sample {bad[1]}")
+    return np.atleast_2d(arr), batched
+
+
+class Identifier:
+    """A trained encoder with its structure, record format and normalisation.
+
+    Args:
+        encoder: the network (its config fixes ``steps`` and the input channels).
+        structure: maps raw parameters to ``(A, b, c, d)`` with its constraints.
+        dt: sample time the identifier was trained for.
+        theta_mean, theta_scale: ``(p,)`` affine map of the network output to raw parameters.
+        scale: ``"denormalise"`` or ``"feature"`` (see the module docstring).
+        feature_mean, feature_scale: standardisation of ``log(y_bar/u_bar)`` (``"feature"``).
+        inverse: optional casadi.Function from the CCF model to physical parameters.
+        meta: provenance (training command, seed, metrics), stored in the file.
+    """
+
+    def __init__(self, encoder: Encoder, structure: Structure, *, dt: float,
+                 theta_mean: torch.Tensor, theta_scale: torch.Tensor,
+                 scale: str = "denormalise", feature_mean: float = 0.0,
+                 feature_scale: float = 1.0, inverse=None, meta: dict | None = None):
+        if scale not in SCALE_MODES:
+            raise ValueError(f"scale must be one of {SCALE_MODES}; got {scale!r}")
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a positive finite number; got {dt!r}")
+        if encoder.config.outputs != structure.p:
+            raise ValueError(
+                f"encoder.config.outputs must equal structure.p = {structure.p}; "
+                f"got {encoder.config.outputs}"
+            )
+        if scale == "feature" and encoder.config.features != 1:
+            raise ValueError("scale='feature' needs an encoder with features=1; "
+                             f"got features={encoder.config.features}")
+        self.encoder = encoder
+        self.structure = structure
+        self.dt = float(dt)
+        self.theta_mean = torch.as_tensor(theta_mean, dtype=torch.float32).reshape(-1)
+        self.theta_scale = torch.as_tensor(theta_scale, dtype=torch.float32).reshape(-1)
+        if self.theta_mean.shape != (structure.p,) or self.theta_scale.shape != (structure.p,):
+            raise ValueError(f"theta_mean and theta_scale must have shape ({structure.p},); "
+                             f"got {tuple(self.theta_mean.shape)}, "
+                             f"{tuple(self.theta_scale.shape)}")
+        self.scale = scale
+        self.feature_mean = float(feature_mean)
+        self.feature_scale = float(feature_scale)
+        self.inverse = inverse
+        self.meta = dict(meta or {})
+        self._trace = None
+        self._params = list(encoder.parameters())   # cached: walking the modules costs ~0.5 ms
+        self._unit_step = torch.ones(1, encoder.config.steps)
+
+    # -- the record format ---------------------------------------------------------------------
+    @property
+    def steps(self) -> int:
+        return self.encoder.config.steps
+
+    @property
+    def inputs(self) -> bool:
+        """Whether the encoder reads the input record (arbitrary excitation)."""
+        return self.encoder.config.inputs
+
+    def time(self) -> np.ndarray:
+        """Sample instants ``t_k = k*dt``, ``(steps,)``."""
+        return np.arange(self.steps) * self.dt
+
+    def __repr__(self) -> str:
+        return (f"Identifier({self.structure!r}, dt={self.dt}, steps={self.steps}, "
+                f"inputs={self.inputs}, scale={self.scale!r})")
+
+    # -- the differentiable path (training uses it) --------------------------------------------
+    def system(self, y: torch.Tensor, u: torch.Tensor) -> System:
+        """Encode records into the identified system, in measured units.
+
+        Args:
+            y, u: ``(batch, steps)`` tensors (checked by the caller).
+
+        Returns:
+            ``System`` with ``A (batch, n, n)``, ``b, c (batch, n)``, ``d (batch,)``.
+        """
+        return self._forward(y, u)[0]
+
+    def _forward(self, y: torch.Tensor, u: torch.Tensor) -> tuple[System, torch.Tensor]:
+        """``(System, elements (batch, q))`` of the records, both in measured units."""
+        y_bar = y.abs().amax(dim=1)
+        u_bar = u.abs().amax(dim=1)
+        channels = [2.0 * y / y_bar[:, None] - 1.0]           # Eq. 15
+        if self.inputs:
+            channels.append(u / u_bar[:, None])
+        x = torch.stack(channels, dim=1)
+        features = None
+        gain = y_bar / u_bar
+        if self.scale == "feature":
+            features = ((torch.log(gain) - self.feature_mean) / self.feature_scale)[:, None]
+        raw = self.encoder(x, features)
+        theta = self.theta_mean.to(raw.dtype) + self.theta_scale.to(raw.dtype) * raw
+        elements = self.structure.elements(theta)
+        sys = self.structure.assemble(elements)
+        if self.scale == "denormalise":
+            # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
+            sys = System(sys.A, sys.b, sys.c * gain[:, None].to(sys.c.dtype),
+                         sys.d * gain.to(sys.d.dtype))
+            mask = self._output_mask.to(elements.dtype)
+            elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
+        return sys, elements
+
+    def _fast(self):
+        """The batch-1 inference path as a frozen TorchScript trace, or None.
+
+        Why: a single record costs ~15 small tensor operations, and at batch 1 eager PyTorch
+        spends far more time dispatching them (~10 us each) than computing; the frozen trace
+        runs the same operations with a fraction of the overhead. It is rebuilt when the
+        weights change (parameter version counters), compared with the eager path when it is
+        built, and skipped (None) where a structure cannot be traced (CasADi maps).
+        """
+        from .structures import Physical
+
+        if isinstance(self.structure, Physical):
+            return None
+        version = tuple(p._version for p in self._params)
+        if self._trace is not None and self._trace[0] == version:
+            return self._trace[1]
+        import warnings
+
+        class _Pipeline(torch.nn.Module):
+            def __init__(inner, ident):
+                super().__init__()
+                inner.encoder = ident.encoder
+                inner.ident = ident
+
+            def forward(inner, y, u):
+                sys, el = inner.ident._forward(y, u)
+                return sys.A, sys.b, sys.c, sys.d, el
+
+        g = torch.Generator().manual_seed(0)
+        y = torch.cumsum(torch.rand(1, self.steps, generator=g), dim=1)
+        u = torch.ones(1, self.steps)
+        was_training = self.encoder.training
+        self.encoder.eval()
+        try:
+            with warnings.catch_warnings(), torch.no_grad():
+                warnings.simplefilter("ignore")
+                traced = torch.jit.freeze(torch.jit.trace(_Pipeline(self).eval(), (y, u),
+                                                          check_trace=False))
+                eager = self._forward(y, u)
+                fast = traced(y, u)
+            ref = [eager[0].A, eager[0].b, eager[0].c, eager[0].d, eager[1]]
+            ok = all(torch.allclose(a, b, rtol=1e-5, atol=1e-6) for a, b in zip(ref, fast,
+                                                                               strict=True))
+        except Exception:  # any tracing failure: fall back to the eager path
+            traced, ok = None, False
+        finally:
+            self.encoder.train(was_training)
+        self._trace = (version, traced if ok else None)
+        return self._trace[1]
+
+    @property
+    def _output_mask(self) -> torch.Tensor:
+        """1 for the elements that scale with the output (c_i, d), 0 elsewhere."""
+        names = self.structure.element_names
+        return torch.tensor([[1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
+                              for k in names]])
+
+    # -- public identification -----------------------------------------------------------------
+    def identify(self, y, u=None, *, refine: bool = False) -> Estimate:
+        """Identify the system behind a record in one encoder pass.
+
+        Args:
+            y: measured output, ``(steps,)`` or ``(batch, steps)``, sampled at ``t_k = k*dt``
+                from rest (zero initial state).
+            u: input, same shape (or ``(steps,)`` for a whole batch); ``None`` means a unit
+                step, which is what step-trained identifiers expect.
+            refine: polish the estimate with a CasADi NLP in the same structure (refine.py).
+
+        Returns:
+            An ``Estimate``; batched when ``y`` is.
+        """
+        start = time.perf_counter()
+        y2, batched = _as_records("y", y, self.steps, self.dt)
+        count = y2.shape[0]
+        zero_y = ~np.any(y2 != 0, axis=1)
+        if zero_y.any():
+            raise ValueError(
+                f"y must not be all zero (record {int(np.argmax(zero_y))} of {count}): "
+                "the normalisation y_tilde = 2 y / max|y| - 1 (Eq. 15) needs max|y| > 0"
+            )
+        if u is None:
+            u2 = None
+            ut = self._unit_step.expand(count, self.steps)
+        else:
+            u2, _ = _as_records("u", u, self.steps, self.dt)
+            if u2.shape[0] == 1 and count > 1:
+                u2 = np.broadcast_to(u2, y2.shape)
+            if u2.shape[0] != count:
+                raise ValueError(f"u must have {count} records like y; got {u2.shape[0]}")
+            zero_u = ~np.any(u2 != 0, axis=1)
+            if zero_u.any():
+                raise ValueError(f"u must not be all zero (record {int(np.argmax(zero_u))}): "
+                                 "a system at rest with zero input reveals nothing")
+            ut = torch.from_numpy(np.ascontiguousarray(u2, dtype=np.float32))
+        yt = torch.from_numpy(y2.astype(np.float32))
+        fast = self._fast() if count == 1 else None
+        # Small batches are dominated by per-operation overhead, which a second thread only
+        # adds to (thread wake-ups); large ones gain from both cores.
+        threads = torch.get_num_threads()
+        if count <= 16 and threads > 1:
+            torch.set_num_threads(1)
+        try:
+            with torch.no_grad():
+                if fast is not None:
+                    A, b, c, d, el = (t.numpy().astype(np.float64) for t in fast(yt, ut))
+                else:
+                    # Chunks of 1024 records keep the activations in cache: measured, batches
+                    # of 16k in one pass ran at half the throughput of chunks of 1k.
+                    parts = []
+                    for i in range(0, count, 1024):
+                        sys, el = self._forward(yt[i: i + 1024], ut[i: i + 1024])
+                        parts.append((sys.A, sys.b, sys.c, sys.d, el))
+                    A, b, c, d, el = (torch.cat(t).numpy().astype(np.float64)
+                                      for t in zip(*parts, strict=True))
+        finally:
+            if torch.get_num_threads() != threads:
+                torch.set_num_threads(threads)
+        if u2 is None:
+            u2 = np.ones_like(y2)
+        elements = {name: el[:, i] for i, name in enumerate(self.structure.element_names)}
+        seconds = time.perf_counter() - start
+        est = Estimate(
+            A if batched else A[0], b if batched else b[0], c if batched else c[0],
+            d if batched else float(d[0]),
+            elements if batched else {k: float(v[0]) for k, v in elements.items()},
+            y2 if batched else y2[0], np.asarray(u2) if batched else np.asarray(u2)[0],
+            self.dt, seconds, False, {}, self._physical_source(),
+        )
+        if refine:
+            from .refine import refine as _refine
+
+            est = _refine(est, est.y, est.u, self.dt, structure=self.structure)
+        return est
+
+    def _physical_source(self):
+        from .structures import Physical
+
+        if isinstance(self.structure, Physical):
+            return ("elements", tuple(self.structure.element_names))
+        return self.inverse
+
+    # -- files ---------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """The JSON header: everything but the weights."""
+        return {
+            "format": FORMAT,
+            "encoder": self.encoder.config.to_dict(),
+            "structure": self.structure.config(),
+            "dt": self.dt,
+            "scale": self.scale,
+            "feature_mean": self.feature_mean,
+            "feature_scale": self.feature_scale,
+            "inverse": None if self.inverse is None else self.inverse.serialize(),
+            "meta": self.meta,
+        }
+
+    def save(self, path) -> Path:
+        """Write the identifier to ``path`` (safetensors: weights + JSON header)."""
+        from safetensors.torch import save_file
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tensors = {f"encoder.{k}": v.detach().contiguous()
+                   for k, v in self.encoder.state_dict().items()}
+        tensors["theta_mean"] = self.theta_mean.contiguous()
+        tensors["theta_scale"] = self.theta_scale.contiguous()
+        save_file(tensors, str(path), metadata={"aeid": json.dumps(self.to_dict())})
+        return path
+
+    @classmethod
+    def load(cls, path) -> Identifier:
+        """Read an identifier written by ``save``. Parses JSON and raw tensors only."""
+        from safetensors import safe_open
+
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"path must be an existing identifier file; got {str(path)!r}")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                header = json.loads((f.metadata() or {}).get("aeid", "null"))
+                tensors = {k: f.get_tensor(k) for k in f.keys()}
+        except Exception as err:  # safetensors raises its own error types
+            raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file "
+                             f"(safetensors + JSON header): {err}") from None
+        if not isinstance(header, dict) or header.get("format") != FORMAT:
+            raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file: "
+                             f"its header format is not {FORMAT!r}")
+        return cls._from_parts(header, tensors)
+
+    @classmethod
+    def _from_parts(cls, header: dict, tensors: dict) -> Identifier:
+        import casadi
+
+        encoder = Encoder(EncoderConfig.from_dict(header["encoder"]))
+        state = {k[len("encoder."):]: v for k, v in tensors.items() if k.startswith("encoder.")}
+        encoder.load_state_dict(state)
+        encoder.eval()
+        inverse = header.get("inverse")
+        return cls(
+            encoder,
+            Structure.from_config(header["structure"]),
+            dt=header["dt"],
+            theta_mean=tensors["theta_mean"],
+            theta_scale=tensors["theta_scale"],
+            scale=header["scale"],
+            feature_mean=header["feature_mean"],
+            feature_scale=header["feature_scale"],
+            inverse=None if inverse is None else casadi.Function.deserialize(inverse),
+            meta=header.get("meta", {}),
+        )
+
+
+PRETRAINED = ("leg-stable", "leg-unstable")
+
+
+def load_pretrained(name: str) -> Identifier:
+    """An identifier shipped in the package: ``"leg-stable"`` or ``"leg-unstable"``."""
+    from importlib.resources import files
+
+    root = files("aeid_struct.pretrained")
+    available = sorted(p.name[: -len(".aeid")] for p in root.iterdir()
+                       if p.name.endswith(".aeid"))
+    if name not in available:
+        raise ValueError(f"name must be one of {available}; got {name!r}")
+    return Identifier.load(root / f"{name}.aeid")

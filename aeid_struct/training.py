@@ -1,0 +1,378 @@
+"""Unsupervised training of an identifier (paper Sec. III): encoder -> structure -> decoder.
+
+The loss is Eq. 14 on records normalised by Eq. 15: the mean squared error between the measured
+record and the decoded response of the identified system (exact FOH simulation, Eq. 10-13), plus
+``gamma`` times the squared error of the normalised stationary value (Eq. 4). No parameter labels
+enter the loss; the true systems of the simulated family are used only (i) for the stationary
+value ``y_inf`` of Eq. 14, as in the paper, and (ii) once, before training, to standardise the
+network's output (the mean and spread of the family's raw parameters), which is knowledge of the
+parameter ranges, not of any record's label.
+
+Choices the paper leaves open, and ours:
+- 80/20 split of the simulated records (paper Sec. IV); the held-out loss is evaluated every
+  epoch and the weights with the lowest held-out loss are returned.
+- Adam with a short warm-up and a cosine learning-rate decay over the budget, which is an epoch
+  count or a wall-time limit, whichever ends first (progress = the larger of the two fractions).
+- Gradient-norm clipping: the paper reports exploding gradients with CCF; clipping keeps one bad
+  batch (a nearly unstable estimate of an unstable system) from wrecking the weights.
+- float32 by default (the decoder is exact to float32 precision, far below the targets).
+- Noise: ``noise`` adds white measurement noise with a std drawn per record and per epoch from a
+  range (relative to max|y|), so a noise-trained identifier sees fresh noise every epoch.
+- Checkpoints: every epoch (atomically, ``torch.save`` of tensors and numbers only, loaded with
+  ``weights_only=True``); a killed run started again with the same checkpoint path resumes at
+  the epoch after the last checkpoint, with the same optimizer state and shuffling.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data import EXCITATIONS, records
+from .decoder import _simulate, stationary_value
+from .encoder import Encoder, EncoderConfig
+from .identify import Identifier
+from .structures import Physical, Structure
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    """How to train; validates itself.
+
+    Attributes:
+        dt, steps: the record format (sample time, samples).
+        count: simulated records (paper: 10^4), ``holdout`` of them held out (paper: 20 %).
+        epochs: at most this many epochs; ``seconds``: at most this much wall time (None = no
+            limit).
+        batch: records per gradient step; lr: peak learning rate; clip: gradient-norm limit.
+        gamma: weight of the stationary-value term of Eq. 14.
+        noise: measurement noise level, or a (lo, hi) range drawn per record and epoch.
+        excitation: input kind (data.EXCITATIONS); "step" is the paper's.
+        seed: seeds the data, the initial weights and the shuffling.
+        checkpoint: file to checkpoint to and resume from (None = no checkpoints).
+        progress: print a progress line (to stderr).
+        threads: torch threads (None = leave torch's setting).
+    """
+
+    dt: float
+    steps: int
+    count: int = 10_000
+    holdout: float = 0.2
+    epochs: int = 200
+    seconds: float | None = None
+    batch: int = 256
+    lr: float = 3e-3
+    clip: float = 1.0
+    gamma: float = 1.0
+    noise: float | tuple[float, float] = 0.0
+    excitation: str = "step"
+    seed: int = 0
+    checkpoint: str | None = None
+    progress: bool = True
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.dt, (int, float)) and math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be a positive finite number; got {self.dt!r}")
+        for name in ("steps", "count", "epochs", "batch"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name} must be a positive integer; got {v!r}")
+        if not 0.0 < self.holdout < 1.0:
+            raise ValueError(f"holdout must be in (0, 1); got {self.holdout!r}")
+        if int(self.count * self.holdout) < 1 or self.count - int(self.count * self.holdout) < 1:
+            raise ValueError(f"count={self.count} is too small to hold out {self.holdout:.0%}")
+        if self.seconds is not None and not self.seconds > 0:
+            raise ValueError(f"seconds must be positive or None; got {self.seconds!r}")
+        for name in ("lr", "clip"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive; got {getattr(self, name)!r}")
+        if not self.gamma >= 0:
+            raise ValueError(f"gamma must be >= 0; got {self.gamma!r}")
+        lo, hi = (self.noise, self.noise) if np.ndim(self.noise) == 0 else tuple(self.noise)
+        if not (0 <= lo <= hi):
+            raise ValueError(f"noise must be a level >= 0 or a (lo, hi) range; got {self.noise!r}")
+        if self.excitation not in EXCITATIONS:
+            raise ValueError(f"excitation must be one of {EXCITATIONS}; got {self.excitation!r}")
+
+    @property
+    def noise_range(self) -> tuple[float, float]:
+        if np.ndim(self.noise) == 0:
+            return float(self.noise), float(self.noise)
+        return float(self.noise[0]), float(self.noise[1])
+
+
+@dataclass(frozen=True)
+class History:
+    """Per-epoch training record: losses (Eq. 14, normalised units), learning rate, wall time."""
+
+    train_loss: tuple[float, ...]
+    holdout_loss: tuple[float, ...]
+    lr: tuple[float, ...]
+    seconds: tuple[float, ...]
+
+
+def _batch_loss(ident: Identifier, y, u, y_clean, yinf, gamma: float) -> torch.Tensor:
+    """Eq. 14 on Eq. 15-normalised records, averaged over the batch.
+
+    Args:
+        y: ``(batch, steps)`` measured records (noisy when training with noise).
+        u: ``(batch, steps)`` inputs. y_clean: unused by the loss (kept for symmetry).
+        yinf: ``(batch,)`` true stationary values (Eq. 4).
+    """
+    sys = ident.system(y, u)
+    y_hat = _simulate(sys.A, sys.b, sys.c, sys.d, u, ident.dt, None)
+    y_bar = y.abs().amax(dim=1)
+    scale = 2.0 / y_bar
+    err = (y_hat - y) * scale[:, None]                      # = y_hat_tilde - y_tilde, Eq. 15
+    sq = err.square().sum(dim=1)
+    if gamma > 0:
+        yinf_hat = stationary_value(sys.A, sys.b, sys.c, sys.d)
+        sq = sq + gamma * ((yinf_hat - yinf) * scale).square()
+    return (sq / (y.shape[1] + 1)).mean()
+
+
+def _raw_statistics(structure: Structure, systems, gain: np.ndarray | None):
+    """Mean and spread of the raw parameters of the family's systems (output standardisation)."""
+    c, d = systems.c, systems.d
+    if gain is not None:
+        c, d = c / gain[:, None], d / gain
+    theta = np.asarray(structure.theta_of(systems.A, systems.b, c, d), dtype=np.float64)
+    mean = theta.mean(axis=0)
+    scale = theta.std(axis=0)
+    scale = np.where(scale > 1e-8 * (1 + np.abs(mean)), scale, 1.0)
+    return mean, scale
+
+
+def _progress(epoch: int, epochs: int, train: float, held: float, lr: float, elapsed: float,
+              end: str) -> None:
+    sys.stderr.write(
+        f"\repoch {epoch:4d}/{epochs} | loss {train:.3e} | held-out {held:.3e} | "
+        f"lr {lr:.1e} | {elapsed:6.1f} s{end}"
+    )
+    sys.stderr.flush()
+
+
+def train(structure: Structure, family, config: TrainConfig, *,
+          encoder: EncoderConfig | None = None, inverse=None,
+          meta: dict | None = None) -> Identifier:
+    """Train an identifier for ``structure`` on records simulated from ``family``.
+
+    Args:
+        structure: the parameterisation the encoder outputs (CCF, MCF, fixed, Physical).
+        family: samples the true systems (``data.LegFamily``, ``data.PoleFamily``).
+        config: the training settings.
+        encoder: the network's shape; ``steps``, ``outputs``, ``inputs`` and ``features`` are
+            set from the structure and ``config`` (paper widths by default).
+        inverse: optional casadi.Function CCF -> physical parameters, stored in the identifier.
+        meta: provenance stored with the identifier.
+
+    Returns:
+        The trained ``Identifier`` (weights with the lowest held-out loss), with its ``History``
+        in ``ident.meta["history"]``.
+    """
+    if not isinstance(structure, Structure):
+        raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
+                         f"got {type(structure).__name__}")
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rec = records(family, config.count, steps=config.steps, dt=config.dt,
+                  excitation_kind=config.excitation, seed=config.seed)
+    scale_mode = "feature" if isinstance(structure, Physical) or not _c_free(structure) \
+        else "denormalise"
+    y_bar = np.max(np.abs(rec.y_clean), axis=1)
+    u_bar = np.max(np.abs(rec.u), axis=1)
+    gain = y_bar / u_bar
+    mean, spread = _raw_statistics(structure, rec.systems,
+                                   gain if scale_mode == "denormalise" else None)
+    log_gain = np.log(gain)
+
+    base = encoder or EncoderConfig(steps=config.steps, outputs=structure.p)
+    enc_config = dataclasses.replace(
+        base, steps=config.steps, outputs=structure.p,
+        inputs=base.inputs or config.excitation != "step",
+        features=1 if scale_mode == "feature" else 0,
+    )
+    ident = Identifier(
+        Encoder(enc_config), structure, dt=config.dt,
+        theta_mean=torch.tensor(mean), theta_scale=torch.tensor(spread), scale=scale_mode,
+        feature_mean=float(log_gain.mean()), feature_scale=float(log_gain.std() or 1.0),
+        inverse=inverse, meta=meta,
+    )
+
+    holdout = int(config.count * config.holdout)
+    order = np.random.default_rng(config.seed + 1).permutation(config.count)
+    train_idx, held_idx = order[holdout:], order[:holdout]
+    dtype = torch.float32
+    u_all = torch.tensor(rec.u, dtype=dtype)
+    y_all = torch.tensor(rec.y_clean, dtype=dtype)
+    yinf_all = torch.tensor(
+        stationary_value(rec.systems.A, rec.systems.b, rec.systems.c, rec.systems.d),
+        dtype=dtype)
+    scale_all = torch.tensor(y_bar, dtype=dtype)
+    noise_lo, noise_hi = config.noise_range
+
+    params = list(ident.encoder.parameters())
+    opt = torch.optim.Adam(params, lr=config.lr)
+    generator = torch.Generator().manual_seed(config.seed + 2)
+    state = {"epoch": 0, "elapsed": 0.0, "best": math.inf, "best_state": None,
+             "history": {"train_loss": [], "holdout_loss": [], "lr": [], "seconds": []}}
+    ckpt = Path(config.checkpoint) if config.checkpoint else None
+    fingerprint = _fingerprint(structure, config, enc_config)
+    if ckpt is not None and ckpt.exists():
+        state = _resume(ckpt, fingerprint, ident, opt, generator)
+
+    def noisy(idx: torch.Tensor) -> torch.Tensor:
+        y = y_all[idx]
+        if noise_hi <= 0:
+            return y
+        level = noise_lo + (noise_hi - noise_lo) * torch.rand(len(idx), generator=generator)
+        std = (level * scale_all[idx])[:, None]
+        return y + std * torch.randn(y.shape, generator=generator)
+
+    held_t = torch.as_tensor(held_idx)
+    held_noise_gen = torch.Generator().manual_seed(config.seed + 3)
+
+    def holdout_loss() -> float:
+        ident.encoder.eval()
+        total = 0.0
+        with torch.no_grad():
+            for i in range(0, len(held_t), 1024):
+                idx = held_t[i: i + 1024]
+                y = y_all[idx]
+                if noise_hi > 0:
+                    level = (noise_lo + noise_hi) / 2
+                    y = y + (level * scale_all[idx])[:, None] * torch.randn(
+                        y.shape, generator=held_noise_gen)
+                total += float(_batch_loss(ident, y, u_all[idx], None, yinf_all[idx],
+                                           config.gamma)) * len(idx)
+        ident.encoder.train()
+        return total / len(held_t)
+
+    train_t = torch.as_tensor(train_idx)
+    steps_per_epoch = math.ceil(len(train_t) / config.batch)
+    tty = sys.stderr.isatty()
+    start = time.perf_counter() - state["elapsed"]
+    ident.encoder.train()
+    epoch = state["epoch"]
+    while epoch < config.epochs:
+        elapsed = time.perf_counter() - start
+        if config.seconds is not None and elapsed >= config.seconds:
+            break
+        perm = train_t[torch.randperm(len(train_t), generator=generator)]
+        running = 0.0
+        for j in range(steps_per_epoch):
+            progress = max((epoch + j / steps_per_epoch) / config.epochs,
+                           (time.perf_counter() - start) / config.seconds
+                           if config.seconds else 0.0)
+            lr = _learning_rate(config.lr, min(progress, 1.0))
+            for group in opt.param_groups:
+                group["lr"] = lr
+            idx = perm[j * config.batch: (j + 1) * config.batch]
+            loss = _batch_loss(ident, noisy(idx), u_all[idx], None, yinf_all[idx], config.gamma)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(params, config.clip)
+            opt.step()
+            running += float(loss.detach())
+        epoch += 1
+        held = holdout_loss()
+        elapsed = time.perf_counter() - start
+        hist = state["history"]
+        hist["train_loss"].append(running / steps_per_epoch)
+        hist["holdout_loss"].append(held)
+        hist["lr"].append(lr)
+        hist["seconds"].append(elapsed)
+        if held < state["best"] and math.isfinite(held):
+            state["best"] = held
+            state["best_state"] = {k: v.detach().clone()
+                                   for k, v in ident.encoder.state_dict().items()}
+        state["epoch"], state["elapsed"] = epoch, elapsed
+        if ckpt is not None:
+            _save_checkpoint(ckpt, fingerprint, ident, opt, generator, state)
+        if config.progress:
+            _progress(epoch, config.epochs, hist["train_loss"][-1], held, lr, elapsed,
+                      "" if tty and epoch < config.epochs else "\n")
+    if config.progress and tty:
+        sys.stderr.write("\n")
+    if state["best_state"] is not None:
+        ident.encoder.load_state_dict(state["best_state"])
+    ident.encoder.eval()
+    ident.meta["history"] = state["history"]
+    ident.meta["train"] = {
+        "epochs": state["epoch"], "seconds": round(state["elapsed"], 2),
+        "best_holdout_loss": state["best"], "config": _config_dict(config),
+        "encoder": enc_config.to_dict(),
+    }
+    return ident
+
+
+def _c_free(structure: Structure) -> bool:
+    """Whether every output element ``c_i`` (and ``d``) may be rescaled: then de-normalise."""
+    fixed = getattr(structure, "fixed_values", {}) or {}
+    return all(v == 0.0 for k, v in fixed.items() if k.startswith("c") or k == "d")
+
+
+def _learning_rate(peak: float, progress: float) -> float:
+    """2 % linear warm-up, then cosine decay to 1 % of the peak."""
+    if progress < 0.02:
+        return peak * (0.1 + 0.9 * progress / 0.02)
+    x = (progress - 0.02) / 0.98
+    return peak * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * x)))
+
+
+def _config_dict(config: TrainConfig) -> dict:
+    d = dataclasses.asdict(config)
+    d["noise"] = list(config.noise_range)
+    return d
+
+
+def _fingerprint(structure, config: TrainConfig, enc: EncoderConfig) -> str:
+    """What must match for a checkpoint to be resumed (not the budget or the progress flag)."""
+    import json
+
+    d = _config_dict(config)
+    for key in ("epochs", "seconds", "progress", "checkpoint", "threads"):
+        d.pop(key)
+    return json.dumps({"structure": structure.config(), "config": d,
+                       "encoder": enc.to_dict()}, sort_keys=True)
+
+
+def _save_checkpoint(path: Path, fingerprint: str, ident, opt, generator, state) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "fingerprint": fingerprint,
+        "encoder": ident.encoder.state_dict(),
+        "optimizer": opt.state_dict(),
+        "generator": generator.get_state(),
+        "epoch": state["epoch"],
+        "elapsed": state["elapsed"],
+        "best": state["best"],
+        "best_state": state["best_state"],
+        "history": state["history"],
+    }
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)   # atomic: a kill mid-write leaves the previous checkpoint intact
+
+
+def _resume(path: Path, fingerprint: str, ident, opt, generator) -> dict:
+    payload = torch.load(path, weights_only=True)   # tensors and numbers only, never code
+    if payload.get("fingerprint") != fingerprint:
+        raise ValueError(
+            f"checkpoint {str(path)!r} was written for a different structure, family settings "
+            "or encoder; delete it or choose another checkpoint path"
+        )
+    ident.encoder.load_state_dict(payload["encoder"])
+    opt.load_state_dict(payload["optimizer"])
+    generator.set_state(payload["generator"])
+    return {k: payload[k] for k in ("epoch", "elapsed", "best", "best_state", "history")}

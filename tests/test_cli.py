@@ -1,0 +1,67 @@
+"""The aeid-struct command: each subcommand runs, writes what it says, and rejects bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from aeid_struct.cli import main
+
+
+def test_demo_writes_png_and_prints_eq16(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "paper Eq. 16" in out and "controllable canonical form" in out
+    png = tmp_path / "leg_step_responses.png"
+    assert png.stat().st_size > 10_000
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_leg_pretrained_study(tmp_path, capsys):
+    assert main(["leg", "--pretrained", "--validation", "100", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "Table I" in out and "| Step error |" in out
+    result = json.loads((tmp_path / "leg_study.json").read_text())
+    for sub in ("stable", "unstable"):
+        overall = result["table"][sub]["overall"]
+        # the shipped identifiers beat the paper's overall step error by far
+        assert overall["step"] < 5e-3
+        assert result["table"][sub]["latency_ms"] > 0
+    assert (tmp_path / "fig3_leg_scenario.png").stat().st_size > 10_000
+
+
+def test_train_then_identify_from_csv(tmp_path, capsys):
+    model = tmp_path / "m.aeid"
+    assert main(["train", "--structure", "ccf:1:descartes", "--family", "poles:1,0",
+                 "--dt", "0.05", "--steps", "40", "--count", "200", "--epochs", "2",
+                 "--width", "4", "--dense", "8", "--quiet", "--out", str(model)]) == 0
+    assert model.exists()
+    t = np.arange(40) * 0.05
+    np.savetxt(tmp_path / "y.csv", 1 - np.exp(-2 * t), delimiter=",")
+    js = tmp_path / "est.json"
+    assert main(["identify", str(model), "--y", str(tmp_path / "y.csv"), "--json", str(js)]) == 0
+    est = json.loads(js.read_text())
+    assert np.shape(est["A"]) == (1, 1) and "fit_percent" in est
+
+
+def test_bench_writes_json(tmp_path, capsys):
+    js = tmp_path / "bench.json"
+    assert main(["bench", "--batch", "8", "--steps", "20", "--json", str(js)]) == 0
+    rows = json.loads(js.read_text())["decoder"]
+    assert len(rows) == 2 and all(r["loop_ms"] > 0 for r in rows)
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["train", "--structure", "ccf:x", "--family", "poles:1,0", "--dt", "0.1", "--steps",
+          "10", "--out", "x.aeid"], "--structure 'ccf:x' is malformed"),
+        (["train", "--structure", "ccf:1", "--family", "springs", "--dt", "0.1", "--steps",
+          "10", "--out", "x.aeid"], "--family must be"),
+        (["identify", "leg-stable", "--y", "/nonexistent.csv"], "--y must be an existing"),
+    ],
+)
+def test_bad_arguments_exit_with_message(argv, match):
+    with pytest.raises(SystemExit, match=match):
+        main(argv)

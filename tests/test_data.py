@@ -1,0 +1,93 @@
+"""System families, excitations and simulated records, against closed forms and python-control."""
+
+import control
+import numpy as np
+import pytest
+
+from aeid_struct.data import EXCITATIONS, LegFamily, PoleFamily, excitation, records
+
+
+def test_leg_family_closed_forms():
+    fam = LegFamily(subsystem="stable")
+    s = fam.systems(k=[20.0, 24.23], d=[2.0, 2.24], m=[0.5, 1.01])
+    k, d, m = s.params["k"], s.params["d"], s.params["m"]
+    np.testing.assert_allclose(s.A[:, 1, 0], -k / m, rtol=1e-14)
+    np.testing.assert_allclose(s.A[:, 1, 1], -d / m, rtol=1e-14)
+    np.testing.assert_allclose(s.c[:, 0], 1 / m, rtol=1e-14)
+    np.testing.assert_allclose(s.b, [[0, 1], [0, 1]])
+    un = LegFamily(subsystem="unstable").systems(k=[24.23], d=[2.24], m=[1.01])
+    L = 0.8 - 1.01 * 9.81 / 24.23
+    np.testing.assert_allclose(un.A[0, 1], [9.81 / L, 0.0], rtol=1e-14)
+    np.testing.assert_allclose(un.c[0], [1 / (1.01 * L**2), 0.0], rtol=1e-14)
+
+
+def test_leg_family_sampling_in_ranges_and_seeded():
+    fam = LegFamily(subsystem="unstable")
+    a = fam.sample(200, np.random.default_rng(3))
+    b = fam.sample(200, np.random.default_rng(3))
+    np.testing.assert_array_equal(a.A, b.A)
+    for name, (lo, hi) in fam.ranges.items():
+        assert np.all((a.params[name] >= lo) & (a.params[name] <= hi))
+    # every unstable leg has exactly one positive real pole
+    poles = np.linalg.eigvals(a.A)
+    assert np.all(np.sum(poles.real > 0, axis=1) == 1)
+
+
+def test_pole_family_poles_and_gain():
+    fam = PoleFamily(real=1, pairs=1, decay=(1, 2), freq=(3, 4), gain=(0.5, 0.6))
+    s = fam.sample(50, np.random.default_rng(0))
+    for A, b, c, d in zip(s.A, s.b, s.c, s.d, strict=True):
+        p = np.linalg.eigvals(A)
+        assert np.all((-p.real >= 1 - 1e-9) & (-p.real <= 2 + 1e-9))
+        assert np.sum(np.abs(p.imag) > 1e-9) == 2
+        gain = control.dcgain(control.ss(A, b.reshape(3, 1), c.reshape(1, 3), [[d]]))
+        assert 0.5 - 1e-9 <= gain <= 0.6 + 1e-9
+
+
+def test_records_match_python_control_and_noise_level():
+    fam = LegFamily(subsystem="stable")
+    rec = records(fam, 20, steps=300, dt=0.01, noise=0.05, seed=1)
+    t = np.arange(300) * 0.01
+    for i in range(3):
+        s = control.ss(rec.systems.A[i], rec.systems.b[i].reshape(2, 1),
+                       rec.systems.c[i].reshape(1, 2), [[rec.systems.d[i]]])
+        y = control.forced_response(s, t, rec.u[i]).outputs
+        np.testing.assert_allclose(rec.y_clean[i], y, atol=1e-9 * np.abs(y).max())
+    rel = (rec.y - rec.y_clean) / np.abs(rec.y_clean).max(axis=1, keepdims=True)
+    assert rel.std() == pytest.approx(0.05, rel=0.05)
+    clean = records(fam, 20, steps=300, dt=0.01, noise=0.0, seed=1)
+    np.testing.assert_array_equal(clean.y, clean.y_clean)
+    ranged = records(fam, 400, steps=50, dt=0.01, noise=(0.0, 0.1), seed=1)
+    assert ranged.noise.min() >= 0 and ranged.noise.max() <= 0.1
+    assert ranged.noise.std() > 0.02
+
+
+@pytest.mark.parametrize("kind", EXCITATIONS)
+def test_excitations(kind):
+    rng = np.random.default_rng(0)
+    u = excitation(kind, 8, 200, 0.01, rng)
+    assert u.shape == (8, 200) and np.all(np.isfinite(u))
+    assert np.all(np.abs(u).max(axis=1) > 0)
+    if kind == "step":
+        np.testing.assert_array_equal(u, 1.0)
+    if kind == "prbs":
+        assert set(np.unique(u)) <= {-1.0, 1.0}
+    if kind in ("multisine", "noise"):
+        np.testing.assert_allclose(np.abs(u).max(axis=1), 1.0)
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: LegFamily(subsystem="middle"), "subsystem must be 'stable' or 'unstable'"),
+        (lambda: LegFamily(ranges={"k": (20, 25), "d": (2, 5)}), "ranges must name exactly"),
+        (lambda: LegFamily(ranges={"k": (25, 20), "d": (2, 5), "m": (0.5, 1.5)}),
+         r"ranges\['k'\] must satisfy lo <= hi"),
+        (lambda: PoleFamily(real=0, pairs=0), "real \\+ pairs must be at least 1"),
+        (lambda: excitation("chirp", 1, 10, 0.1, np.random.default_rng()), "kind must be one of"),
+        (lambda: records(PoleFamily(), 0, steps=10, dt=0.1), "count must be a positive integer"),
+    ],
+)
+def test_errors(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()

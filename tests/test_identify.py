@@ -1,0 +1,144 @@
+"""Identifier: de-normalisation, batching, input checks, safe save/load."""
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+import aeid_struct as ae
+from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.identify import Identifier
+from aeid_struct.metrics import nrmse_fit
+from symbolic import leg
+
+
+def _identifier(steps=60, dt=0.05, inputs=False, seed=0):
+    torch.manual_seed(seed)
+    structure = ae.CCF(2, descartes=True)
+    enc = Encoder(EncoderConfig(steps=steps, outputs=4, inputs=inputs, width=4, dense=(8,)))
+    enc.eval()
+    return Identifier(enc, structure, dt=dt, theta_mean=torch.tensor([3.0, 1.0, 1.0, 0.0]),
+                      theta_scale=torch.full((4,), 0.1), inverse=leg.stable_inverse())
+
+
+def _record(steps=60, dt=0.05):
+    A = np.array([[0.0, 1.0], [-20.0, -3.0]])
+    b, c = np.array([0.0, 1.0]), np.array([1.0, 0.0])
+    return ae.simulate(A, b, c, 0.0, np.ones(steps), dt)
+
+
+def test_denormalisation_is_exact():
+    ident = _identifier()
+    y = _record()
+    e1, e7 = ident.identify(y), ident.identify(7.0 * y)
+    # the encoder sees the same normalised record; c and d scale with the output exactly
+    np.testing.assert_array_equal(e1.A, e7.A)
+    np.testing.assert_allclose(e7.c, 7.0 * e1.c, rtol=1e-6)
+    assert e7.elements["c0"] == pytest.approx(7.0 * e1.elements["c0"], rel=1e-6)
+    assert e7.elements["a0"] == e1.elements["a0"]
+    # and a doubled input halves the gain
+    e_u = ident.identify(y, 2.0 * np.ones(60))
+    np.testing.assert_allclose(e_u.c, 0.5 * e1.c, rtol=1e-6)
+
+
+def test_batch_equals_singles_and_estimate_fields():
+    ident = _identifier()
+    y = np.stack([_record(), 2 * _record(), -_record()])
+    batch = ident.identify(y)
+    assert batch.A.shape == (3, 2, 2) and batch.c.shape == (3, 2) and batch.d.shape == (3,)
+    for i in range(3):
+        one = ident.identify(y[i])
+        assert one.A.shape == (2, 2) and isinstance(one.d, float)
+        np.testing.assert_allclose(one.A, batch.A[i], rtol=1e-6)
+        np.testing.assert_allclose(one.c, batch.c[i], rtol=1e-6)
+    np.testing.assert_allclose(batch.fit, nrmse_fit(y, batch.y_hat))
+    np.testing.assert_allclose(batch.y_hat, ae.simulate(batch.A, batch.b, batch.c, batch.d,
+                                                        np.ones(60), 0.05))
+    # physical parameters from the leg's CCF inverse: k = a0/c0, d = a1/c0, m = 1/c0
+    np.testing.assert_allclose(batch.physical["m"], 1 / batch.elements["c0"], rtol=1e-6)
+    np.testing.assert_allclose(batch.physical["k"], batch.elements["a0"] / batch.elements["c0"],
+                               rtol=1e-6)
+    sys = batch.to_control()
+    assert len(sys) == 3 and sys[0].nstates == 2
+    np.testing.assert_allclose(ident.time(), np.arange(60) * 0.05)
+
+
+def test_save_load_round_trip_bit_exact(tmp_path):
+    ident = _identifier(inputs=True)
+    path = ident.save(tmp_path / "model.aeid")
+    back = Identifier.load(path)
+    for (k, v), (k2, v2) in zip(ident.encoder.state_dict().items(),
+                                back.encoder.state_dict().items(), strict=True):
+        assert k == k2 and torch.equal(v, v2)
+    assert back.structure == ident.structure and back.dt == ident.dt
+    y, u = _record(), np.linspace(0.5, 1.0, 60)
+    a, b = ident.identify(y, u), back.identify(y, u)
+    np.testing.assert_array_equal(a.A, b.A)
+    np.testing.assert_array_equal(a.c, b.c)
+    assert a.physical == b.physical
+
+
+class _Exploit:
+    def __reduce__(self):
+        import os
+
+        return (os.system, ("touch /tmp/aeid_pwned_marker",))
+
+
+def test_malicious_model_file_does_not_execute(tmp_path):
+    import os
+
+    marker = "/tmp/aeid_pwned_marker"
+    if os.path.exists(marker):
+        os.remove(marker)
+    evil = tmp_path / "evil.aeid"
+    evil.write_bytes(pickle.dumps(_Exploit()))
+    with pytest.raises(ValueError, match="is not an aeid-struct identifier file"):
+        Identifier.load(evil)
+    torch.save({"x": _Exploit()}, tmp_path / "evil2.aeid")
+    with pytest.raises(ValueError, match="is not an aeid-struct identifier file"):
+        Identifier.load(tmp_path / "evil2.aeid")
+    assert not os.path.exists(marker)
+
+
+def test_foreign_safetensors_rejected(tmp_path):
+    from safetensors.torch import save_file
+
+    save_file({"w": torch.zeros(2)}, str(tmp_path / "other.aeid"), metadata={"aeid": "{}"})
+    with pytest.raises(ValueError, match="header format is not"):
+        Identifier.load(tmp_path / "other.aeid")
+    with pytest.raises(ValueError, match="path must be an existing identifier file"):
+        Identifier.load(tmp_path / "missing.aeid")
+
+
+@pytest.mark.parametrize(
+    "y, u, match",
+    [
+        (np.ones(50), None, r"y must have shape \(60,\) or \(batch, 60\) for this identifier "
+                            r"\(dt=0.05, steps=60\); got \(50,\)"),
+        (np.ones((2, 3, 60)), None, r"y must have shape"),
+        (np.zeros(60), None, r"y must not be all zero \(record 0 of 1\)"),
+        (np.r_[np.ones(59), np.nan], None, r"y must be finite; got nan at record 0, sample 59"),
+        (np.ones(60), np.zeros(60), r"u must not be all zero"),
+        (np.ones(60), np.ones(61), r"u must have shape \(60,\)"),
+        (np.ones((3, 60)), np.ones((2, 60)), r"u must have 3 records like y; got 2"),
+    ],
+)
+def test_input_errors(y, u, match):
+    with pytest.raises(ValueError, match=match):
+        _identifier().identify(y, u)
+
+
+def test_constructor_errors():
+    enc = Encoder(EncoderConfig(steps=10, outputs=3))
+    with pytest.raises(ValueError, match="encoder.config.outputs must equal structure.p = 4"):
+        Identifier(enc, ae.CCF(2), dt=0.1, theta_mean=torch.zeros(4), theta_scale=torch.ones(4))
+    enc = Encoder(EncoderConfig(steps=10, outputs=4))
+    with pytest.raises(ValueError, match="dt must be a positive finite number"):
+        Identifier(enc, ae.CCF(2), dt=0.0, theta_mean=torch.zeros(4), theta_scale=torch.ones(4))
+    with pytest.raises(ValueError, match="scale must be one of"):
+        Identifier(enc, ae.CCF(2), dt=0.1, theta_mean=torch.zeros(4), theta_scale=torch.ones(4),
+                   scale="none")
+    with pytest.raises(ValueError, match=r"theta_mean and theta_scale must have shape \(4,\)"):
+        Identifier(enc, ae.CCF(2), dt=0.1, theta_mean=torch.zeros(3), theta_scale=torch.ones(4))
