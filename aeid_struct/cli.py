@@ -230,10 +230,10 @@ def _bench(args: argparse.Namespace) -> int:
 
     from .bench import bench_decoder, format_decoder_table
 
-    torch.set_num_threads(args.threads)
     rows = []
     for dtype in (torch.float32, torch.float64):
-        rows += bench_decoder(batch=args.batch, steps=tuple(args.steps), dtype=dtype)
+        rows += bench_decoder(batch=args.batch, steps=tuple(args.steps), dtype=dtype,
+                              threads=args.threads)
     print(f"Decoder forward+backward, batch {args.batch}, {args.threads} thread(s):")
     print(format_decoder_table(rows))
     out = Path(args.json)
@@ -329,7 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="timings measured side by side; prints and writes JSON")
     bench.add_argument("--batch", type=int, default=256)
     bench.add_argument("--steps", type=int, nargs="+", default=[100, 300, 1000])
-    bench.add_argument("--threads", type=int, default=2)
+    bench.add_argument("--threads", type=int, default=1,
+                       help="torch threads for the timings (default 1: steady on a busy box)")
     bench.add_argument("--json", default="out/bench.json")
     bench.set_defaults(func=_bench)
     return parser

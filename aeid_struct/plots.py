@@ -53,13 +53,20 @@ def fig3(comparisons: list[Comparison], path=None, omega=FREQUENCIES):
         models = {"true": cmp.true, "identified": cmp.est, **(cmp.extra or {})}
         styles = {"true": dict(color="k", lw=2.2, alpha=0.6),
                   "identified": dict(color="C1", lw=1.4, ls="--")}
+        reference = None
         for i, (label, model) in enumerate(models.items()):
             style = styles.get(label, dict(lw=1.0, ls=":", color=f"C{i + 1}"))
             y = simulate(*model, u, cmp.dt)
             G = frequency_response(*model, omega=omega)
+            # Unwrap along frequency and put every model on the true model's 2 pi branch, so a
+            # phase of -pi and one of +pi (the same angle) are drawn as the same curve.
+            phase = np.unwrap(np.angle(G))
+            if reference is None:
+                reference = phase[0]
+            phase = phase - 2 * np.pi * np.round((phase[0] - reference) / (2 * np.pi))
             row[0].plot(t, y, label=label, **style)
             row[1].semilogx(omega, 20 * np.log10(np.abs(G)), label=label, **style)
-            row[2].semilogx(omega, np.angle(G), label=label, **style)
+            row[2].semilogx(omega, phase, label=label, **style)
         row[0].set(title=f"{cmp.name}: unit step", xlabel="t [s]", ylabel="y")
         row[1].set(title="Bode magnitude", xlabel="omega [rad/s]", ylabel="|G| [dB]")
         row[2].set(title="Bode phase", xlabel="omega [rad/s]", ylabel="arg G [rad]")

@@ -1,0 +1,54 @@
+"""The shipped leg identifiers: record format, recovery of known legs, provenance, size."""
+
+from importlib.resources import files
+
+import numpy as np
+import pytest
+
+import aeid_struct as ae
+from aeid_struct.data import LegFamily
+from aeid_struct.metrics import step_error
+
+# Stated tolerances (the study measures the means on 500 systems; these bound single systems).
+TOL = {"stable": {"k": 0.5, "d": 1.5, "m": 1.5, "step": 2e-3},
+       "unstable": {"k": 10.0, "m": 10.0, "step": 3e-3}}
+RECORD = {"stable": (0.01, 300), "unstable": (0.005, 100)}
+
+
+@pytest.mark.parametrize("sub", ["stable", "unstable"])
+def test_record_format_and_provenance(sub):
+    ident = ae.load_pretrained(f"leg-{sub}")
+    dt, steps = RECORD[sub]
+    assert (ident.dt, ident.steps) == (dt, steps)
+    np.testing.assert_allclose(ident.time(), np.arange(steps) * dt)
+    assert "aeid-struct train" in ident.meta["command"] and ident.meta["seed"] == 0
+    assert (files("aeid_struct.pretrained") / f"leg-{sub}.aeid").stat().st_size < 300_000
+
+
+@pytest.mark.parametrize("sub", ["stable", "unstable"])
+@pytest.mark.parametrize("params", [{"k": 24.23, "d": 2.24, "m": 1.01},
+                                    {"k": 20.5, "d": 4.6, "m": 0.6},
+                                    {"k": 22.0, "d": 3.0, "m": 1.4}])
+def test_recovers_known_legs(sub, params):
+    ident = ae.load_pretrained(f"leg-{sub}")
+    dt, steps = RECORD[sub]
+    fam = LegFamily(subsystem=sub)
+    s = fam.systems(**{k: [v] for k, v in params.items()})
+    y = ae.simulate(s.A[0], s.b[0], s.c[0], float(s.d[0]), np.ones(steps), dt)
+    est = ident.identify(y)
+    for name, value in est.physical.items():
+        assert abs(value - params[name]) / params[name] * 100 < TOL[sub][name], name
+    assert step_error(y, est.y_hat)[0] < TOL[sub]["step"]
+    assert est.fit > 99.0
+
+
+def test_batch_matches_single_and_unknown_name():
+    ident = ae.load_pretrained("leg-stable")
+    fam = LegFamily(subsystem="stable")
+    s = fam.sample(5, np.random.default_rng(0))
+    y = ae.simulate(s.A, s.b, s.c, s.d, np.ones(300), 0.01)
+    batch = ident.identify(y)
+    for i in range(5):
+        np.testing.assert_allclose(ident.identify(y[i]).A, batch.A[i], rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-unstable'"):
+        ae.load_pretrained("leg-middle")
