@@ -472,11 +472,13 @@ class Identifier:
         )
 
 
-PRETRAINED = ("leg-stable", "leg-unstable")
+PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-noisy", "leg-unstable-noisy")
 
 
 def load_pretrained(name: str) -> Identifier:
-    """An identifier shipped in the package: ``"leg-stable"`` or ``"leg-unstable"``."""
+    """An identifier shipped in the package (``PRETRAINED``): ``"leg-stable"``,
+    ``"leg-unstable"``, and their noise-trained variants ``"leg-stable-noisy"``,
+    ``"leg-unstable-noisy"`` for measured (noisy) records."""
     from importlib.resources import files
 
     root = files("aeid_struct.pretrained")

@@ -16,13 +16,30 @@ RECORD = {"stable": (0.01, 300), "unstable": (0.005, 100)}
 
 
 @pytest.mark.parametrize("sub", ["stable", "unstable"])
-def test_record_format_and_provenance(sub):
-    ident = ae.load_pretrained(f"leg-{sub}")
+@pytest.mark.parametrize("variant", ["", "-noisy"])
+def test_record_format_and_provenance(sub, variant):
+    ident = ae.load_pretrained(f"leg-{sub}{variant}")
     dt, steps = RECORD[sub]
     assert (ident.dt, ident.steps) == (dt, steps)
     np.testing.assert_allclose(ident.time(), np.arange(steps) * dt)
     assert "aeid-struct train" in ident.meta["command"] and ident.meta["seed"] == 0
-    assert (files("aeid_struct.pretrained") / f"leg-{sub}.aeid").stat().st_size < 300_000
+    assert (files("aeid_struct.pretrained") / f"leg-{sub}{variant}.aeid").stat().st_size < 300_000
+    if variant:
+        assert ident.meta["train"]["config"]["noise"] == [0.0, 0.06]
+
+
+@pytest.mark.parametrize("sub", ["stable", "unstable"])
+def test_noise_trained_beats_clean_trained_on_noisy_records(sub):
+    from aeid_struct.data import records
+
+    dt, steps = RECORD[sub]
+    rec = records(LegFamily(subsystem=sub), 100, steps=steps, dt=dt, noise=0.05, seed=7)
+    errs = {}
+    for variant in ("", "-noisy"):
+        est = ae.load_pretrained(f"leg-{sub}{variant}").identify(rec.y)
+        y_hat = ae.simulate(est.A, est.b, est.c, est.d, np.ones(steps), dt)
+        errs[variant] = step_error(rec.y_clean, y_hat).mean()
+    assert errs["-noisy"] < errs[""]
 
 
 @pytest.mark.parametrize("sub", ["stable", "unstable"])
@@ -50,5 +67,6 @@ def test_batch_matches_single_and_unknown_name():
     batch = ident.identify(y)
     for i in range(5):
         np.testing.assert_allclose(ident.identify(y[i]).A, batch.A[i], rtol=1e-5, atol=1e-6)
-    with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-unstable'"):
+    with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-stable-noisy', "
+                                         r"'leg-unstable', 'leg-unstable-noisy'\]; got"):
         ae.load_pretrained("leg-middle")
