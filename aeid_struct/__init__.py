@@ -15,6 +15,7 @@ from .encoder import EncoderConfig as EncoderConfig
 from .identify import Estimate as Estimate
 from .identify import Identifier as Identifier
 from .identify import load_pretrained as load_pretrained
+from .refine import RefineConfig as RefineConfig
 from .structures import CCF as CCF
 from .structures import MCF as MCF
 from .structures import Physical as Physical
@@ -32,6 +33,7 @@ __all__ = [
     "LegFamily",
     "Physical",
     "PoleFamily",
+    "RefineConfig",
     "Structure",
     "System",
     "TrainConfig",

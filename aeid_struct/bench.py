@@ -23,7 +23,9 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 
+import numpy as np
 import torch
 
 from .decoder import _simulate, _simulate_fft, _simulate_loop, _simulate_scan
@@ -171,4 +173,172 @@ def format_decoder_table(rows: Sequence[DecoderTiming]) -> str:
             f"| {r.batch} | {r.steps} | {r.dtype} | {r.default_ms:.1f} | {r.fft_ms:.1f} "
             f"| {r.scan_ms:.1f} | {r.loop_ms:.1f} | {r.speedup:.1f}x |"
         )
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------------
+# Identification: encoder, encoder + refine, and the classical baselines, side by side
+# ----------------------------------------------------------------------------------------------
+def _baseline(method, y, *, dt, **kw):
+    """A baseline on one step record (u = None: unit step)."""
+    return method(y, None, dt, **kw)
+
+
+def _run_method(name, call, y, y_clean, params_true, structure, dt):
+    from .baselines import failure
+    from .metrics import step_error
+
+    times, steps, fails = [], [], []
+    perr = {k: [] for k in params_true}
+    try:  # one untimed call builds what a method caches (trace, solver)
+        call(y[0])
+    except Exception:
+        pass
+    for i in range(len(y)):
+        t0 = time.perf_counter()
+        try:
+            est = call(y[i])
+            err = None
+        except Exception as exc:  # a baseline that throws counts as a failure
+            est, err = None, exc
+        times.append(time.perf_counter() - t0)
+        if est is None:
+            steps.append(np.inf)
+            fails.append(f"exception: {err}")
+            continue
+        why = failure(est, structure=structure, truth_y=y_clean[i])
+        fails.append(why)
+        try:
+            with np.errstate(all="ignore"):
+                yh = est.y_hat
+            s = float(step_error(y_clean[i], yh)[0]) if np.all(np.isfinite(yh)) else np.inf
+        except ValueError:   # a failed method's non-finite model cannot be simulated
+            s = np.inf
+        steps.append(s)
+        if not why:
+            phys = est.physical
+            for k in perr:
+                if k in phys:
+                    perr[k].append(100 * abs(float(phys[k]) - params_true[k][i]) /
+                                   params_true[k][i])
+    steps = np.asarray(steps)
+    ok = np.array([not f for f in fails])
+    t = np.asarray(times) * 1e3
+    return {
+        "step_mean": float(steps[ok].mean()) if ok.any() else float("nan"),
+        "step_median": float(np.median(steps)),
+        "params": {k: float(np.mean(v)) if v else float("nan") for k, v in perr.items()},
+        "params_median": {k: float(np.median(v)) if v else float("nan")
+                          for k, v in perr.items()},
+        "failure_rate": float(1 - ok.mean()),
+        "median_ms": float(np.median(t)),
+        "p95_ms": float(np.percentile(t, 95)),
+        "reasons": sorted({f.split(":")[0] for f in fails if f})[:5],
+    }
+
+
+def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
+                         subsystems=("stable", "unstable"), seed: int = 2024,
+                         progress: bool = True) -> dict:
+    """Accuracy and speed of every method on the same records, in one run.
+
+    For each leg subsystem and noise level, ``count`` fresh systems are drawn (seed ``seed``),
+    their unit-step records simulated exactly and corrupted with white noise; every method
+    identifies every record with one batch-1 call (timed); errors are measured against the
+    noise-free truth. Methods: the shipped encoder, its noise-trained variant (where shipped),
+    encoder + CasADi refinement (started from the noise-trained encoder on noisy records),
+    n4sid (nfoursid, exact FOH conversion), least squares and the CasADi NLP from a generic
+    cold start. Also the encoder's batched throughput.
+
+    Returns a JSON-able dict: ``results``, one entry per (subsystem, noise, method) with
+    ``step_mean`` (mean Table I step error against the noise-free truth over the records the
+    method did not fail on), ``step_median`` (over all), ``params`` (mean absolute % error of
+    k, d, m over non-failed records), ``failure_rate`` (exception, invalid parameters or step
+    error > 0.05, see ``baselines.failure``), ``median_ms``/``p95_ms`` per identification and
+    ``encoder_speedup`` (this method's median time over the encoder's, same records);
+    ``throughput_per_s`` of the encoder at batch 4096.
+    """
+    from symbolic import leg
+
+    from . import baselines
+    from .data import LegFamily, records
+    from .identify import load_pretrained
+    from .study import RECORDS
+
+    results, throughput = [], {}
+    for sub in subsystems:
+        dt, steps = RECORDS[sub]
+        clean = load_pretrained(f"leg-{sub}")
+        try:
+            noisy = load_pretrained(f"leg-{sub}-noisy")
+        except ValueError:
+            noisy = None
+        structure = clean.structure
+        inverse = leg.stable_inverse() if sub == "stable" else leg.unstable_inverse()
+        for noise in noises:
+            rec = records(LegFamily(subsystem=sub), count, steps=steps, dt=dt, noise=noise,
+                          seed=seed + int(1000 * noise))
+            truth = {k: v for k, v in rec.systems.params.items()
+                     if k in inverse.name_out()}
+            start_ident = noisy if (noise > 0 and noisy is not None) else clean
+            base = dict(structure=structure, inverse=inverse)
+            methods = [("encoder", clean.identify, "")]
+            if noisy is not None:
+                methods.append(("encoder (noise-trained)", noisy.identify, ""))
+            methods += [
+                ("encoder + refine", partial(start_ident.identify, refine=True),
+                 "noise-trained" if start_ident is noisy else "clean-trained"),
+                ("n4sid", partial(_baseline, baselines.n4sid, dt=dt, order=2, **base), ""),
+                ("least squares (cold)", partial(_baseline, baselines.least_squares, dt=dt,
+                                                 **base), ""),
+                ("CasADi NLP (cold)", partial(_baseline, baselines.casadi_cold, dt=dt,
+                                              **base), ""),
+            ]
+            for name, call, start in methods:
+                # One core per identification for every method (the baselines are
+                # single-threaded): the latency a weak processor would see.
+                threads = torch.get_num_threads()
+                torch.set_num_threads(1)
+                try:
+                    r = _run_method(name, call, rec.y, rec.y_clean, truth, structure, dt)
+                finally:
+                    torch.set_num_threads(threads)
+                results.append({"subsystem": sub, "noise": noise, "method": name,
+                                "count": count, "start": start, **r})
+                if progress:
+                    print(f"  {sub:8s} noise {noise:4.0%}  {name:24s} step {r['step_mean']:.2e}"
+                          f"  fail {r['failure_rate']:5.1%}  {r['median_ms']:7.3f} ms",
+                          flush=True)
+        y = np.tile(rec.y, (max(1, 4096 // count), 1))[:4096]
+        clean.identify(y)
+        t0 = time.perf_counter()
+        for _ in range(3):
+            clean.identify(y)
+        throughput[sub] = 3 * len(y) / (time.perf_counter() - t0)
+    for r in results:
+        if r["method"].startswith("encoder") and r["method"] != "encoder":
+            continue
+        enc = next(e for e in results if e["subsystem"] == r["subsystem"]
+                   and e["noise"] == r["noise"] and e["method"] == "encoder")
+        r["encoder_speedup"] = r["median_ms"] / enc["median_ms"]
+    return {"results": results, "throughput_per_s": throughput, "count": count, "seed": seed}
+
+
+def format_identification_table(bench: dict) -> str:
+    """Markdown table of ``bench_identification``."""
+    lines = ["| subsystem | noise | method | step error (mean, ok) | step error (median, all) "
+             "| Δk % (median) | Δd % | Δm % | failures | median ms | p95 ms "
+             "| baseline / encoder time |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in bench["results"]:
+        p = r["params_median"]
+        speed = r.get("encoder_speedup")
+        lines.append(
+            f"| {r['subsystem']} | {r['noise']:.0%} | {r['method']} | {r['step_mean']:.2e} | "
+            f"{r['step_median']:.2e} | {p.get('k', float('nan')):.3f} | "
+            f"{p.get('d', float('nan')):.3f} | {p.get('m', float('nan')):.3f} | "
+            f"{r['failure_rate']:.1%} | {r['median_ms']:.3f} | {r['p95_ms']:.3f} | "
+            f"{'' if speed is None or r['method'] == 'encoder' else f'{speed:.1f}x'} |")
+    thr = ", ".join(f"{k}: {v:,.0f}/s" for k, v in bench["throughput_per_s"].items())
+    lines.append(f"\nEncoder batched throughput (batch 4096): {thr}")
     return "\n".join(lines)

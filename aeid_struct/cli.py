@@ -228,17 +228,35 @@ def _identify(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     import torch
 
-    from .bench import bench_decoder, format_decoder_table
+    from .bench import (
+        bench_decoder,
+        bench_identification,
+        format_decoder_table,
+        format_identification_table,
+    )
 
+    result = {}
+    if not args.decoder_only:
+        count = args.count or (20 if args.quick else 500)
+        print(f"Identification of the robot-leg subsystems: {count} systems per subsystem and "
+              f"noise level, one call per record, all methods on the same records "
+              f"(noise-free truth as reference), {torch.get_num_threads()} torch thread(s):",
+              flush=True)
+        ident = bench_identification(count=count, noises=tuple(args.noise),
+                                     progress=not args.quiet)
+        print()
+        print(format_identification_table(ident))
+        result["identification"] = ident
+    steps = (100, 300) if args.quick else tuple(args.steps)
     rows = []
     for dtype in (torch.float32, torch.float64):
-        rows += bench_decoder(batch=args.batch, steps=tuple(args.steps), dtype=dtype,
-                              threads=args.threads)
-    print(f"Decoder forward+backward, batch {args.batch}, {args.threads} thread(s):")
+        rows += bench_decoder(batch=args.batch, steps=steps, dtype=dtype, threads=args.threads)
+    print(f"\nDecoder forward+backward, batch {args.batch}, {args.threads} thread(s):")
     print(format_decoder_table(rows))
+    result["decoder"] = [_row_dict(r) for r in rows]
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"decoder": [_row_dict(r) for r in rows]}, indent=2))
+    out.write_text(json.dumps(result, indent=2, default=float))
     print(f"wrote {out}")
     return 0
 
@@ -326,12 +344,22 @@ def build_parser() -> argparse.ArgumentParser:
     idp.add_argument("--json", default=None, help="write the estimate as JSON")
     idp.set_defaults(func=_identify)
 
-    bench = sub.add_parser("bench", help="timings measured side by side; prints and writes JSON")
+    bench = sub.add_parser(
+        "bench", help="accuracy and speed of the encoder, refinement and classical baselines, "
+                      "and decoder timings, measured side by side; prints and writes JSON")
+    bench.add_argument("--quick", action="store_true", help="20 systems, short decoder table")
+    bench.add_argument("--count", type=int, default=None,
+                       help="systems per subsystem and noise level (default 500)")
+    bench.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.01, 0.05],
+                       help="noise levels, std relative to max|y| (default 0 0.01 0.05)")
+    bench.add_argument("--decoder-only", action="store_true", help="only the decoder timings")
     bench.add_argument("--batch", type=int, default=256)
     bench.add_argument("--steps", type=int, nargs="+", default=[100, 300, 1000])
     bench.add_argument("--threads", type=int, default=1,
-                       help="torch threads for the timings (default 1: steady on a busy box)")
+                       help="torch threads for the decoder timings (default 1: steady on a "
+                            "busy box)")
     bench.add_argument("--json", default="out/bench.json")
+    bench.add_argument("--quiet", action="store_true")
     bench.set_defaults(func=_bench)
     return parser
 

@@ -64,6 +64,11 @@ and the numerator from the Markov parameters ``h_k = c A^{k-1} b`` (CCF), poles 
 (MCF), and a user-supplied CasADi inverse of the CCF (Physical). That path is numpy float64 and
 not differentiable; the forward path (``theta -> System``) is torch and differentiable.
 
+CasADi view (for the refinement, ``refine.py``): :meth:`Structure.element_bounds` gives the
+closure of every constraint map's range as ``(lo, hi)``, and :meth:`Structure.casadi_system` the
+same assembly ``elements -> (A, b, c, d)`` with CasADi operations, so that an NLP over the
+elements keeps the structure and its constraints exactly.
+
 Tolerances: a model element counts as satisfying a closed constraint (Descartes ``a_i >= 0``,
 bounds) or a fixed value if it does so within ``sqrt(eps) * (1 + max|element|)`` of its row
 (``eps`` of the model's dtype), since it is computed through eigenvalues; it is then set to the
@@ -236,6 +241,16 @@ class _Map:
             "pos": v > 0.0,
             "neg": v < 0.0,
             "interval": self.lo <= v <= self.hi,
+        }[self.kind]
+
+    def bounds(self) -> tuple[float, float]:
+        """The closure of the map's range, ``(lo, hi)``: what the refinement imposes as bounds."""
+        return {
+            "real": (-math.inf, math.inf),
+            "nonneg": (0.0, math.inf),
+            "pos": (_MARGIN, math.inf),
+            "neg": (-math.inf, -_MARGIN),
+            "interval": (self.lo, self.hi),
         }[self.kind]
 
     def describe(self, name: str) -> str:
@@ -522,6 +537,43 @@ class Structure(abc.ABC):
     def _assemble(self, x: torch.Tensor) -> System:
         """System of batched elements ``x (batch, q)``."""
 
+    # -- CasADi view (used by the refinement, refine.py) ---------------------------------------
+    def element_bounds(self) -> dict[str, tuple[float, float]]:
+        """name -> ``(lo, hi)`` for every element: the closed set that the elements of this
+        structure's models fill, which the refinement imposes as bounds.
+
+        The closure of each constraint map's range: ``(-inf, inf)`` for a free real,
+        ``(0, inf)`` for a Descartes coefficient, ``(-inf, -1e-8)`` for an MCF real part (the
+        map's margin keeps it strictly negative), ``(1e-8, inf)`` for ``omega``, the given
+        ``(lo, hi)`` for a physical parameter, and ``(v, v)`` for an element fixed at ``v``.
+        """
+        return {name: ((self._fixed[name],) * 2 if name in self._fixed else m.bounds())
+                for name, m in self._maps.items()}
+
+    def casadi_system(self, x) -> tuple:
+        """``(A (n, n), b (n, 1), c (n, 1), d (1, 1))`` of the elements ``x`` as CasADi values.
+
+        Parameters
+        ----------
+        x : casadi SX, MX or DM ``(q, 1)`` (or a sequence of q numbers), all elements in
+            :attr:`element_names` order, fixed ones included (they are used as given; the
+            refinement passes the fixed values as constants).
+
+        The same assembly as :meth:`assemble` (``c`` as a column: ``y = c^T x + d u``), written
+        with CasADi operations so that it can enter a symbolic expression graph. A
+        :class:`Physical` structure calls its CasADi map: inlined for an SX or MX map of
+        elementary operations, a call node otherwise (external and callback functions too).
+        """
+        if not isinstance(x, (casadi.SX, casadi.MX, casadi.DM)):
+            x = casadi.DM(np.asarray(x, dtype=np.float64).reshape(-1))
+        if x.shape != (self.q, 1):
+            raise ValueError(f"x must have shape ({self.q}, 1) for {self!r}; got {x.shape}")
+        return self._casadi_assemble(x)
+
+    def _casadi_assemble(self, x) -> tuple:
+        """CasADi ``(A, b, c, d)`` of the elements ``x (q, 1)``; see :meth:`casadi_system`."""
+        raise NotImplementedError(f"{type(self).__name__} has no CasADi assembly")
+
     # -- a given model -> elements ----------------------------------------------------------------
     @abc.abstractmethod
     def _elements_of(self, A, b, c, d, strict: bool) -> np.ndarray:
@@ -681,6 +733,16 @@ class CCF(Structure):
         d = self._column(x, "d") if self.feedthrough else x.new_zeros(x.shape[0])
         return System(_matrix(entries, n, x), b, x[:, n : 2 * n], d)
 
+    def _casadi_assemble(self, x) -> tuple:
+        n = self.n
+        A = type(x).zeros(n, n)
+        for i in range(n - 1):
+            A[i, i + 1] = 1.0
+        A[n - 1, :] = -x[:n].T
+        b = casadi.DM([0.0] * (n - 1) + [1.0])
+        d = x[2 * n] if self.feedthrough else casadi.DM(0.0)
+        return A, b, x[n : 2 * n], d
+
     def _elements_of(self, A, b, c, d, strict):
         if not self.feedthrough:
             self._no_feedthrough(d, strict)
@@ -739,6 +801,19 @@ class MCF(Structure):
         b = _constant(x, [1.0] * r + [0.0, 1.0] * self.pairs)
         d = self._column(x, "d") if self.feedthrough else x.new_zeros(x.shape[0])
         return System(_matrix(entries, n, x), b, x[:, n : 2 * n], d)
+
+    def _casadi_assemble(self, x) -> tuple:
+        r, n = self.real, self.n
+        A = type(x).zeros(n, n)
+        for i in range(r):
+            A[i, i] = x[i]
+        for j in range(self.pairs):
+            k = r + 2 * j
+            delta, omega = x[k], x[k + 1]
+            A[k, k], A[k, k + 1], A[k + 1, k], A[k + 1, k + 1] = delta, omega, -omega, delta
+        b = casadi.DM([1.0] * r + [0.0, 1.0] * self.pairs)
+        d = x[2 * n] if self.feedthrough else casadi.DM(0.0)
+        return A, b, x[n : 2 * n], d
 
     def _elements_of(self, A, b, c, d, strict):
         if not self.feedthrough:
@@ -948,6 +1023,10 @@ class Physical(Structure):
         B, n = x.shape[0], self.n
         return System(out["A"].reshape(B, n, n), out["B"].reshape(B, n),
                       out["C"].reshape(B, n), out["D"].reshape(B))
+
+    def _casadi_assemble(self, x) -> tuple:
+        out = self.function(**{name: x[i] for i, name in enumerate(self._maps)})
+        return out["A"], out["B"], out["C"].T, out["D"]
 
     def _elements_of(self, A, b, c, d, strict):
         if self._inverse_op is None:

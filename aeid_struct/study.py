@@ -205,7 +205,8 @@ def figure3(idents: dict, path) -> None:
     fig3(comparisons, path)
 
 
-def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool):
+def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
+            validation: int = 200):
     """Paper Fig. 4: step error vs training-set size; each size trains for ``seconds_each``."""
     from .plots import fig4
 
@@ -215,7 +216,8 @@ def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool):
         for size in sizes:
             ident = train_leg(subsystem, seconds=seconds_each, seed=seed,
                               count=int(size / 0.8) + 1, progress=progress)
-            errs.append(evaluate(ident, subsystem, count=200, timing=False).overall["step"])
+            errs.append(evaluate(ident, subsystem, count=validation, timing=False)
+                        .overall["step"])
         errors[subsystem] = np.array(errs)
     fig4(np.asarray(sizes), errors, path,
          paper={k: v["step"][1] for k, v in PAPER.items()})
@@ -258,7 +260,8 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
     }
     if fig4_sizes:
         errors = figure4(fig4_sizes, seconds_each=fig4_seconds, seed=seed,
-                         path=out / "fig4_error_vs_size.png", progress=progress)
+                         path=out / "fig4_error_vs_size.png", progress=progress,
+                         validation=min(validation, 200))
         result["fig4"] = {"sizes": list(fig4_sizes),
                           "step_error": {k: v.tolist() for k, v in errors.items()}}
     (out / "leg_study.json").write_text(json.dumps(result, indent=2))

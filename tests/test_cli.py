@@ -47,7 +47,8 @@ def test_train_then_identify_from_csv(tmp_path, capsys):
 
 def test_bench_writes_json(tmp_path, capsys):
     js = tmp_path / "bench.json"
-    assert main(["bench", "--batch", "8", "--steps", "20", "--json", str(js)]) == 0
+    assert main(["bench", "--decoder-only", "--batch", "8", "--steps", "20", "--json",
+                 str(js)]) == 0
     rows = json.loads(js.read_text())["decoder"]
     assert len(rows) == 2 and all(r["loop_ms"] > 0 for r in rows)
 
@@ -65,3 +66,30 @@ def test_bench_writes_json(tmp_path, capsys):
 def test_bad_arguments_exit_with_message(argv, match):
     with pytest.raises(SystemExit, match=match):
         main(argv)
+
+
+@pytest.mark.slow
+def test_leg_fig4_small(tmp_path, capsys):
+    assert main(["leg", "--pretrained", "--validation", "20", "--fig4", "--fig4-sizes", "40",
+                 "80", "--fig4-seconds", "2", "--quiet", "--out", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "leg_study.json").read_text())
+    assert result["fig4"]["sizes"] == [40, 80]
+    assert all(len(v) == 2 and all(e > 0 for e in v)
+               for v in result["fig4"]["step_error"].values())
+    assert (tmp_path / "fig4_error_vs_size.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_bench_quick_compares_all_methods(tmp_path, capsys):
+    js = tmp_path / "bench.json"
+    assert main(["bench", "--quick", "--count", "6", "--quiet", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    assert "| stable | 5% | encoder + refine |" in out and "n4sid" in out
+    result = json.loads(js.read_text())
+    methods = {r["method"] for r in result["identification"]["results"]}
+    assert methods == {"encoder", "encoder (noise-trained)", "encoder + refine", "n4sid",
+                       "least squares (cold)", "CasADi NLP (cold)"}
+    for r in result["identification"]["results"]:
+        if r["noise"] == 0.0 and r["method"] == "encoder + refine":
+            assert r["step_mean"] < 1e-8 and r["failure_rate"] == 0.0
+    assert all(v > 0 for v in result["identification"]["throughput_per_s"].values())

@@ -649,3 +649,52 @@ def test_mcf_model_errors():
     with pytest.raises(ValueError, match=r"repeated pole without a full set of eigenvectors"):
         MCF(real=2, pairs=0).elements_of(np.array([[-1.0, 1.0], [0.0, -1.0]]), np.ones(2),
                                          np.ones(2))
+
+
+# -- the CasADi view used by the refinement ------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", STRUCTURES)
+def test_casadi_system_equals_assemble(name):
+    s = STRUCTURES[name]
+    x = s.elements(theta_for(s, 3, seed=4))
+    A, b, c, d = numpy_system(s.assemble(x))
+    sym = casadi.SX.sym("x", s.q)
+    f = casadi.Function("system", [sym], list(s.casadi_system(sym)))
+    for i in range(3):
+        Ai, bi, ci, di = (np.array(v) for v in f(x[i].numpy()))
+        np.testing.assert_allclose(Ai, A[i], rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(bi.ravel(), b[i], rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(ci.ravel(), c[i], rtol=1e-14, atol=1e-14)
+        assert di.item() == pytest.approx(d[i], abs=1e-14)
+        # numeric elements give numeric matrices directly
+        An = np.array(casadi.DM(s.casadi_system(x[i].numpy())[0]))
+        np.testing.assert_allclose(An, A[i], rtol=1e-14, atol=1e-14)
+
+
+@pytest.mark.parametrize("name", STRUCTURES)
+def test_element_bounds_close_the_constraint_maps(name):
+    s = STRUCTURES[name]
+    bounds = s.element_bounds()
+    assert tuple(bounds) == s.element_names
+    x = s.elements(wide_theta(s.p, 512, seed=5))
+    for i, nm in enumerate(s.element_names):
+        lo, hi = bounds[nm]
+        assert bool((x[:, i] >= lo).all() and (x[:, i] <= hi).all()), nm
+        if nm in s.fixed_values:
+            assert lo == hi == s.fixed_values[nm]
+
+
+def test_element_bounds_by_kind():
+    assert CCF(2, descartes=True).element_bounds() == {
+        "a0": (0.0, np.inf), "a1": (0.0, np.inf), "c0": (-np.inf, np.inf), "c1": (-np.inf, np.inf)}
+    mcf = MCF(real=1, pairs=1).element_bounds()
+    assert mcf["lambda0"] == mcf["delta0"] == (-np.inf, -1e-8)
+    assert mcf["omega0"] == (1e-8, np.inf)
+    assert msd().fixed(m=1.0).element_bounds() == {"k": (20.0, 25.0), "d": (2.0, 5.0),
+                                                   "m": (1.0, 1.0)}
+
+
+def test_casadi_system_shape_error():
+    with pytest.raises(ValueError, match=r"x must have shape \(4, 1\) for CCF"):
+        CCF(2).casadi_system(casadi.SX.sym("x", 3))
