@@ -194,17 +194,20 @@ def _run_method(name, call, y, y_clean, params_true, structure, dt):
         call(y[0])
     except Exception:
         pass
+    # Time the calls back to back, then evaluate: checking an estimate between two calls
+    # (CasADi inverse, simulation) evicts caches and measured up to 2.6x slower encoder calls.
+    estimates = []
     for i in range(len(y)):
         t0 = time.perf_counter()
         try:
-            est = call(y[i])
-            err = None
+            estimates.append(call(y[i]))
         except Exception as exc:  # a baseline that throws counts as a failure
-            est, err = None, exc
+            estimates.append(exc)
         times.append(time.perf_counter() - t0)
-        if est is None:
+    for i, est in enumerate(estimates):
+        if isinstance(est, Exception):
             steps.append(np.inf)
-            fails.append(f"exception: {err}")
+            fails.append(f"exception: {est}")
             continue
         why = failure(est, structure=structure, truth_y=y_clean[i])
         fails.append(why)
@@ -258,6 +261,8 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
     ``encoder_speedup`` (this method's median time over the encoder's, same records);
     ``throughput_per_s`` of the encoder at batch 4096.
     """
+    from threadpoolctl import threadpool_limits
+
     from symbolic import leg
 
     from . import baselines
@@ -295,12 +300,14 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
                                               **base), ""),
             ]
             for name, call, start in methods:
-                # One core per identification for every method (the baselines are
-                # single-threaded): the latency a weak processor would see.
+                # One core per identification for every method: torch and the BLAS under
+                # numpy/scipy both limited to one thread (an idle BLAS pool spins on the other
+                # core and measured up to 2x slower calls): the latency a weak processor sees.
                 threads = torch.get_num_threads()
                 torch.set_num_threads(1)
                 try:
-                    r = _run_method(name, call, rec.y, rec.y_clean, truth, structure, dt)
+                    with threadpool_limits(limits=1):
+                        r = _run_method(name, call, rec.y, rec.y_clean, truth, structure, dt)
                 finally:
                     torch.set_num_threads(threads)
                 results.append({"subsystem": sub, "noise": noise, "method": name,
