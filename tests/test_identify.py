@@ -142,3 +142,54 @@ def test_constructor_errors():
                    scale="none")
     with pytest.raises(ValueError, match=r"theta_mean and theta_scale must have shape \(4,\)"):
         Identifier(enc, ae.CCF(2), dt=0.1, theta_mean=torch.zeros(3), theta_scale=torch.ones(4))
+
+
+def _random_identifier(structure, *, inputs=False, features=0, scale="denormalise",
+                       activation="tanh", pool=2, steps=60):
+    torch.manual_seed(1)
+    enc = Encoder(EncoderConfig(steps=steps, outputs=structure.p, inputs=inputs,
+                                features=features, width=4, kernel=3, dense=(8, 6), pool=pool,
+                                activation=activation))
+    enc.eval()
+    return Identifier(enc, structure, dt=0.05, theta_mean=torch.zeros(structure.p),
+                      theta_scale=torch.full((structure.p,), 0.3), scale=scale)
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: _random_identifier(ae.CCF(2, descartes=True)),
+        lambda: _random_identifier(ae.CCF(3, feedthrough=True).fixed(a1=0.5), pool=3),
+        lambda: _random_identifier(ae.MCF(real=1, pairs=1), inputs=True, activation="relu"),
+        lambda: _random_identifier(
+            ae.Physical(leg.stable_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)}),
+            features=1, scale="feature", pool=1),
+    ],
+)
+def test_batch1_fast_path_is_used_and_equals_the_eager_path(make):
+    ident = make()
+    assert ident._fast() is not None, "the batch-1 path fell back to eager"
+    rng = np.random.default_rng(0)
+    y = np.cumsum(rng.random((3, 60)), axis=1)
+    u = 0.5 + rng.random((3, 60))
+    batch = ident.identify(y, u)                    # eager torch path
+    for i in range(3):
+        one = ident.identify(y[i], u[i])            # numpy encoder + traced structure
+        np.testing.assert_allclose(one.A, batch.A[i], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(one.c, batch.c[i], rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(one.d, batch.d[i], rtol=1e-5, atol=1e-6)
+        for k, v in one.elements.items():
+            assert v == pytest.approx(batch.elements[k][i], rel=1e-5, abs=1e-6)
+
+
+def test_fast_path_follows_weight_changes():
+    ident = _random_identifier(ae.CCF(2))
+    y = np.cumsum(np.ones(60))
+    before = ident.identify(y).A.copy()
+    with torch.no_grad():
+        for p in ident.encoder.parameters():
+            p.mul_(1.5)
+    after = ident.identify(y)
+    eager = ident.identify(np.stack([y, y]))
+    assert not np.allclose(before, after.A)
+    np.testing.assert_allclose(after.A, eager.A[0], rtol=1e-5, atol=1e-6)
