@@ -817,6 +817,11 @@ def least_squares(y, u, dt: float, *, structure, start: dict | None = None, inve
     info |= {"solver": "+".join(methods[: k + 1]), "nfev": nfev, "njev": njev,
              "cost": float(result.cost), "status": int(result.status),
              "message": str(result.message)}
+    return _finish(structure, model, names, x, y, u, dt, start_time, info, source)
+
+
+def _finish(structure, model, names, x, y, u, dt, start_time, info, source) -> Estimate:
+    """The estimate of optimised elements ``x``, or a failed one where they are not finite."""
     system = model.system(x)
     if not (np.all(np.isfinite(x)) and all(np.all(np.isfinite(m)) for m in system)):
         return _estimate(_nan_model(structure.n), {}, y, u, dt, start_time,
@@ -980,9 +985,4 @@ def casadi_cold(y, u, dt: float, *, structure, start: dict | None = None, invers
     info |= {"iterations": result.iterations, "success": result.success,
              "status": result.status, "loss": result.loss, "loss_start": result.loss_start,
              "solver": result.solver}
-    system = model.system(x)
-    if not (np.all(np.isfinite(x)) and all(np.all(np.isfinite(m)) for m in system)):
-        return _estimate(_nan_model(structure.n), {}, y, u, dt, start_time,
-                         {**info, "failed": True, "reason": "non-finite elements"}, None)
-    return _estimate(system, dict(zip(names, x.tolist(), strict=True)), y, u, dt, start_time,
-                     info, source)
+    return _finish(structure, model, names, x, y, u, dt, start_time, info, source)
