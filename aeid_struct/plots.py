@@ -1,6 +1,6 @@
 """Figures: step responses and Bode plots, true vs identified (paper Fig. 3); step error vs
 training-set size (paper Fig. 4). Each returns a matplotlib Figure and writes a PNG when a path
-is given; the Agg backend is used, so no display is needed.
+is given; no display is needed (the CLI uses the Agg backend).
 """
 
 from __future__ import annotations
@@ -32,9 +32,8 @@ class Comparison:
 
 
 def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
+    # No backend is forced here, so figures show inline in notebooks; without a display
+    # matplotlib falls back to Agg by itself, and the CLI selects Agg explicitly.
     import matplotlib.pyplot as plt
 
     return plt
