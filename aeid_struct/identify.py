@@ -57,6 +57,8 @@ class Estimate:
         seconds: wall time of the identification.
         refined: whether a CasADi refinement polished the estimate.
         info: extra diagnostics (refinement iterations, loss, ...).
+        structure: the structure the model is in, where known (set by ``Identifier``), so that
+            ``refine(estimate, y, u, dt)`` needs no further argument.
 
     ``fit``, ``y_hat`` and ``physical`` are computed on first access, so that a plain
     identification costs one encoder pass.
@@ -74,6 +76,7 @@ class Estimate:
     refined: bool = False
     info: dict = field(default_factory=dict)
     _inverse: object = field(default=None, repr=False)
+    structure: object = field(default=None, repr=False)
 
     @property
     def batched(self) -> bool:
@@ -302,7 +305,8 @@ class Identifier:
                               for k in names]])
 
     # -- public identification -----------------------------------------------------------------
-    def identify(self, y, u=None, *, refine: bool = False) -> Estimate:
+    def identify(self, y, u=None, *, dt: float | None = None,
+                 refine: bool = False) -> Estimate:
         """Identify the system behind a record in one encoder pass.
 
         Args:
@@ -310,12 +314,18 @@ class Identifier:
                 from rest (zero initial state).
             u: input, same shape (or ``(steps,)`` for a whole batch); ``None`` means a unit
                 step, which is what step-trained identifiers expect.
+            dt: the record's sample time, if you want it checked against the identifier's
+                (an identifier only knows records on the grid it was trained for).
             refine: polish the estimate with a CasADi NLP in the same structure (refine.py).
 
         Returns:
             An ``Estimate``; batched when ``y`` is.
         """
         start = time.perf_counter()
+        if dt is not None and not (isinstance(dt, (int, float))
+                                   and math.isclose(dt, self.dt, rel_tol=1e-9)):
+            raise ValueError(f"dt must be {self.dt} s for this identifier (trained on records of "
+                             f"{self.steps} samples at dt={self.dt}); got dt={dt!r}")
         y2, batched = _as_records("y", y, self.steps, self.dt)
         count = y2.shape[0]
         zero_y = ~np.any(y2 != 0, axis=1)
@@ -370,12 +380,13 @@ class Identifier:
         if batched:
             elements = {name: el[:, i] for i, name in enumerate(self.structure.element_names)}
             est = Estimate(A, b, c, d, elements, y2, np.asarray(u2), self.dt,
-                           time.perf_counter() - start, False, {}, self._physical_source())
+                           time.perf_counter() - start, False, {}, self._physical_source(),
+                           structure=self.structure)
         else:
             elements = dict(zip(self.structure.element_names, el[0].tolist(), strict=True))
             est = Estimate(A[0], b[0], c[0], float(d[0]), elements, y2[0], np.asarray(u2)[0],
                            self.dt, time.perf_counter() - start, False, {},
-                           self._physical_source())
+                           self._physical_source(), structure=self.structure)
         if refine:
             from .refine import refine as _refine
 

@@ -721,7 +721,7 @@ def _records(name: str, value, count: int, batched: bool) -> np.ndarray:
     return arr
 
 
-def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure,
+def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure | None = None,
            config: RefineConfig = RefineConfig()) -> Estimate:  # noqa: B008
     """Polish an estimate by a CasADi NLP in its structure (module docstring), record by record.
 
@@ -734,7 +734,8 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure,
         unbatched estimate); not all zero.
     u : like ``y``, ``(steps,)`` for every record, or None (unit step)
     dt : float > 0
-    structure : Structure
+    structure : Structure, optional
+        Default: the structure the estimate carries (estimates from an ``Identifier`` do).
     config : RefineConfig
 
     Returns
@@ -749,6 +750,11 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure,
     start = time.perf_counter()
     if not isinstance(estimate, Estimate):
         raise ValueError(f"estimate must be an Estimate; got {type(estimate).__name__}")
+    if structure is None:
+        structure = estimate.structure
+        if structure is None:
+            raise ValueError("structure must be given: this estimate does not carry one (only "
+                             "estimates from an Identifier do)")
     if not isinstance(structure, Structure):
         raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):

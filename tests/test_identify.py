@@ -193,3 +193,26 @@ def test_fast_path_follows_weight_changes():
     eager = ident.identify(np.stack([y, y]))
     assert not np.allclose(before, after.A)
     np.testing.assert_allclose(after.A, eager.A[0], rtol=1e-5, atol=1e-6)
+
+
+def test_dt_mismatch_names_what_the_identifier_expects():
+    ident = _identifier()
+    with pytest.raises(ValueError, match=r"dt must be 0.05 s for this identifier \(trained on "
+                                         r"records of 60 samples at dt=0.05\); got dt=0.01"):
+        ident.identify(_record(), dt=0.01)
+    assert ident.identify(_record(), dt=0.05).A.shape == (2, 2)
+
+
+def test_standalone_refine_uses_the_estimates_structure():
+    from aeid_struct.refine import refine
+
+    ident = _identifier()
+    y = _record()
+    est = ident.identify(y)
+    assert est.structure == ident.structure
+    polished = refine(est, y, None, 0.05)           # no structure argument needed
+    assert polished.refined and polished.info["loss"] <= polished.info["loss_start"]
+    np.testing.assert_allclose(polished.A, [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-6, atol=1e-8)
+    bare = ae.Estimate(est.A, est.b, est.c, est.d, est.elements, y, np.ones(60), 0.05)
+    with pytest.raises(ValueError, match="structure must be given: this estimate does not"):
+        refine(bare, y, None, 0.05)

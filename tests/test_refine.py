@@ -459,5 +459,5 @@ def test_refine_errors():
         refine(est, y, None, -1, structure=ident.structure)
     with pytest.raises(ValueError, match="estimate.elements must hold every element of MCF"):
         refine(est, y, None, 0.05, structure=ae.MCF(real=0, pairs=1))
-    with pytest.raises(ValueError, match="structure must be a Structure; got NoneType"):
-        refine(est, y, None, 0.05, structure=None)
+    with pytest.raises(ValueError, match="structure must be a Structure; got str"):
+        refine(est, y, None, 0.05, structure="CCF(2)")
