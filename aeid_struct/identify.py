@@ -347,6 +347,16 @@ class Identifier:
             if zero_u.any():
                 raise ValueError(f"u must not be all zero (record {int(np.argmax(zero_u))}): "
                                  "a system at rest with zero input reveals nothing")
+            if not self.inputs:
+                # The encoder never sees u: only a step (of any height, which the exact
+                # de-normalisation absorbs) is what it was trained on.
+                varying = np.any(u2 != u2[:, :1], axis=1)
+                if varying.any():
+                    raise ValueError(
+                        f"u must be a constant step for this identifier (record "
+                        f"{int(np.argmax(varying))} varies): it was trained on step responses "
+                        "and does not read u; use an identifier trained with another "
+                        "excitation (TrainConfig(excitation='mix')) for arbitrary inputs")
             ut = torch.from_numpy(np.ascontiguousarray(u2, dtype=np.float32))
         fast = self._fast() if count == 1 else None
         if fast is not None:

@@ -123,6 +123,8 @@ def test_foreign_safetensors_rejected(tmp_path):
         (np.ones(60), np.zeros(60), r"u must not be all zero"),
         (np.ones(60), np.ones(61), r"u must have shape \(60,\)"),
         (np.ones((3, 60)), np.ones((2, 60)), r"u must have 3 records like y; got 2"),
+        (np.ones(60), np.linspace(0.1, 1.0, 60), r"u must be a constant step for this "
+                                                 r"identifier \(record 0 varies\)"),
     ],
 )
 def test_input_errors(y, u, match):
@@ -171,7 +173,8 @@ def test_batch1_fast_path_is_used_and_equals_the_eager_path(make):
     assert ident._fast() is not None, "the batch-1 path fell back to eager"
     rng = np.random.default_rng(0)
     y = np.cumsum(rng.random((3, 60)), axis=1)
-    u = 0.5 + rng.random((3, 60))
+    # steps of random heights, or arbitrary inputs where the encoder reads u
+    u = 0.5 + rng.random((3, 60)) if ident.inputs else (0.5 + rng.random((3, 1))) * np.ones(60)
     batch = ident.identify(y, u)                    # eager torch path
     for i in range(3):
         one = ident.identify(y[i], u[i])            # numpy encoder + traced structure
