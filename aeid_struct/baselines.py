@@ -117,7 +117,8 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from .identify import Estimate
+from .decoder import _check_dt
+from .identify import Estimate, _as_array, _require_finite
 
 __all__ = [
     "Continuous",
@@ -251,13 +252,6 @@ def to_continuous(Phi, B, c, D, dt: float, *, hold: str = "foh") -> Continuous:
 # ----------------------------------------------------------------------------------------------
 # Input checks and the Estimate
 # ----------------------------------------------------------------------------------------------
-def _check_dt(dt) -> float:
-    ok = isinstance(dt, (int, float, np.floating)) and not isinstance(dt, bool)
-    if not (ok and math.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be a positive finite number; got {dt!r}")
-    return float(dt)
-
-
 def _check_int(name: str, value, lowest: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lowest:
         raise ValueError(f"{name} must be an integer >= {lowest}; got {value!r}")
@@ -268,17 +262,11 @@ def _records(y, u) -> tuple[np.ndarray, np.ndarray]:
     """One record: ``y (steps,)`` and ``u (steps,)`` (a unit step when None), finite, not zero."""
     out = []
     for name, v in (("y", y), ("u", np.ones(np.shape(y)) if u is None else u)):
-        try:
-            arr = np.asarray(v, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name} must be an array of numbers; got "
-                             f"{type(v).__name__}") from None
+        arr = _as_array(name, v)
         if arr.ndim != 1 or arr.shape[0] < 2:
             raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record; "
                              f"loop over a batch); got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            k = int(np.flatnonzero(~np.isfinite(arr))[0])
-            raise ValueError(f"{name} must be finite; got {arr[k]} at sample {k}")
+        _require_finite(name, arr)
         if not np.any(arr):
             raise ValueError(f"{name} must not be all zero: a record from rest with zero "
                              "input or output reveals nothing")

@@ -184,7 +184,8 @@ def _baseline(method, y, *, dt, **kw):
     return method(y, None, dt, **kw)
 
 
-def _run_method(name, call, y, y_clean, params_true, structure, dt):
+def _run_method(call, y, y_clean, params_true, structure):
+    """Time ``call`` on every record back to back, then score the estimates (see the caller)."""
     from .baselines import failure
     from .metrics import step_error
 
@@ -263,8 +264,6 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
     """
     from threadpoolctl import threadpool_limits
 
-    from symbolic import leg
-
     from . import baselines
     from .data import LegFamily, records
     from .identify import load_pretrained
@@ -279,7 +278,7 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
         except ValueError:
             noisy = None
         structure = clean.structure
-        inverse = leg.stable_inverse() if sub == "stable" else leg.unstable_inverse()
+        inverse = LegFamily(subsystem=sub).inverse()
         for noise in noises:
             rec = records(LegFamily(subsystem=sub), count, steps=steps, dt=dt, noise=noise,
                           seed=seed + int(1000 * noise))
@@ -307,7 +306,7 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
                 torch.set_num_threads(1)
                 try:
                     with threadpool_limits(limits=1):
-                        r = _run_method(name, call, rec.y, rec.y_clean, truth, structure, dt)
+                        r = _run_method(call, rec.y, rec.y_clean, truth, structure)
                 finally:
                     torch.set_num_threads(threads)
                 results.append({"subsystem": sub, "noise": noise, "method": name,

@@ -122,12 +122,11 @@ def _structure(spec: str):
             real, pairs = (int(v) for v in parts[1].split(","))
             return structures.MCF(real=real, pairs=pairs)
         if parts[0] in ("leg-stable", "leg-unstable"):
-            from symbolic import leg
+            from .data import LegFamily
 
-            sub = parts[0].split("-")[1]
-            f = leg.stable_map() if sub == "stable" else leg.unstable_map()
-            inv = leg.stable_inverse() if sub == "stable" else None
-            return structures.Physical(f, bounds=dict(leg.RANGES), inverse=inv)
+            family = LegFamily(subsystem=parts[0].split("-")[1])
+            return structures.Physical(family.map(), bounds=dict(family.ranges),
+                                       inverse=family.inverse())
     except (IndexError, ValueError) as err:
         raise SystemExit(f"aeid-struct: --structure {spec!r} is malformed ({err}); expected "
                          "ccf:N[:descartes][:feedthrough], mcf:REAL,PAIRS, leg-stable or "
@@ -166,15 +165,12 @@ def _train(args: argparse.Namespace) -> int:
                          checkpoint=args.checkpoint, progress=not args.quiet)
     encoder = EncoderConfig(width=args.width, kernel=args.kernel, dense=tuple(args.dense),
                             pool=args.pool)
-    inverse = None
-    if args.family == "leg-stable" and args.structure.startswith("ccf:2"):
-        from symbolic import leg
+    from .data import LegFamily
+    from .structures import CCF
 
-        inverse = leg.stable_inverse()
-    elif args.family == "leg-unstable" and args.structure.startswith("ccf:2"):
-        from symbolic import leg
-
-        inverse = leg.unstable_inverse()
+    # A CCF identifier of a leg subsystem reports k, d, m through the CasADi inverse.
+    inverse = family.inverse() if isinstance(family, LegFamily) and isinstance(
+        structure, CCF) and structure.n == 2 else None
     ident = train(structure, family, config, encoder=encoder, inverse=inverse,
                   meta={"command": "aeid-struct " + " ".join(args.argv), "seed": args.seed})
     path = ident.save(args.out)

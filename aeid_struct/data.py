@@ -101,6 +101,14 @@ class LegFamily:
         f = leg.stable_map if self.subsystem == "stable" else leg.unstable_map
         return f(l0=self.l0, g=self.g)
 
+    def inverse(self):
+        """The CasADi inverse of ``map()``: a CCF (A, B, C, D) -> the physical parameters
+        (k, d, m for the stable subsystem; k, m for the unstable one, which d does not enter)."""
+        from symbolic import leg
+
+        f = leg.stable_inverse if self.subsystem == "stable" else leg.unstable_inverse
+        return f(l0=self.l0, g=self.g)
+
     def systems(self, k, d, m) -> Systems:
         """The subsystems of given parameter arrays ``(N,)`` (vectorised through ``f.map``)."""
         k, d, m = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (k, d, m))

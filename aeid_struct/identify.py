@@ -141,24 +141,39 @@ class Estimate:
         return [one(*m) for m in zip(self.A, self.b, self.c, self.d, strict=True)]
 
 
-def _as_records(name: str, value, steps: int, dt: float) -> tuple[np.ndarray, bool]:
-    """Validate a record argument: ``(steps,)`` or ``(batch, steps)`` finite numbers."""
+def _as_array(name: str, value) -> np.ndarray:
+    """``value`` as a float64 array, or a ValueError naming the argument."""
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be an array of numbers; got {type(value).__name__}") \
             from None
+
+
+def _require_finite(name: str, arr: np.ndarray) -> None:
+    """A ValueError naming the first non-finite entry of a ``(steps,)`` or ``(batch, steps)``
+    record ("at sample k" or "at record r, sample k")."""
+    if not np.all(np.isfinite(arr)):
+        where = np.argwhere(~np.isfinite(arr))[0]
+        labels = ("record", "sample")[-arr.ndim:]
+        at = ", ".join(f"{label} {i}" for label, i in zip(labels, where, strict=True))
+        raise ValueError(f"{name} must be finite; got {arr[tuple(where)]} at {at}")
+
+
+def _as_records(name: str, value, steps: int, dt: float) -> tuple[np.ndarray, bool]:
+    """Validate a record argument: ``(steps,)`` or ``(batch, steps)`` finite numbers.
+
+    Returns the records as ``(batch, steps)`` and whether a batch axis was given."""
+    arr = _as_array(name, value)
     batched = arr.ndim == 2
     if arr.ndim not in (1, 2) or arr.shape[-1] != steps:
         raise ValueError(
             f"{name} must have shape ({steps},) or (batch, {steps}) for this identifier "
             f"(dt={dt}, steps={steps}); got {arr.shape}"
         )
-    if not np.all(np.isfinite(arr)):
-        bad = np.argwhere(~np.isfinite(np.atleast_2d(arr)))[0]
-        raise ValueError(f"{name} must be finite; got {np.atleast_2d(arr)[tuple(bad)]} at "
-                         f"record {bad[0]}, sample {bad[1]}")
-    return np.atleast_2d(arr), batched
+    arr = np.atleast_2d(arr)
+    _require_finite(name, arr)
+    return arr, batched
 
 
 class Identifier:
@@ -205,9 +220,13 @@ class Identifier:
         self.feature_scale = float(feature_scale)
         self.inverse = inverse
         self.meta = dict(meta or {})
-        self._trace = None
+        self._fast_path = None                      # (weight versions, _Batch1 or None)
         self._params = list(encoder.parameters())   # cached: walking the modules costs ~0.5 ms
         self._unit_step = torch.ones(1, encoder.config.steps)
+        # 1 for the elements that scale with the output (c_i, d), 0 elsewhere
+        self._output_mask = torch.tensor([[
+            1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
+            for k in structure.element_names]])
 
     # -- the record format ---------------------------------------------------------------------
     @property
@@ -274,8 +293,8 @@ class Identifier:
         path when it is built, and skipped (None) where it does not apply or does not agree.
         """
         version = tuple(p._version for p in self._params)
-        if self._trace is not None and self._trace[0] == version:
-            return self._trace[1]
+        if self._fast_path is not None and self._fast_path[0] == version:
+            return self._fast_path[1]
         try:
             fast = _Batch1(self)
             g = torch.Generator().manual_seed(0)
@@ -294,15 +313,8 @@ class Identifier:
                      for a, b in zip(ref, got, strict=True))
         except Exception:  # any structure or layer the fast path does not cover: eager path
             fast, ok = None, False
-        self._trace = (version, fast if ok else None)
-        return self._trace[1]
-
-    @property
-    def _output_mask(self) -> torch.Tensor:
-        """1 for the elements that scale with the output (c_i, d), 0 elsewhere."""
-        names = self.structure.element_names
-        return torch.tensor([[1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
-                              for k in names]])
+        self._fast_path = (version, fast if ok else None)
+        return self._fast_path[1]
 
     # -- public identification -----------------------------------------------------------------
     def identify(self, y, u=None, *, dt: float | None = None,

