@@ -199,12 +199,15 @@ def excitation(kind: str, count: int, steps: int, dt: float,
     if kind == "ramp":
         return np.tile(t / max(t[-1], dt), (count, 1))
     if kind == "prbs":
-        u = np.empty((count, steps))
-        for i in range(count):
-            holds = rng.integers(3, 13, size=steps)
-            levels = rng.choice([-1.0, 1.0], size=steps)
-            u[i] = np.repeat(levels, holds)[:steps]
-        return u
+        # Each record: levels +-1 held for 3-12 samples. Mark where each hold ends, and the
+        # running count of marks is every sample's segment: no loop over the records.
+        ends = np.cumsum(rng.integers(3, 13, size=(count, steps)), axis=1)
+        marks = np.zeros((count, steps + 1), dtype=np.int64)
+        rows, cols = np.nonzero(ends < steps)
+        marks[rows, ends[rows, cols]] = 1
+        segment = np.cumsum(marks[:, :steps], axis=1)
+        levels = rng.choice([-1.0, 1.0], size=(count, steps))
+        return np.take_along_axis(levels, segment, axis=1)
     if kind == "multisine":
         fmax = min(10.0, 0.4 / dt)
         f = rng.uniform(0.2, fmax, size=(count, 4, 1))

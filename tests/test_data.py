@@ -72,6 +72,9 @@ def test_excitations(kind):
         np.testing.assert_array_equal(u, 1.0)
     if kind == "prbs":
         assert set(np.unique(u)) <= {-1.0, 1.0}
+        for row in u:   # every level is held for at least 3 samples (the last run may be cut)
+            changes = np.flatnonzero(np.diff(row) != 0)
+            assert np.all(np.diff(np.r_[-1, changes]) >= 3)
     if kind in ("multisine", "noise"):
         np.testing.assert_allclose(np.abs(u).max(axis=1), 1.0)
 

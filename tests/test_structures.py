@@ -3,7 +3,6 @@ stability by construction, fixed elements, Physical (CasADi maps), gradcheck, co
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import casadi
@@ -482,10 +481,6 @@ def test_physical_with_extra_outputs_and_other_output_order():
     torch.testing.assert_close(s(theta).A, msd()(theta).A)
 
 
-LEG = importlib.util.find_spec("symbolic.leg") is not None
-
-
-@pytest.mark.skipif(not LEG, reason="symbolic/leg.py not available")
 def test_physical_with_the_robot_leg_maps():
     import symbolic.leg as leg
 
