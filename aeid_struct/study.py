@@ -71,6 +71,7 @@ def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
     dt, steps = RECORDS[subsystem]
     if epochs is not None:
         seconds = None
+    # With a wall-time budget the epoch limit must not bind: 100,000 epochs are weeks here.
     return TrainConfig(dt=dt, steps=steps, count=count, epochs=epochs or 100_000,
                        seconds=seconds,
                        batch=128, lr=3e-3, gamma=1.0, noise=noise, seed=seed,
