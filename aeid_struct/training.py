@@ -14,7 +14,11 @@ Choices the paper leaves open, and ours:
 - Adam with a short warm-up and a cosine learning-rate decay over the budget, which is an epoch
   count or a wall-time limit, whichever ends first (progress = the larger of the two fractions).
 - Gradient-norm clipping: the paper reports exploding gradients with CCF; clipping keeps one bad
-  batch (a nearly unstable estimate of an unstable system) from wrecking the weights.
+  batch (a nearly unstable estimate of an unstable system) from wrecking the weights
+  (``clip=math.inf`` turns it off, to observe the explosion). A batch whose loss or gradient is
+  not finite (a decoded response that overflowed) is skipped rather than stepped on, and
+  counted. The history records, per epoch, the median and largest gradient norm before
+  clipping and the number of skipped batches: the training-stability evidence.
 - float32 by default (the decoder is exact to float32 precision, far below the targets).
 - Noise: ``noise`` adds white measurement noise with a std drawn per record and per epoch from a
   range (relative to max|y|), so a noise-trained identifier sees fresh noise every epoch.
@@ -180,7 +184,8 @@ def train(structure: Structure, family, config: TrainConfig, *,
 
     Returns:
         The trained ``Identifier`` (weights with the lowest held-out loss); its per-epoch
-        history (``train_loss``, ``holdout_loss``, ``lr``, ``seconds``) is in
+        history (``train_loss``, ``holdout_loss``, ``lr``, ``seconds``, ``grad_norm_median``,
+        ``grad_norm_max`` (before clipping), ``skipped`` (non-finite batches)) is in
         ``ident.meta["history"]`` and the run's settings in ``ident.meta["train"]``.
     """
     if not isinstance(structure, Structure):
@@ -229,7 +234,8 @@ def train(structure: Structure, family, config: TrainConfig, *,
     opt = torch.optim.Adam(params, lr=config.lr)
     generator = torch.Generator().manual_seed(config.seed + 2)
     state = {"epoch": 0, "elapsed": 0.0, "best": math.inf, "best_state": None,
-             "history": {"train_loss": [], "holdout_loss": [], "lr": [], "seconds": []}}
+             "history": {"train_loss": [], "holdout_loss": [], "lr": [], "seconds": [],
+                         "grad_norm_median": [], "grad_norm_max": [], "skipped": []}}
     ckpt = Path(config.checkpoint) if config.checkpoint else None
     fingerprint = _fingerprint(structure, config, enc_config)
     if ckpt is not None and ckpt.exists():
@@ -268,7 +274,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
         if config.seconds is not None and elapsed >= config.seconds:
             break
         perm = train_t[torch.randperm(len(train_t), generator=generator)]
-        running = 0.0
+        running, skipped, norms = 0.0, 0, []
         for j in range(steps_per_epoch):
             progress = max((epoch + j / steps_per_epoch) / config.epochs,
                            (time.perf_counter() - start) / config.seconds
@@ -279,18 +285,29 @@ def train(structure: Structure, family, config: TrainConfig, *,
             idx = perm[j * config.batch: (j + 1) * config.batch]
             loss = _batch_loss(ident, noisy(idx), u_all[idx], yinf_all[idx], config.gamma)
             opt.zero_grad(set_to_none=True)
+            value = float(loss.detach())
+            if not math.isfinite(value):
+                skipped += 1
+                continue
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(params, config.clip)
+            norm = float(torch.nn.utils.clip_grad_norm_(params, config.clip))
+            if not math.isfinite(norm):
+                skipped += 1
+                continue
+            norms.append(norm)
             opt.step()
-            running += float(loss.detach())
+            running += value
         epoch += 1
         held = holdout_loss()
         elapsed = time.perf_counter() - start
         hist = state["history"]
-        hist["train_loss"].append(running / steps_per_epoch)
+        hist["train_loss"].append(running / max(steps_per_epoch - skipped, 1))
         hist["holdout_loss"].append(held)
         hist["lr"].append(lr)
         hist["seconds"].append(elapsed)
+        hist["grad_norm_median"].append(float(np.median(norms)) if norms else math.nan)
+        hist["grad_norm_max"].append(max(norms) if norms else math.nan)
+        hist["skipped"].append(skipped)
         if held < state["best"] and math.isfinite(held):
             state["best"] = held
             state["best_state"] = {k: v.detach().clone()
@@ -374,4 +391,7 @@ def _resume(path: Path, fingerprint: str, ident, opt, generator) -> dict:
     ident.encoder.load_state_dict(payload["encoder"])
     opt.load_state_dict(payload["optimizer"])
     generator.set_state(payload["generator"])
-    return {k: payload[k] for k in ("epoch", "elapsed", "best", "best_state", "history")}
+    state = {k: payload[k] for k in ("epoch", "elapsed", "best", "best_state", "history")}
+    for key in ("grad_norm_median", "grad_norm_max", "skipped"):   # older checkpoints
+        state["history"].setdefault(key, [math.nan] * state["epoch"])
+    return state

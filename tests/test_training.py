@@ -141,3 +141,32 @@ def test_config_errors(kw, match):
 def test_structure_argument_checked():
     with pytest.raises(ValueError, match="structure must be a Structure"):
         train("CCF", FAMILY, _config())
+
+
+def test_history_records_gradient_norms_before_clipping():
+    ident = train(ae.CCF(1, descartes=True), FAMILY, _config(epochs=3, clip=1e-3), encoder=SMALL)
+    hist = ident.meta["history"]
+    assert hist["skipped"] == [0, 0, 0]
+    # The norms are measured before clipping: far above the 1e-3 clip limit, finite.
+    assert all(1e-3 < med <= mx < 1e6 for med, mx in
+               zip(hist["grad_norm_median"], hist["grad_norm_max"], strict=True))
+
+
+def test_non_finite_batches_are_skipped_not_stepped_on(monkeypatch):
+    import aeid_struct.training as training
+
+    real = training._batch_loss
+    calls = {"n": 0}
+
+    def flaky(*args):
+        calls["n"] += 1
+        loss = real(*args)
+        return loss * float("nan") if calls["n"] % 3 == 0 else loss   # every third batch NaN
+
+    monkeypatch.setattr(training, "_batch_loss", flaky)
+    ident = train(ae.CCF(1, descartes=True), FAMILY, _config(epochs=2), encoder=SMALL)
+    hist = ident.meta["history"]
+    assert sum(hist["skipped"]) > 0
+    # The weights never took a NaN step: every parameter is finite and the identifier works.
+    assert all(torch.isfinite(p).all() for p in ident.encoder.parameters())
+    assert np.isfinite(ident.identify(np.linspace(0.1, 1.0, 40)).A).all()
