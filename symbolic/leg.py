@@ -109,6 +109,7 @@ PARAMETERS = ("k", "d", "m", "l0", "g")
 CODEGEN_FUNCTIONS = (
     "stable_map",
     "unstable_map",
+    "joint_map",
     "stable_inverse",
     "unstable_inverse",
     "joint_inverse",
@@ -484,6 +485,25 @@ def unstable_map(l0: float = L0, g: float = G) -> casadi.Function:
     return _subsystem_map("unstable_map", 2, l0, g)
 
 
+def joint_map(l0: float = L0, g: float = G) -> casadi.Function:
+    """``(k, d, m)`` -> the CCFs of both subsystems: one parameter set, two records.
+
+    The map of a jointly identified leg (one encoder reads the stable and the unstable record and
+    outputs one ``(k, d, m)``): ``stable_map`` and ``unstable_map`` side by side, outputs numbered
+    by record (1 = translational ``G1``, 2 = rotational ``G2``), as ``joint_inverse`` reads them.
+
+    Returns
+    -------
+    casadi.Function
+        ``'joint_map'``: scalars ``k, d, m`` -> ``A1 (2, 2), B1 (2, 1), C1 (1, 2), D1 (1, 1),
+        A2, B2, C2, D2``.
+    """
+    k, d, m = (casadi.SX.sym(s) for s in ("k", "d", "m"))
+    outs = [*stable_map(l0, g)(k, d, m), *unstable_map(l0, g)(k, d, m)]
+    names = [f"{s}{r}" for r in (1, 2) for s in "ABCD"]
+    return casadi.Function("joint_map", [k, d, m], outs, ["k", "d", "m"], names)
+
+
 # =============================================================================
 # Inverses: CCF -> physical parameters
 # =============================================================================
@@ -645,6 +665,7 @@ def generate_c(
     builders = {
         "stable_map": stable_map,
         "unstable_map": unstable_map,
+        "joint_map": joint_map,
         "stable_inverse": stable_inverse,
         "unstable_inverse": unstable_inverse,
         "joint_inverse": joint_inverse,

@@ -575,3 +575,15 @@ def test_module_self_check_runs():
     )
     assert done.returncode == 0, done.stderr
     assert "All checks passed." in done.stdout
+
+
+@pytest.mark.parametrize("point", [leg.SCENARIO, {"k": 20.0, "d": 5.0, "m": 1.5}])
+def test_joint_map_is_both_subsystem_maps_and_joint_inverse_undoes_it(point):
+    joint = leg.joint_map()(**point)
+    for r, f in ((1, leg.stable_map()), (2, leg.unstable_map())):
+        single = f(**point)
+        for s in "ABCD":
+            np.testing.assert_array_equal(np.array(joint[f"{s}{r}"]), np.array(single[s]))
+    back = leg.joint_inverse()(**joint)
+    for name, value in point.items():
+        assert float(back[name]) == pytest.approx(value, rel=1e-12)
