@@ -28,7 +28,9 @@ class Systems:
     """A batch of true SISO systems.
 
     Attributes:
-        A: ``(N, n, n)``; b, c: ``(N, n)``; d: ``(N,)`` -- float64.
+        A: ``(N, n, n)``; b, c: ``(N, n)``; d: ``(N,)`` -- float64. Systems of several records
+            (one parameter set, ``R`` subsystems) carry a record axis: ``A (N, R, n, n)``,
+            ``b, c (N, R, n)``, ``d (N, R)``.
         params: physical parameters by name, each ``(N,)`` (empty for generic families).
     """
 
@@ -40,6 +42,17 @@ class Systems:
 
     def __len__(self) -> int:
         return self.A.shape[0]
+
+    @property
+    def records(self) -> int:
+        """Subsystems per parameter set (1 without a record axis)."""
+        return self.A.shape[1] if self.A.ndim == 4 else 1
+
+    def record(self, r: int) -> Systems:
+        """The systems of record ``r`` alone, without the record axis."""
+        if self.records == 1:
+            return self
+        return Systems(self.A[:, r], self.b[:, r], self.c[:, r], self.d[:, r], self.params)
 
     def take(self, index) -> Systems:
         """The systems at ``index`` (an int array, slice or boolean mask)."""
@@ -64,8 +77,10 @@ class LegFamily:
     """The robot-leg subsystems of paper Sec. IV with (k, d, m) drawn uniformly from ``ranges``.
 
     ``subsystem="stable"``: translational, ``G1 = (1/m) / (s^2 + (d/m) s + k/m)``;
-    ``subsystem="unstable"``: rotational, ``G2 = (1/(m L^2)) / (s^2 - g/L)``, ``L = l0 - m g/k``.
-    Systems come in the bottom-row CCF that ``symbolic.leg`` derives.
+    ``subsystem="unstable"``: rotational, ``G2 = (1/(m L^2)) / (s^2 - g/L)``, ``L = l0 - m g/k``;
+    ``subsystem="joint"``: both, one parameter set and two records (record axis: G1, G2).
+    Systems come in the bottom-row CCF that ``symbolic.leg`` derives. A range with
+    ``lo == hi`` holds that parameter at a known value (e.g. a known mass).
     """
 
     subsystem: str = "stable"
@@ -75,9 +90,9 @@ class LegFamily:
     g: float = 9.81
 
     def __post_init__(self) -> None:
-        if self.subsystem not in ("stable", "unstable"):
+        if self.subsystem not in ("stable", "unstable", "joint"):
             raise ValueError(
-                f"subsystem must be 'stable' or 'unstable'; got {self.subsystem!r}"
+                f"subsystem must be 'stable', 'unstable' or 'joint'; got {self.subsystem!r}"
             )
         if set(self.ranges) != {"k", "d", "m"}:
             raise ValueError(f"ranges must name exactly k, d, m; got {sorted(self.ranges)}")
@@ -94,23 +109,37 @@ class LegFamily:
                 f"got m up to {self.ranges['m'][1]}, k down to {self.ranges['k'][0]}"
             )
 
+    @property
+    def records(self) -> int:
+        """Records per parameter set: 2 for the joint leg, else 1."""
+        return 2 if self.subsystem == "joint" else 1
+
     def map(self):
-        """The CasADi map (k, d, m) -> CCF (A, B, C, D) of this subsystem."""
+        """The CasADi map (k, d, m) -> CCF (A, B, C, D) of this subsystem (``A1, .., D2`` for
+        the joint leg)."""
         from symbolic import leg
 
-        f = leg.stable_map if self.subsystem == "stable" else leg.unstable_map
+        f = {"stable": leg.stable_map, "unstable": leg.unstable_map,
+             "joint": leg.joint_map}[self.subsystem]
         return f(l0=self.l0, g=self.g)
 
     def inverse(self):
         """The CasADi inverse of ``map()``: a CCF (A, B, C, D) -> the physical parameters
-        (k, d, m for the stable subsystem; k, m for the unstable one, which d does not enter)."""
+        (k, d, m for the stable subsystem and the joint leg; k, m for the unstable one, which d
+        does not enter)."""
         from symbolic import leg
 
-        f = leg.stable_inverse if self.subsystem == "stable" else leg.unstable_inverse
+        f = {"stable": leg.stable_inverse, "unstable": leg.unstable_inverse,
+             "joint": leg.joint_inverse}[self.subsystem]
         return f(l0=self.l0, g=self.g)
 
     def systems(self, k, d, m) -> Systems:
         """The subsystems of given parameter arrays ``(N,)`` (vectorised through ``f.map``)."""
+        if self.subsystem == "joint":
+            parts = [LegFamily(subsystem=s, ranges=self.ranges, l0=self.l0, g=self.g)
+                     .systems(k, d, m) for s in ("stable", "unstable")]
+            return Systems(*(np.stack([getattr(p, f) for p in parts], 1) for f in "Abcd"),
+                           parts[0].params)
         k, d, m = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (k, d, m))
         count = k.shape[0]
         f = self.map().map(count)
@@ -245,6 +274,9 @@ class Records:
         u: ``(N, steps)`` inputs; y: ``(N, steps)`` measured (noisy) outputs;
         y_clean: ``(N, steps)`` noise-free outputs; systems: the true systems;
         dt: sample time; noise: per-record noise level (std relative to max|y_clean|), ``(N,)``.
+
+    Systems of several records (``systems.records = R > 1``) have a record on its own grid each:
+    ``u, y, y_clean`` are then tuples of ``R`` arrays ``(N, steps_r)`` and ``dt`` a tuple.
     """
 
     u: np.ndarray
@@ -255,38 +287,80 @@ class Records:
     noise: np.ndarray
 
     def __len__(self) -> int:
-        return self.u.shape[0]
+        return len(self.noise)
+
+    def record(self, r: int) -> Records:
+        """The records of subsystem ``r`` alone (one record per system, its own grid), e.g. to
+        score a single-subsystem identifier on the systems of a joint set."""
+        if not isinstance(self.u, tuple):
+            if r != 0:
+                raise ValueError(f"r must be 0 for a set of one record per system; got {r!r}")
+            return self
+        if not isinstance(r, int) or not 0 <= r < len(self.u):
+            raise ValueError(f"r must be a record index in [0, {len(self.u)}); got {r!r}")
+        return Records(self.u[r], self.y[r], self.y_clean[r], self.systems.record(r),
+                       self.dt[r], self.noise)
 
     def take(self, index) -> Records:
-        return Records(self.u[index], self.y[index], self.y_clean[index],
+        def pick(x):
+            return tuple(r[index] for r in x) if isinstance(x, tuple) else x[index]
+
+        return Records(pick(self.u), pick(self.y), pick(self.y_clean),
                        self.systems.take(index), self.dt, self.noise[index])
 
 
-def records(family, count: int, *, steps: int, dt: float, excitation_kind: str = "step",
+def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
             noise=0.0, seed: int = 0) -> Records:
     """Sample ``count`` systems from ``family``, excite and simulate them exactly.
 
     Args:
         family: a family with ``sample(count, rng) -> Systems`` (``LegFamily``, ``PoleFamily``).
-        count, steps, dt: how many records, of how many samples, at what sample time.
+        count, steps, dt: how many records, of how many samples, at what sample time; for a
+            family of several records (the joint leg) ``steps`` and ``dt`` are tuples, one per
+            record, and every record gets its own excitation and noise draw at the same level.
         excitation_kind: one of ``EXCITATIONS``.
         noise: a level (std relative to max|y_clean|) or a (lo, hi) range drawn per record.
         seed: seeds every draw.
     """
     if not isinstance(count, int) or count < 1:
         raise ValueError(f"count must be a positive integer; got {count!r}")
-    if not isinstance(steps, int) or steps < 2:
-        raise ValueError(f"steps must be an integer >= 2; got {steps!r}")
+    R = getattr(family, "records", 1)
+    grids = _grids(steps, dt, R)
     rng = np.random.default_rng(seed)
     systems = family.sample(count, rng)
-    u = excitation(excitation_kind, count, steps, dt, rng)
-    y_clean = simulate(systems.A, systems.b, systems.c, systems.d, u, dt)
+    u = [excitation(excitation_kind, count, steps_r, dt_r, rng) for steps_r, dt_r in grids]
     if np.ndim(noise) == 0:
         level = np.full(count, float(noise))
     else:
         level = rng.uniform(*_check_range("noise", noise), size=count)
     if np.any(level < 0):
         raise ValueError(f"noise must be >= 0; got {noise!r}")
-    scale = level * np.max(np.abs(y_clean), axis=1)
-    y = y_clean + scale[:, None] * rng.normal(size=y_clean.shape)
-    return Records(u, y, y_clean, systems, float(dt), level)
+    parts = []
+    for r, (_, dt_r) in enumerate(grids):
+        s = systems.record(r)
+        y_clean = simulate(s.A, s.b, s.c, s.d, u[r], dt_r)
+        scale = level * np.max(np.abs(y_clean), axis=1)
+        parts.append((u[r], y_clean + scale[:, None] * rng.normal(size=y_clean.shape), y_clean))
+    if R == 1:
+        return Records(*parts[0], systems, grids[0][1], level)
+    u, y, y_clean = (tuple(p[i] for p in parts) for i in range(3))
+    return Records(u, y, y_clean, systems, tuple(g[1] for g in grids), level)
+
+
+def _grids(steps, dt, records: int) -> list[tuple[int, float]]:
+    """``(steps_r, dt_r)`` per record, validated: ints ``>= 2`` and positive finite ``dt``."""
+    steps_t = tuple(steps) if isinstance(steps, (tuple, list)) else (steps,)
+    dt_t = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
+    if records > 1 and (len(steps_t) != records or len(dt_t) != records):
+        raise ValueError(f"steps and dt must be tuples of {records} entries (one per record) "
+                         f"for this family; got steps={steps!r}, dt={dt!r}")
+    if records == 1 and (len(steps_t) != 1 or len(dt_t) != 1):
+        raise ValueError(f"steps and dt must be single numbers for a family of one record; "
+                         f"got steps={steps!r}, dt={dt!r}")
+    for s in steps_t:
+        if not isinstance(s, int) or isinstance(s, bool) or s < 2:
+            raise ValueError(f"steps must be an integer >= 2; got {steps!r}")
+    for t in dt_t:
+        if not (isinstance(t, (int, float)) and np.isfinite(t) and t > 0):
+            raise ValueError(f"dt must be a positive finite number; got {dt!r}")
+    return [(s, float(t)) for s, t in zip(steps_t, dt_t, strict=True)]

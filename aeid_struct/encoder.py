@@ -16,6 +16,11 @@ Choices the paper leaves open, and ours:
   one does: the static gain of the leg is ``1/k``.
 - **Pooling.** ``pool > 1`` average-pools the record before the convolutions. The leg's step
   responses are smooth, so this loses little and divides the convolution cost by ``pool``.
+- **Several records.** An identifier of several systems that share parameters (the leg's two
+  subsystems, one ``(k, d, m)``) reads one record per system, each on its own grid: ``steps``
+  and ``pool`` are then tuples, one entry per record, and each record is pooled by its own
+  factor to a common length (300 samples / 6 and 100 / 2 both give 50), so that the records
+  enter the convolutions as channels of one signal on a normalised time axis.
 - **Padding.** "same" padding keeps the time axis, so the flattened features keep the position of
   each pattern in time, which the dense layers need to read time constants off the record.
 - **Activation.** ``tanh`` by default: smooth, bounded, and it gave lower step errors than ReLU in
@@ -38,7 +43,8 @@ class EncoderConfig:
 
     Attributes:
         steps: samples per record (the time axis the network is built for); 0 = unset, filled
-            in by ``train()`` from the record format.
+            in by ``train()`` from the record format. A tuple for several records, one entry
+            each (module docstring).
         outputs: raw structure parameters produced, ``p`` of the structure; 0 = unset, filled
             in by ``train()``.
         inputs: read the input record as a second channel.
@@ -47,11 +53,12 @@ class EncoderConfig:
         kernel: convolution kernel size (odd, so "same" padding is symmetric).
         depth: sequential convolution layers on the main path (paper: 3).
         dense: widths of the hidden dense layers (paper: (10, 10)).
-        pool: average-pooling factor applied to the record first (1 = none).
+        pool: average-pooling factor applied to the record first (1 = none); a tuple (one per
+            record) for several records, which must all pool to the same length.
         activation: one of "tanh", "relu", "gelu", "silu".
     """
 
-    steps: int = 0
+    steps: int | tuple[int, ...] = 0
     outputs: int = 0
     inputs: bool = False
     features: int = 0
@@ -59,15 +66,33 @@ class EncoderConfig:
     kernel: int = 5
     depth: int = 3
     dense: tuple[int, ...] = (10, 10)
-    pool: int = 1
+    pool: int | tuple[int, ...] = 1
     activation: str = "tanh"
 
     def __post_init__(self) -> None:
-        for name in ("steps", "outputs"):
+        def integer(v, least: int) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool) and v >= least
+
+        if isinstance(self.steps, (tuple, list)):
+            steps = tuple(self.steps)
+            if len(steps) < 2 or not all(integer(v, 1) for v in steps):
+                raise ValueError("steps must be a non-negative integer, or a tuple of two or more "
+                                 f"positive integers (one per record); got {self.steps!r}")
+            object.__setattr__(self, "steps", steps)
+        if isinstance(self.pool, (tuple, list)):
+            pool = tuple(self.pool)
+            unset = self.steps == 0    # train() fills steps in from the record format
+            if (len(pool) != self.records and not unset) or not all(integer(v, 1) for v in pool):
+                raise ValueError(f"pool must be a positive integer or a tuple of {self.records} "
+                                 f"positive integers (one per record); got {self.pool!r}")
+            object.__setattr__(self, "pool", pool)
+        names = ("outputs",) if self.records > 1 else ("steps", "outputs")
+        for name in names:
             value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+            if not integer(value, 0):
                 raise ValueError(f"{name} must be a non-negative integer; got {value!r}")
-        for name in ("width", "kernel", "depth", "pool"):
+        for name in ("width", "kernel", "depth") + (() if isinstance(self.pool, tuple)
+                                                    else ("pool",)):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"{name} must be a positive integer; got {value!r}")
@@ -75,8 +100,16 @@ class EncoderConfig:
             raise ValueError(f"features must be a non-negative integer; got {self.features!r}")
         if self.kernel % 2 == 0:
             raise ValueError(f"kernel must be odd (symmetric 'same' padding); got {self.kernel}")
-        if self.steps and self.pool > self.steps:
+        if self.records == 1 and self.steps and self.pool > self.steps:
             raise ValueError(f"pool must be <= steps ({self.steps}); got {self.pool}")
+        if self.records > 1 or isinstance(self.pool, tuple) and self.steps:
+            lengths = tuple(s // p for s, p in zip(self.record_steps, self.record_pools,
+                                                  strict=True))
+            if len(set(lengths)) != 1 or lengths[0] < 1:
+                raise ValueError(
+                    "every record must pool to the same positive length: steps "
+                    f"{self.record_steps} // pool {self.record_pools} = {lengths}; choose pool "
+                    "factors that make them equal")
         dense = tuple(self.dense)
         if not all(isinstance(w, int) and w >= 1 for w in dense):
             raise ValueError(f"dense must be a tuple of positive integers; got {self.dense!r}")
@@ -87,20 +120,46 @@ class EncoderConfig:
             )
 
     @property
+    def records(self) -> int:
+        """Records read together (1, or the length of a ``steps`` tuple)."""
+        return len(self.steps) if isinstance(self.steps, tuple) else 1
+
+    @property
+    def record_steps(self) -> tuple[int, ...]:
+        """Samples of each record."""
+        return self.steps if isinstance(self.steps, tuple) else (self.steps,)
+
+    @property
+    def record_pools(self) -> tuple[int, ...]:
+        """Pooling factor of each record."""
+        return self.pool if isinstance(self.pool, tuple) else (self.pool,) * self.records
+
+    @property
+    def length(self) -> int:
+        """Samples after pooling (the same for every record)."""
+        return self.record_steps[0] // self.record_pools[0]
+
+    @property
     def channels(self) -> int:
-        """Input channels: the output record, and the input record when ``inputs``."""
-        return 2 if self.inputs else 1
+        """Input channels: per record the output record, and the input record when ``inputs``."""
+        return self.records * (2 if self.inputs else 1)
 
     def to_dict(self) -> dict:
         """JSON-serialisable form (``EncoderConfig(**d)`` rebuilds it)."""
         d = asdict(self)
         d["dense"] = list(self.dense)
+        for key in ("steps", "pool"):
+            if isinstance(d[key], tuple):
+                d[key] = list(d[key])
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> EncoderConfig:
         d = dict(d)
         d["dense"] = tuple(d.get("dense", (10, 10)))
+        for key in ("steps", "pool"):
+            if isinstance(d.get(key), list):
+                d[key] = tuple(d[key])
         return cls(**d)
 
 
@@ -114,7 +173,7 @@ class Encoder(nn.Module):
 
     def __init__(self, config: EncoderConfig):
         super().__init__()
-        if config.steps < 1 or config.outputs < 1:
+        if min(config.record_steps) < 1 or config.outputs < 1:
             raise ValueError(
                 "config.steps and config.outputs must be set (>= 1) to build an Encoder; "
                 f"got steps={config.steps}, outputs={config.outputs}"
@@ -122,7 +181,8 @@ class Encoder(nn.Module):
         self.config = config
         act = _ACTIVATIONS[config.activation]
         pad = config.kernel // 2
-        self.pool = nn.AvgPool1d(config.pool) if config.pool > 1 else nn.Identity()
+        self.pool = (nn.AvgPool1d(config.pool) if config.records == 1 and config.pool > 1
+                     else nn.Identity())
         layers: list[nn.Module] = []
         channels = config.channels
         for _ in range(config.depth):
@@ -132,7 +192,7 @@ class Encoder(nn.Module):
         self.shortcut = nn.Sequential(
             nn.Conv1d(config.channels, config.width, config.kernel, padding=pad), act()
         )
-        length = config.steps // config.pool
+        length = config.length
         head: list[nn.Module] = []
         width = 2 * config.width * length + config.features
         for hidden in config.dense:
@@ -141,17 +201,25 @@ class Encoder(nn.Module):
         head.append(nn.Linear(width, config.outputs))
         self.head = nn.Sequential(*head)
 
-    def forward(self, records: torch.Tensor, features: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, records, features: torch.Tensor | None = None) -> torch.Tensor:
         """Map records to raw structure parameters.
 
         Args:
-            records: ``(batch, channels, steps)``, normalised (Eq. 15).
+            records: ``(batch, channels, steps)``, normalised (Eq. 15); for several records a
+                sequence of ``(batch, channels / records, steps_r)``, one per record.
             features: ``(batch, features)`` scalar features, or None when ``features == 0``.
 
         Returns:
             ``(batch, outputs)`` raw parameters ``theta`` for the structure.
         """
-        x = self.pool(records)
+        cfg = self.config
+        if cfg.records == 1:
+            x = self.pool(records)
+        else:
+            # Each record pooled by its own factor to the common length, then stacked as channels.
+            x = torch.cat([nn.functional.avg_pool1d(r, p)[..., : cfg.length] if p > 1
+                           else r[..., : cfg.length]
+                           for r, p in zip(records, cfg.record_pools, strict=True)], dim=1)
         z = torch.cat([self.main(x), self.shortcut(x)], dim=1).flatten(1)
         if self.config.features:
             z = torch.cat([z, features], dim=1)

@@ -17,6 +17,13 @@ sees the record), and how we settle it:
 Either way the decoded response is normalised with the *measured* ``y_bar`` before it is
 compared with the record (Eq. 14-15), as the paper prescribes.
 
+Several records, one parameter set. An identifier of a :class:`~aeid_struct.structures.Physical`
+structure with ``records = R > 1`` (the leg's two subsystems, ``symbolic.leg.joint_map``) reads
+one record per subsystem, each on its own grid (``dt`` and ``steps`` are tuples), normalises each
+by its own ``y_bar`` (Eq. 15), feeds all of them to one encoder (``EncoderConfig`` with tuple
+``steps`` and ``pool``) together with the ``R`` scale features, and outputs one parameter vector;
+``identify`` takes sequences of ``R`` records and its ``Estimate`` carries a record axis.
+
 The raw encoder output is mapped affinely, ``theta = theta_mean + theta_scale * net(...)``, with
 statistics of the training family's raw parameters, so that the network works in O(1) units
 whatever the physical magnitudes; the structure then imposes its constraints.
@@ -50,7 +57,9 @@ class Estimate:
 
     Attributes:
         A: ``(batch, n, n)`` or ``(n, n)``; b, c: ``(batch, n)`` or ``(n,)``; d: ``(batch,)`` or
-            scalar -- float64 numpy.
+            scalar -- float64 numpy. A several-record estimate (``records = R > 1``) has a record
+            axis after the batch axis (``A (batch, R, n, n)`` or ``(R, n, n)``, ...), and its
+            ``y``, ``u`` (and ``y_hat``) are tuples of ``R`` records, ``dt`` a tuple.
         elements: the structure's named elements (e.g. ``a0``, ``c1``, ``k``), each ``(batch,)``.
         y, u: the records the estimate was made from, ``(batch, steps)`` or ``(steps,)``.
         dt: sample time.
@@ -79,23 +88,37 @@ class Estimate:
     structure: object = field(default=None, repr=False)
 
     @property
+    def records(self) -> int:
+        """Records the estimate was made from jointly (1, or ``R`` for a tuple of records)."""
+        return len(self.y) if isinstance(self.y, tuple) else 1
+
+    @property
     def batched(self) -> bool:
-        return self.A.ndim == 3
+        return self.A.ndim == (3 if self.records == 1 else 4)
 
     @cached_property
-    def y_hat(self) -> np.ndarray:
-        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
+    def y_hat(self):
+        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y`` (a
+        tuple of ``R`` responses for a several-record estimate)."""
         from .decoder import simulate
 
-        return simulate(self.A, self.b, self.c, self.d, self.u, self.dt)
+        if self.records == 1:
+            return simulate(self.A, self.b, self.c, self.d, self.u, self.dt)
+        return tuple(simulate(self.A[..., r, :, :], self.b[..., r, :], self.c[..., r, :],
+                              self.d[..., r], self.u[r], self.dt[r])
+                     for r in range(self.records))
 
     @cached_property
     def fit(self):
-        """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record."""
+        """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record (a float,
+        ``(batch,)``, or with several records ``(R,)`` / ``(batch, R)``)."""
         from .metrics import nrmse_fit
 
-        fit = nrmse_fit(self.y, self.y_hat)
-        return fit if self.batched else float(fit[0])
+        if self.records == 1:
+            fit = nrmse_fit(self.y, self.y_hat)
+            return fit if self.batched else float(fit[0])
+        fit = np.stack([nrmse_fit(y, h) for y, h in zip(self.y, self.y_hat, strict=True)], 1)
+        return fit if self.batched else fit[0]
 
     @cached_property
     def physical(self) -> dict[str, np.ndarray]:
@@ -136,6 +159,11 @@ class Estimate:
             n = A.shape[0]
             return control.ss(A, b.reshape(n, 1), c.reshape(1, n), np.reshape(d, (1, 1)))
 
+        if self.records > 1:   # a list per record (per batch row and record when batched)
+            A, b, c, d = (np.asarray(x) for x in (self.A, self.b, self.c, self.d))
+            rows = [(A, b, c, d)] if not self.batched else list(zip(A, b, c, d, strict=True))
+            out = [[one(*m) for m in zip(*row, strict=True)] for row in rows]
+            return out if self.batched else out[0]
         if not self.batched:
             return one(self.A, self.b, self.c, self.d)
         return [one(*m) for m in zip(self.A, self.b, self.c, self.d, strict=True)]
@@ -160,6 +188,14 @@ def _require_finite(name: str, arr: np.ndarray) -> None:
         raise ValueError(f"{name} must be finite; got {arr[tuple(where)]} at {at}")
 
 
+def _same_dt(dt, dts: tuple[float, ...]) -> bool:
+    """Whether a user's ``dt`` (a number, or a sequence for several records) is ``dts``."""
+    given = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
+    return len(given) == len(dts) and all(
+        isinstance(g, (int, float)) and math.isclose(g, t, rel_tol=1e-9)
+        for g, t in zip(given, dts, strict=True))
+
+
 def _as_records(name: str, value, steps: int, dt: float) -> tuple[np.ndarray, bool]:
     """Validate a record argument: ``(steps,)`` or ``(batch, steps)`` finite numbers.
 
@@ -182,33 +218,49 @@ class Identifier:
     Args:
         encoder: the network (its config fixes ``steps`` and the input channels).
         structure: maps raw parameters to ``(A, b, c, d)`` with its constraints.
-        dt: sample time the identifier was trained for.
+        dt: sample time the identifier was trained for (a tuple, one per record, for a
+            several-record structure).
         theta_mean, theta_scale: ``(p,)`` affine map of the network output to raw parameters.
         scale: ``"denormalise"`` or ``"feature"`` (see the module docstring).
-        feature_mean, feature_scale: standardisation of ``log(y_bar/u_bar)`` (``"feature"``).
+        feature_mean, feature_scale: standardisation of ``log(y_bar/u_bar)`` (``"feature"``);
+            one per record (tuples) for several records.
         inverse: optional casadi.Function from the CCF model to physical parameters.
         meta: provenance (training command, seed, metrics), stored in the file.
     """
 
-    def __init__(self, encoder: Encoder, structure: Structure, *, dt: float,
+    def __init__(self, encoder: Encoder, structure: Structure, *, dt,
                  theta_mean: torch.Tensor, theta_scale: torch.Tensor,
-                 scale: str = "denormalise", feature_mean: float = 0.0,
-                 feature_scale: float = 1.0, inverse=None, meta: dict | None = None):
+                 scale: str = "denormalise", feature_mean=0.0,
+                 feature_scale=1.0, inverse=None, meta: dict | None = None):
         if scale not in SCALE_MODES:
             raise ValueError(f"scale must be one of {SCALE_MODES}; got {scale!r}")
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a positive finite number; got {dt!r}")
+        R = encoder.config.records
+        if structure.records != R:
+            raise ValueError(f"the encoder reads {R} record(s) but {structure!r} describes "
+                             f"{structure.records}: encoder.config.steps must have one entry "
+                             "per record")
+        dts = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
+        if len(dts) != R or not all(isinstance(t, (int, float)) and math.isfinite(t) and t > 0
+                                    for t in dts):
+            raise ValueError(f"dt must be {'a positive finite number' if R == 1 else f'{R} '}"
+                             f"{'' if R == 1 else 'positive finite numbers, one per record'}; "
+                             f"got {dt!r}")
+        if R > 1 and scale != "feature":
+            raise ValueError("several records need scale='feature' (one physical parameter "
+                             f"set cannot be de-normalised per record); got {scale!r}")
         if encoder.config.outputs != structure.p:
             raise ValueError(
                 f"encoder.config.outputs must equal structure.p = {structure.p}; "
                 f"got {encoder.config.outputs}"
             )
-        if scale == "feature" and encoder.config.features != 1:
-            raise ValueError("scale='feature' needs an encoder with features=1; "
-                             f"got features={encoder.config.features}")
+        if scale == "feature" and encoder.config.features != R:
+            raise ValueError(f"scale='feature' needs an encoder with features={R} (one scale "
+                             f"per record); got features={encoder.config.features}")
         self.encoder = encoder
         self.structure = structure
-        self.dt = float(dt)
+        self._dts = tuple(float(t) for t in dts)
+        #: Sample time (a tuple, one per record, for several records).
+        self.dt = self._dts[0] if R == 1 else self._dts
         self.theta_mean = torch.as_tensor(theta_mean, dtype=torch.float32).reshape(-1)
         self.theta_scale = torch.as_tensor(theta_scale, dtype=torch.float32).reshape(-1)
         if self.theta_mean.shape != (structure.p,) or self.theta_scale.shape != (structure.p,):
@@ -216,13 +268,16 @@ class Identifier:
                              f"got {tuple(self.theta_mean.shape)}, "
                              f"{tuple(self.theta_scale.shape)}")
         self.scale = scale
-        self.feature_mean = float(feature_mean)
-        self.feature_scale = float(feature_scale)
+        fm, fs = (np.broadcast_to(np.asarray(v, dtype=np.float64), (R,)).copy()
+                  for v in (feature_mean, feature_scale))
+        self.feature_mean = float(fm[0]) if R == 1 else tuple(fm.tolist())
+        self.feature_scale = float(fs[0]) if R == 1 else tuple(fs.tolist())
+        self._features = (torch.from_numpy(fm), torch.from_numpy(fs))   # (R,) each
         self.inverse = inverse
         self.meta = dict(meta or {})
         self._fast_path = None                      # (weight versions, _Batch1 or None)
         self._params = list(encoder.parameters())   # cached: walking the modules costs ~0.5 ms
-        self._unit_step = torch.ones(1, encoder.config.steps)
+        self._unit_steps = [torch.ones(1, steps) for steps in encoder.config.record_steps]
         # 1 for the elements that scale with the output (c_i, d), 0 elsewhere
         self._output_mask = torch.tensor([[
             1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
@@ -230,51 +285,66 @@ class Identifier:
 
     # -- the record format ---------------------------------------------------------------------
     @property
-    def steps(self) -> int:
+    def steps(self):
+        """Samples per record (a tuple, one per record, for several records)."""
         return self.encoder.config.steps
+
+    @property
+    def records(self) -> int:
+        """Records read together (1, or ``R`` for a several-record structure)."""
+        return self.encoder.config.records
 
     @property
     def inputs(self) -> bool:
         """Whether the encoder reads the input record (arbitrary excitation)."""
         return self.encoder.config.inputs
 
-    def time(self) -> np.ndarray:
-        """Sample instants ``t_k = k*dt``, ``(steps,)``."""
-        return np.arange(self.steps) * self.dt
+    def time(self):
+        """Sample instants ``t_k = k*dt``, ``(steps,)`` (a tuple of them for several records)."""
+        grids = tuple(np.arange(s) * t for s, t in zip(self.encoder.config.record_steps,
+                                                       self._dts, strict=True))
+        return grids[0] if self.records == 1 else grids
 
     def __repr__(self) -> str:
         return (f"Identifier({self.structure!r}, dt={self.dt}, steps={self.steps}, "
                 f"inputs={self.inputs}, scale={self.scale!r})")
 
     # -- the differentiable path (training uses it) --------------------------------------------
-    def system(self, y: torch.Tensor, u: torch.Tensor) -> System:
+    def system(self, y, u) -> System:
         """Encode records into the identified system, in measured units.
 
         Args:
-            y, u: ``(batch, steps)`` tensors (checked by the caller).
+            y, u: ``(batch, steps)`` tensors (checked by the caller); sequences of ``R`` such
+                tensors ``(batch, steps_r)`` for several records.
 
         Returns:
-            ``System`` with ``A (batch, n, n)``, ``b, c (batch, n)``, ``d (batch,)``.
+            ``System`` with ``A (batch, n, n)``, ``b, c (batch, n)``, ``d (batch,)`` (with a
+            record axis after the batch axis for several records).
         """
         return self._forward(y, u)[0]
 
-    def _forward(self, y: torch.Tensor, u: torch.Tensor) -> tuple[System, torch.Tensor]:
+    def _forward(self, y, u) -> tuple[System, torch.Tensor]:
         """``(System, elements (batch, q))`` of the records, both in measured units."""
-        y_bar = y.abs().amax(dim=1)
-        u_bar = u.abs().amax(dim=1)
-        channels = [2.0 * y / y_bar[:, None] - 1.0]           # Eq. 15
-        if self.inputs:
-            channels.append(u / u_bar[:, None])
-        x = torch.stack(channels, dim=1)
+        ys, us = (tuple(y), tuple(u)) if self.records > 1 else ((y,), (u,))
+        y_bar = torch.stack([r.abs().amax(dim=1) for r in ys], 1)     # (batch, R)
+        u_bar = torch.stack([r.abs().amax(dim=1) for r in us], 1)
+        x = []
+        for r, (y_r, u_r) in enumerate(zip(ys, us, strict=True)):
+            channels = [2.0 * y_r / y_bar[:, r, None] - 1.0]         # Eq. 15
+            if self.inputs:
+                channels.append(u_r / u_bar[:, r, None])
+            x.append(torch.stack(channels, dim=1))
         features = None
-        gain = y_bar / u_bar
+        gain = y_bar / u_bar                                          # (batch, R)
         if self.scale == "feature":
-            features = ((torch.log(gain) - self.feature_mean) / self.feature_scale)[:, None]
-        raw = self.encoder(x, features)
+            mean, spread = (f.to(gain.dtype) for f in self._features)
+            features = (torch.log(gain) - mean) / spread
+        raw = self.encoder(x[0] if self.records == 1 else x, features)
         theta = self.theta_mean.to(raw.dtype) + self.theta_scale.to(raw.dtype) * raw
         elements = self.structure.elements(theta)
         sys = self.structure.assemble(elements)
         if self.scale == "denormalise":
+            gain = gain[:, 0]
             # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
             sys = System(sys.A, sys.b, sys.c * gain[:, None].to(sys.c.dtype),
                          sys.d * gain.to(sys.d.dtype))
@@ -292,6 +362,8 @@ class Identifier:
         rebuilt when the weights change (parameter version counters), compared with the eager
         path when it is built, and skipped (None) where it does not apply or does not agree.
         """
+        if self.records > 1:
+            return None
         version = tuple(p._version for p in self._params)
         if self._fast_path is not None and self._fast_path[0] == version:
             return self._fast_path[1]
@@ -323,9 +395,11 @@ class Identifier:
 
         Args:
             y: measured output, ``(steps,)`` or ``(batch, steps)``, sampled at ``t_k = k*dt``
-                from rest (zero initial state).
+                from rest (zero initial state). For a several-record identifier a sequence of
+                ``R`` records, one per subsystem, each on its own grid.
             u: input, same shape (or ``(steps,)`` for a whole batch); ``None`` means a unit
-                step, which is what step-trained identifiers expect.
+                step, which is what step-trained identifiers expect. A sequence of ``R`` (or
+                None) for several records.
             dt: the record's sample time, if you want it checked against the identifier's
                 (an identifier only knows records on the grid it was trained for).
             refine: polish the estimate with a CasADi NLP in the same structure (refine.py).
@@ -334,42 +408,16 @@ class Identifier:
             An ``Estimate``; batched when ``y`` is.
         """
         start = time.perf_counter()
-        if dt is not None and not (isinstance(dt, (int, float))
-                                   and math.isclose(dt, self.dt, rel_tol=1e-9)):
+        if dt is not None and not _same_dt(dt, self._dts):
             raise ValueError(f"dt must be {self.dt} s for this identifier (trained on records of "
                              f"{self.steps} samples at dt={self.dt}); got dt={dt!r}")
+        if self.records > 1:
+            return self._identify_several(y, u, start, refine)
         y2, batched = _as_records("y", y, self.steps, self.dt)
         count = y2.shape[0]
-        zero_y = ~np.any(y2 != 0, axis=1)
-        if zero_y.any():
-            raise ValueError(
-                f"y must not be all zero (record {int(np.argmax(zero_y))} of {count}): "
-                "the normalisation y_tilde = 2 y / max|y| - 1 (Eq. 15) needs max|y| > 0"
-            )
-        if u is None:
-            u2 = None
-            ut = self._unit_step.expand(count, self.steps)
-        else:
-            u2, _ = _as_records("u", u, self.steps, self.dt)
-            if u2.shape[0] == 1 and count > 1:
-                u2 = np.broadcast_to(u2, y2.shape)
-            if u2.shape[0] != count:
-                raise ValueError(f"u must have {count} records like y; got {u2.shape[0]}")
-            zero_u = ~np.any(u2 != 0, axis=1)
-            if zero_u.any():
-                raise ValueError(f"u must not be all zero (record {int(np.argmax(zero_u))}): "
-                                 "a system at rest with zero input reveals nothing")
-            if not self.inputs:
-                # The encoder never sees u: only a step (of any height, which the exact
-                # de-normalisation absorbs) is what it was trained on.
-                varying = np.any(u2 != u2[:, :1], axis=1)
-                if varying.any():
-                    raise ValueError(
-                        f"u must be a constant step for this identifier (record "
-                        f"{int(np.argmax(varying))} varies): it was trained on step responses "
-                        "and does not read u; use an identifier trained with another "
-                        "excitation (TrainConfig(excitation='mix')) for arbitrary inputs")
-            ut = torch.from_numpy(np.ascontiguousarray(u2, dtype=np.float32))
+        u2 = self._check_records("y", "u", y2, u, self.steps, self.dt)
+        ut = (self._unit_steps[0].expand(count, self.steps) if u2 is None
+              else torch.from_numpy(np.ascontiguousarray(u2, dtype=np.float32)))
         fast = self._fast() if count == 1 else None
         if fast is not None:
             A, b, c, d, el = fast(y2[0], None if u2 is None else u2[0])
@@ -394,6 +442,92 @@ class Identifier:
             if torch.get_num_threads() != threads:
                 torch.set_num_threads(threads)
         return self._estimate(A, b, c, d, el, y2, u2, batched, start, refine)
+
+    def _check_records(self, yname: str, uname: str, y2: np.ndarray, u, steps: int,
+                       dt: float) -> np.ndarray | None:
+        """Check a validated output record set ``y2 (count, steps)`` and its input ``u``
+        (None = unit step); returns the inputs ``(count, steps)`` or None."""
+        count = y2.shape[0]
+        zero_y = ~np.any(y2 != 0, axis=1)
+        if zero_y.any():
+            raise ValueError(
+                f"{yname} must not be all zero (record {int(np.argmax(zero_y))} of {count}): "
+                "the normalisation y_tilde = 2 y / max|y| - 1 (Eq. 15) needs max|y| > 0"
+            )
+        if u is None:
+            return None
+        u2, _ = _as_records(uname, u, steps, dt)
+        if u2.shape[0] == 1 and count > 1:
+            u2 = np.broadcast_to(u2, y2.shape)
+        if u2.shape[0] != count:
+            raise ValueError(f"{uname} must have {count} records like {yname}; "
+                             f"got {u2.shape[0]}")
+        zero_u = ~np.any(u2 != 0, axis=1)
+        if zero_u.any():
+            raise ValueError(f"{uname} must not be all zero (record {int(np.argmax(zero_u))}): "
+                             "a system at rest with zero input reveals nothing")
+        if not self.inputs:
+            # The encoder never sees u: only a step (of any height, which the exact
+            # de-normalisation or the scale feature absorbs) is what it was trained on.
+            varying = np.any(u2 != u2[:, :1], axis=1)
+            if varying.any():
+                raise ValueError(
+                    f"{uname} must be a constant step for this identifier (record "
+                    f"{int(np.argmax(varying))} varies): it was trained on step responses "
+                    "and does not read u; use an identifier trained with another "
+                    "excitation (TrainConfig(excitation='mix')) for arbitrary inputs")
+        return u2
+
+    def _identify_several(self, y, u, start: float, refine: bool) -> Estimate:
+        """``identify`` for a several-record identifier: ``y``, ``u`` sequences of R records."""
+        R, grids = self.records, list(zip(self.encoder.config.record_steps, self._dts,
+                                          strict=True))
+        if isinstance(y, (np.ndarray, torch.Tensor)) or not hasattr(y, "__len__") \
+                or len(y) != R:
+            raise ValueError(f"y must be a sequence of {R} records (one per subsystem: "
+                             f"{', '.join(f'{s} samples at dt={t}' for s, t in grids)}); "
+                             f"got {type(y).__name__}")
+        if u is not None and (isinstance(u, (np.ndarray, torch.Tensor))
+                              or not hasattr(u, "__len__") or len(u) != R):
+            raise ValueError(f"u must be None (unit steps) or a sequence of {R} inputs, one per "
+                             f"record; got {type(u).__name__}")
+        ys, us, batched = [], [], None
+        for r, (steps, dt) in enumerate(grids):
+            y2, b = _as_records(f"y[{r}]", y[r], steps, dt)
+            batched = b if batched is None else batched
+            if ys and (b != batched or y2.shape[0] != ys[0].shape[0]):
+                raise ValueError(f"y[{r}] must be batched like y[0] ({ys[0].shape[0]} "
+                                 f"record(s), batch axis {batched}); got shape {np.shape(y[r])}")
+            u2 = self._check_records(f"y[{r}]", f"u[{r}]", y2, None if u is None else u[r],
+                                     steps, dt)
+            ys.append(y2)
+            us.append(np.ones_like(y2) if u2 is None else np.asarray(u2))
+        count = ys[0].shape[0]
+        if refine:
+            raise ValueError("refine=True is not available for a several-record identifier: "
+                             "the refinement fits one record; refine each subsystem's estimate "
+                             "in its own structure")
+        yt = [torch.from_numpy(v.astype(np.float32)) for v in ys]
+        ut = [torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for v in us]
+        with torch.no_grad():
+            parts = []
+            for i in range(0, count, 1024):
+                sys, el = self._forward([v[i: i + 1024] for v in yt],
+                                        [v[i: i + 1024] for v in ut])
+                parts.append((sys.A, sys.b, sys.c, sys.d, el))
+            A, b, c, d, el = (torch.cat(t).numpy().astype(np.float64)
+                              for t in zip(*parts, strict=True))
+        names = self.structure.element_names
+        if batched:
+            elements = {name: el[:, i] for i, name in enumerate(names)}
+            y_out, u_out = tuple(ys), tuple(us)
+        else:
+            elements = dict(zip(names, el[0].tolist(), strict=True))
+            A, b, c, d = A[0], b[0], c[0], d[0]
+            y_out, u_out = tuple(v[0] for v in ys), tuple(v[0] for v in us)
+        return Estimate(A, b, c, d, elements, y_out, u_out, self._dts,
+                        time.perf_counter() - start, False, {}, self._physical_source(),
+                        structure=self.structure)
 
     def _estimate(self, A, b, c, d, el, y2, u2, batched, start, refine) -> Estimate:
         """Wrap float64 arrays ``A (count, n, n)``, ..., ``el (count, q)`` as an Estimate."""
@@ -482,7 +616,7 @@ class Identifier:
         return cls(
             encoder,
             Structure.from_config(header["structure"]),
-            dt=header["dt"],
+            dt=tuple(header["dt"]) if isinstance(header["dt"], list) else header["dt"],
             theta_mean=tensors["theta_mean"],
             theta_scale=tensors["theta_scale"],
             scale=header["scale"],

@@ -747,6 +747,10 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure | None =
         raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):
         raise ValueError(f"config must be a RefineConfig; got {type(config).__name__}")
+    if structure.records > 1:
+        raise ValueError(f"structure must describe one record; {structure!r} describes "
+                         f"{structure.records} (a joint estimate): refine each subsystem's "
+                         "estimate in its own structure")
     dt = _check_dt(dt)
     batched = estimate.batched
     count = estimate.A.shape[0] if batched else 1

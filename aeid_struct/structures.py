@@ -58,6 +58,12 @@ Structures
     A CasADi map from named physical parameters to ``(A, B, C, D)``; elements are the parameters,
     ``element = lo + (hi - lo) * sigmoid(theta)`` within the given bounds.
 
+    *Several records, one parameter set.* A map with outputs ``A1, B1, C1, D1, ..., AR, .., DR``
+    describes ``R`` SISO systems (e.g. the leg's two subsystems, ``symbolic.leg.joint_map``) that
+    share the parameters, each identified from its own record. Its models carry a record axis
+    after the batch axis: ``A (batch, R, n, n), b, c (batch, R, n), d (batch, R)``
+    (:attr:`Structure.records`).
+
 Models given from outside (:meth:`Structure.elements_of`) may come in any realisation; they are
 converted through the transfer function: the characteristic polynomial (from the eigenvalues)
 and the numerator from the Markov parameters ``h_k = c A^{k-1} b`` (CCF), poles and residues
@@ -119,6 +125,8 @@ class System:
     d : torch.Tensor, (batch,)
 
     A single model (from an unbatched ``theta``) drops the batch axis: ``A (n, n)``, ``d ()``.
+    The models of a several-record structure (:attr:`Structure.records` ``R > 1``) carry a record
+    axis after the batch axis: ``A (batch, R, n, n)``, ``b, c (batch, R, n)``, ``d (batch, R)``.
     """
 
     A: torch.Tensor
@@ -128,8 +136,9 @@ class System:
 
     def __post_init__(self) -> None:
         A, b, c, d = self.A, self.b, self.c, self.d
-        if A.ndim not in (2, 3) or A.shape[-1] != A.shape[-2]:
-            raise ValueError(f"A must have shape (batch, n, n) or (n, n); got {tuple(A.shape)}")
+        if A.ndim not in (2, 3, 4) or A.shape[-1] != A.shape[-2]:
+            raise ValueError(f"A must have shape (batch, n, n) or (n, n) (or (batch, records, "
+                             f"n, n)); got {tuple(A.shape)}")
         lead, n = tuple(A.shape[:-2]), A.shape[-1]
         for name, x, shape in (("b", b, (*lead, n)), ("c", c, (*lead, n)), ("d", d, lead)):
             if tuple(x.shape) != shape:
@@ -148,6 +157,9 @@ class System:
         A, b, c, d = (x.detach().cpu().to(torch.float64).numpy() for x in self)
         if A.ndim == 2:
             return control.ss(A, b[:, None], c[None, :], d.reshape(1, 1))
+        if A.ndim == 4:   # (batch, records, n, n): a list per batch row
+            return [System(*(torch.from_numpy(x[i]) for x in (A, b, c, d))).to_control()
+                    for i in range(A.shape[0])]
         return [
             control.ss(A[i], b[i][:, None], c[i][None, :], d[i].reshape(1, 1))
             for i in range(A.shape[0])
@@ -282,8 +294,28 @@ def _model_dtype(A: Any) -> torch.dtype:
     return torch.float64
 
 
-def _model_arrays(A, b, c, d, n: int, who: str):
-    """Batched float64 arrays ``A (B, n, n), b (B, n), c (B, n), d (B,)`` and whether batched."""
+def _model_arrays(A, b, c, d, n: int, who: str, records: int = 1):
+    """Batched float64 arrays ``A (B, n, n), b (B, n), c (B, n), d (B,)`` and whether batched.
+
+    With ``records = R > 1`` the models carry a record axis, ``A (batch, R, n, n)`` or
+    ``(R, n, n)``, ...; they come back flattened, ``B = batch * R`` rows, record-minor."""
+    if records > 1:
+        A_ = _numpy(A)
+        if A_.ndim not in (3, 4) or A_.shape[-3:] != (records, n, n):
+            raise ValueError(f"A must have shape (batch, {records}, {n}, {n}) or ({records}, {n}, "
+                             f"{n}) for {who}; got {A_.shape}")
+        batched = A_.ndim == 4
+        lead = A_.shape[:-2]
+        parts = {}
+        for name, x, shape in (("b", b, (*lead, n)), ("c", c, (*lead, n)), ("d", d, lead)):
+            try:
+                parts[name] = np.broadcast_to(_numpy(x), shape)
+            except ValueError:
+                raise ValueError(f"{name} must have shape {shape} to match A {A_.shape}; "
+                                 f"got {_numpy(x).shape}") from None
+        flat = _model_arrays(A_.reshape(-1, n, n), parts["b"].reshape(-1, n),
+                             parts["c"].reshape(-1, n), parts["d"].reshape(-1), n, who)
+        return (*flat[:4], batched)
     A_, b_, c_, d_ = _numpy(A), _numpy(b), _numpy(c), _numpy(d)
     if A_.ndim not in (2, 3) or A_.shape[-2:] != (n, n):
         raise ValueError(f"A must have shape (batch, {n}, {n}) or ({n}, {n}) for {who}; "
@@ -399,6 +431,12 @@ class Structure(abc.ABC):
     def fixed_values(self) -> dict[str, float]:
         """The fixed elements and their values."""
         return dict(self._fixed)
+
+    @property
+    def records(self) -> int:
+        """Records (SISO systems) each parameter vector describes: 1, or ``R`` for a
+        :class:`Physical` map of several systems (module docstring)."""
+        return 1
 
     @property
     def p(self) -> int:
@@ -610,7 +648,7 @@ class Structure(abc.ABC):
         numpy ``A``, else float64.
         """
         dtype = _model_dtype(A)
-        A_, b_, c_, d_, batched = _model_arrays(A, b, c, d, self.n, repr(self))
+        A_, b_, c_, d_, batched = _model_arrays(A, b, c, d, self.n, repr(self), self.records)
         x = torch.from_numpy(self._elements_of(A_, b_, c_, d_, strict))
         atol = _atol(x, math.sqrt(torch.finfo(dtype).eps))
         x = self._align(x, atol)
@@ -906,13 +944,15 @@ class Physical(Structure):
     function : casadi.Function
         Scalar inputs (the physical parameters, e.g. ``k, d, m``; their order is the element
         order) and outputs ``"A" (n, n), "B" (n, 1), "C" (1, n), "D" (1, 1)`` (others are
-        ignored). Evaluated through :class:`~aeid_struct.casadi_torch.CasadiOp`, so gradients
-        are CasADi's.
+        ignored) -- or, for ``R`` systems sharing the parameters, ``"A1", .., "D1", ..,
+        "AR", .., "DR"`` of those shapes (then :attr:`records` is ``R``). Evaluated through
+        :class:`~aeid_struct.casadi_torch.CasadiOp`, so gradients are CasADi's.
     bounds : dict name -> (lo, hi)
         For every input, ``lo < hi``: ``element = lo + (hi - lo) sigmoid(theta)``.
     inverse : casadi.Function, optional
-        Inputs ``"A", "B", "C", "D"`` holding a model in bottom-row CCF (shapes as above),
-        scalar outputs named like (a subset of) the parameters. Needed by :meth:`elements_of`,
+        Inputs ``"A", "B", "C", "D"`` holding a model in bottom-row CCF (shapes as above;
+        ``"A1", .., "DR"`` for ``R`` records, e.g. ``symbolic.leg.joint_inverse``), scalar
+        outputs named like (a subset of) the parameters. Needed by :meth:`elements_of`,
         which first converts the given realisation to CCF. A parameter the inverse does not
         return (e.g. ``d`` of the unstable leg, which its transfer function does not contain)
         is set to its fixed value if fixed, else to the midpoint of its bounds (``raw = 0``).
@@ -931,16 +971,25 @@ class Physical(Structure):
                 raise ValueError(f"input {nm!r} of {fname} must be a scalar (1, 1); "
                                  f"got {function.size_in(i)}")
         outs = list(function.name_out())
-        missing = [k for k in "ABCD" if k not in outs]
+        records = 1
+        if "A" not in outs and "A1" in outs:
+            while f"A{records + 1}" in outs:
+                records += 1
+        self._keys = (["A", "B", "C", "D"] if "A" in outs or records == 1 and "A1" not in outs
+                      else [f"{k}{r}" for r in range(1, records + 1) for k in "ABCD"])
+        missing = [k for k in self._keys if k not in outs]
         if missing:
             raise ValueError(f"function {fname} must have outputs A, B, C, D; missing "
-                             f"{', '.join(missing)} (outputs: {', '.join(outs)})")
-        n = function.size_out("A")[0]
-        shapes = {"A": (n, n), "B": (n, 1), "C": (1, n), "D": (1, 1)}
+                             f"{', '.join(missing)} (outputs: {', '.join(outs)}; for several "
+                             "records: A1, B1, C1, D1, A2, ..)")
+        n = function.size_out(self._keys[0])[0]
+        shapes = {k: {"A": (n, n), "B": (n, 1), "C": (1, n), "D": (1, 1)}[k[0]]
+                  for k in self._keys}
         for k, s in shapes.items():
             if function.size_out(k) != s:
                 raise ValueError(f"output {k!r} of {fname} must have shape {s}; "
                                  f"got {function.size_out(k)}")
+        self._records = records
         if not isinstance(bounds, dict):
             raise ValueError(f"bounds must be a dict name -> (lo, hi); got {type(bounds).__name__}")
         for k in bounds:
@@ -965,10 +1014,10 @@ class Physical(Structure):
         if inverse is not None:
             self._check_inverse(inverse, shapes, names, fname)
         self.function, self.inverse = function, inverse
-        if outs[:4] != ["A", "B", "C", "D"] or len(outs) > 4:
+        if outs != self._keys:
             # Keep only A, B, C, D so that CasadiOp neither computes nor differentiates the rest.
             function = function.slice(fname, list(range(len(names))),
-                                      [outs.index(k) for k in "ABCD"])
+                                      [outs.index(k) for k in self._keys])
         self._op = CasadiOp(function)
         self._inverse_op = None if inverse is None else CasadiOp(inverse)
         super().__init__(n, maps)
@@ -977,8 +1026,8 @@ class Physical(Structure):
     def _check_inverse(inverse, shapes, names, fname) -> None:
         if not isinstance(inverse, casadi.Function):
             raise ValueError(f"inverse must be a casadi.Function; got {type(inverse).__name__}")
-        if sorted(inverse.name_in()) != sorted("ABCD"):
-            raise ValueError(f"inverse {inverse.name()} must have inputs A, B, C, D; "
+        if sorted(inverse.name_in()) != sorted(shapes):
+            raise ValueError(f"inverse {inverse.name()} must have inputs {', '.join(shapes)}; "
                              f"got {', '.join(inverse.name_in())}")
         for k, s in shapes.items():
             if inverse.size_in(k) != s:
@@ -991,6 +1040,10 @@ class Physical(Structure):
             if inverse.size_out(i) != (1, 1):
                 raise ValueError(f"output {k!r} of inverse {inverse.name()} must be a scalar; "
                                  f"got {inverse.size_out(i)}")
+
+    @property
+    def records(self) -> int:
+        return self._records
 
     @property
     def bounds(self) -> dict[str, tuple[float, float]]:
@@ -1020,11 +1073,16 @@ class Physical(Structure):
 
     def _assemble(self, x: torch.Tensor) -> System:
         out = self._op(*x.unbind(1))
-        B, n = x.shape[0], self.n
-        return System(out["A"].reshape(B, n, n), out["B"].reshape(B, n),
-                      out["C"].reshape(B, n), out["D"].reshape(B))
+        B, n, R = x.shape[0], self.n, self.records
+        shape = (B,) if R == 1 else (B, R)
+        parts = [out[k].reshape(B, -1) for k in self._keys]      # record-major: A1 B1 C1 D1 A2..
+        A, b, c, d = (torch.stack(parts[i::4], 1).reshape(*shape, -1) for i in range(4))
+        return System(A.reshape(*shape, n, n), b, c, d.reshape(shape))
 
     def _casadi_assemble(self, x) -> tuple:
+        if self.records > 1:
+            raise NotImplementedError(f"{self!r} describes {self.records} records; its CasADi "
+                                      "assembly is per record (refine each subsystem alone)")
         out = self.function(**{name: x[i] for i, name in enumerate(self._maps)})
         return out["A"], out["B"], out["C"].T, out["D"]
 
@@ -1034,12 +1092,18 @@ class Physical(Structure):
                              "Physical(..., inverse=f) with f: (A, B, C, D) in CCF -> parameters")
         a, num = _ccf_coefficients(A, b, c)
         Ac, bc, cc = _ccf_matrices(a, num)
-        B, n = a.shape
+        R, n = self.records, a.shape[1]
+        B = a.shape[0] // R          # rows come record-minor: (batch * R) models
         # B (n, 1) is a column vector -> (batch, n); C (1, n) a matrix -> (batch, 1, n).
         op = self._inverse_op
-        inputs = {"A": Ac, "B": bc, "C": cc.reshape(B, 1, n), "D": d}
-        found = op.evaluate(**{k: torch.from_numpy(v.reshape(B, *op.shape_in[k]))
-                               for k, v in inputs.items()})
+        inputs = {}
+        for r in range(R):
+            sfx = "" if self._keys[0] == "A" else str(r + 1)
+            rows = slice(r, None, R)
+            inputs.update({f"A{sfx}": Ac[rows], f"B{sfx}": bc[rows],
+                           f"C{sfx}": cc[rows].reshape(B, 1, n), f"D{sfx}": d[rows]})
+        found = op.evaluate(**{k: torch.from_numpy(np.ascontiguousarray(v).reshape(
+            B, *op.shape_in[k])) for k, v in inputs.items()})
         x = np.empty((B, self.q))
         for i, (name, m) in enumerate(self._maps.items()):
             if name in found:
@@ -1055,16 +1119,19 @@ class Physical(Structure):
     def _check_range(self, x, A, b, c, d, dtype) -> None:
         # The parameters must rebuild the model: compare transfer functions (CCF coefficients).
         out = self._op.evaluate(*x.unbind(1))
-        B, n = x.shape[0], self.n
-        An, bn, cn, dn = (out[k].reshape(B, -1) for k in "ABCD")
+        B, n = x.shape[0] * self.records, self.n
+        # the models of each parameter row, record-minor like the given ones
+        An, bn, cn, dn = (np.stack([out[k].reshape(x.shape[0], -1) for k in self._keys[i::4]],
+                                   1).reshape(B, -1) for i in range(4))
         given = np.concatenate([*_ccf_coefficients(A, b, c), d[:, None]], 1)
         rebuilt = np.concatenate([*_ccf_coefficients(An.reshape(B, n, n), bn, cn), dn], 1)
         err = np.abs(given - rebuilt).max(1) / (1.0 + np.abs(given).max(1))
         tol = max(1e-6, 10 * math.sqrt(torch.finfo(dtype).eps))
         if np.any(err > tol):
-            r = int(np.argmax(err))
+            i = int(np.argmax(err))
+            r = i // self.records
             raise ValueError(
                 f"the model (row {r}) is not in the range of {self!r}: the transfer function "
-                f"rebuilt from the recovered parameters differs by {err[r]:.3g} (relative) "
-                f"in its CCF coefficients {np.round(given[r], 6)} vs {np.round(rebuilt[r], 6)}"
+                f"rebuilt from the recovered parameters differs by {err[i]:.3g} (relative) "
+                f"in its CCF coefficients {np.round(given[i], 6)} vs {np.round(rebuilt[i], 6)}"
             )

@@ -22,6 +22,9 @@ Choices the paper leaves open, and ours:
 - float32 by default (the decoder is exact to float32 precision, far below the targets).
 - Noise: ``noise`` adds white measurement noise with a std drawn per record and per epoch from a
   range (relative to max|y|), so a noise-trained identifier sees fresh noise every epoch.
+- Several records (a ``Physical`` structure of ``R`` subsystems, e.g. the joint leg): ``dt`` and
+  ``steps`` are tuples, one per record; the loss is the mean of Eq. 14 over the records, each
+  normalised by its own ``y_bar``, so that no record dominates by its magnitude.
 - Checkpoints: every epoch (atomically, ``torch.save`` of tensors and numbers only, loaded with
   ``weights_only=True``); a killed run started again with the same checkpoint path resumes at
   the epoch after the last checkpoint, with the same optimizer state and shuffling.
@@ -52,7 +55,8 @@ class TrainConfig:
     """How to train; validates itself.
 
     Attributes:
-        dt, steps: the record format (sample time, samples).
+        dt, steps: the record format (sample time, samples); tuples (one entry per record) for
+            a several-record structure.
         count: simulated records (paper: 10^4), ``holdout`` of them held out (paper: 20 %).
         epochs: at most this many epochs; ``seconds``: at most this much wall time (None = no
             limit).
@@ -66,8 +70,8 @@ class TrainConfig:
         threads: torch threads (None = leave torch's setting).
     """
 
-    dt: float
-    steps: int
+    dt: float | tuple[float, ...]
+    steps: int | tuple[int, ...]
     count: int = 10_000
     holdout: float = 0.2
     epochs: int = 200
@@ -84,9 +88,24 @@ class TrainConfig:
     threads: int | None = None
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.dt, (int, float)) and math.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(f"dt must be a positive finite number; got {self.dt!r}")
-        for name in ("steps", "count", "epochs", "batch"):
+        grid = {}
+        for name in ("dt", "steps"):
+            v = getattr(self, name)
+            grid[name] = tuple(v) if isinstance(v, (tuple, list)) else (v,)
+            if isinstance(v, list):
+                object.__setattr__(self, name, tuple(v))
+        if len(grid["dt"]) != len(grid["steps"]):
+            raise ValueError(f"dt and steps must have one entry per record alike; got "
+                             f"dt={self.dt!r}, steps={self.steps!r}")
+        for t in grid["dt"]:
+            if not (isinstance(t, (int, float)) and math.isfinite(t) and t > 0):
+                raise ValueError(f"dt must be a positive finite number (or a tuple of them, one "
+                                 f"per record); got {self.dt!r}")
+        for v in grid["steps"]:
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"steps must be a positive integer (or a tuple of them, one "
+                                 f"per record); got {self.steps!r}")
+        for name in ("count", "epochs", "batch"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
@@ -108,6 +127,13 @@ class TrainConfig:
             raise ValueError(f"excitation must be one of {EXCITATIONS}; got {self.excitation!r}")
 
     @property
+    def grids(self) -> tuple[tuple[int, float], ...]:
+        """``(steps, dt)`` of each record."""
+        steps = self.steps if isinstance(self.steps, tuple) else (self.steps,)
+        dt = self.dt if isinstance(self.dt, tuple) else (self.dt,)
+        return tuple((s, float(t)) for s, t in zip(steps, dt, strict=True))
+
+    @property
     def noise_range(self) -> tuple[float, float]:
         if np.ndim(self.noise) == 0:
             return float(self.noise), float(self.noise)
@@ -115,22 +141,31 @@ class TrainConfig:
 
 
 def _batch_loss(ident: Identifier, y, u, yinf, gamma: float) -> torch.Tensor:
-    """Eq. 14 on Eq. 15-normalised records, averaged over the batch.
+    """Eq. 14 on Eq. 15-normalised records, averaged over the batch (and the records).
 
     ``y_tilde - y_hat_tilde = 2 (y - y_hat) / y_bar`` (the shift of Eq. 15 cancels), so the
     records, the decoded responses and the stationary values are scaled by ``2 / y_bar`` of the
     measured record and handed to the decoder's Eq. 14.
 
     Args:
-        y: ``(batch, steps)`` measured records (noisy when training with noise).
-        u: ``(batch, steps)`` inputs.
-        yinf: ``(batch,)`` true stationary values (Eq. 4).
+        y: ``(batch, steps)`` measured records (noisy when training with noise); a list of
+            ``R`` of them ``(batch, steps_r)`` for several records.
+        u: ``(batch, steps)`` inputs (a list like ``y``).
+        yinf: ``(batch,)`` true stationary values (Eq. 4); ``(batch, R)`` for several records.
     """
+    R = ident.records
     sys = ident.system(y, u)
-    y_hat = _simulate(sys.A, sys.b, sys.c, sys.d, u, ident.dt, None)
-    scale = 2.0 / _record_scale(y)
-    yinf_hat = _stationary_value(sys.A, sys.b, sys.c, sys.d) * scale if gamma > 0 else None
-    return _loss(y_hat * scale[:, None], y * scale[:, None], yinf_hat, yinf * scale, gamma)
+    ys, us = (y, u) if R > 1 else ((y,), (u,))
+    total = 0.0
+    for r in range(R):
+        A, b, c, d = (x[:, r] for x in sys) if R > 1 else sys
+        y_hat = _simulate(A, b, c, d, us[r], ident._dts[r], None)
+        scale = 2.0 / _record_scale(ys[r])
+        yinf_r = yinf[:, r] if R > 1 else yinf
+        yinf_hat = _stationary_value(A, b, c, d) * scale if gamma > 0 else None
+        total = total + _loss(y_hat * scale[:, None], ys[r] * scale[:, None], yinf_hat,
+                              yinf_r * scale, gamma)
+    return total / R
 
 
 def _add_noise(y: torch.Tensor, y_bar: torch.Tensor, lo: float, hi: float,
@@ -191,6 +226,12 @@ def train(structure: Structure, family, config: TrainConfig, *,
     if not isinstance(structure, Structure):
         raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
                          f"got {type(structure).__name__}")
+    R = structure.records
+    if len(config.grids) != R or getattr(family, "records", 1) != R:
+        raise ValueError(
+            f"{structure!r} describes {R} record(s) per parameter set; config.dt and "
+            f"config.steps give {len(config.grids)} and the family "
+            f"{getattr(family, 'records', 1)}: they must agree")
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
@@ -198,23 +239,26 @@ def train(structure: Structure, family, config: TrainConfig, *,
                   excitation_kind=config.excitation, seed=config.seed)
     scale_mode = "feature" if isinstance(structure, Physical) or not _c_free(structure) \
         else "denormalise"
-    y_bar = np.max(np.abs(rec.y_clean), axis=1)
-    u_bar = np.max(np.abs(rec.u), axis=1)
+    ys_clean, us = (rec.y_clean, rec.u) if R > 1 else ((rec.y_clean,), (rec.u,))
+    y_bar = np.stack([np.max(np.abs(y), axis=1) for y in ys_clean], 1)     # (count, R)
+    u_bar = np.stack([np.max(np.abs(u), axis=1) for u in us], 1)
     gain = y_bar / u_bar
     mean, spread = _raw_statistics(structure, rec.systems,
-                                   gain if scale_mode == "denormalise" else None)
+                                   gain[:, 0] if scale_mode == "denormalise" else None)
     log_gain = np.log(gain)
+    log_spread = log_gain.std(axis=0)
 
     base = encoder or EncoderConfig(steps=config.steps, outputs=structure.p)
     enc_config = dataclasses.replace(
         base, steps=config.steps, outputs=structure.p,
         inputs=base.inputs or config.excitation != "step",
-        features=1 if scale_mode == "feature" else 0,
+        features=R if scale_mode == "feature" else 0,
     )
     ident = Identifier(
         Encoder(enc_config), structure, dt=config.dt,
         theta_mean=torch.tensor(mean), theta_scale=torch.tensor(spread), scale=scale_mode,
-        feature_mean=float(log_gain.mean()), feature_scale=float(log_gain.std() or 1.0),
+        feature_mean=log_gain.mean(axis=0), feature_scale=np.where(log_spread > 0, log_spread,
+                                                                   1.0),
         inverse=inverse, meta=meta,
     )
 
@@ -222,13 +266,21 @@ def train(structure: Structure, family, config: TrainConfig, *,
     order = np.random.default_rng(config.seed + 1).permutation(config.count)
     train_idx, held_idx = order[holdout:], order[:holdout]
     dtype = torch.float32
-    u_all = torch.tensor(rec.u, dtype=dtype)
-    y_all = torch.tensor(rec.y_clean, dtype=dtype)
-    yinf_all = torch.tensor(
-        stationary_value(rec.systems.A, rec.systems.b, rec.systems.c, rec.systems.d),
-        dtype=dtype)
+    u_all = [torch.tensor(u, dtype=dtype) for u in us]
+    y_all = [torch.tensor(y, dtype=dtype) for y in ys_clean]
+    yinf_all = torch.tensor(np.stack([
+        stationary_value(*(getattr(rec.systems.record(r), f) for f in "Abcd"))
+        for r in range(R)], 1), dtype=dtype)                                  # (count, R)
     scale_all = torch.tensor(y_bar, dtype=dtype)
     noise_lo, noise_hi = config.noise_range
+
+    def batch(idx: torch.Tensor, ys: list[torch.Tensor]):
+        """``(y, u, yinf)`` of the records ``idx`` as the loss takes them (tensors for one
+        record, lists for several); ``ys`` are their outputs, already taken (and noisy)."""
+        u = [v[idx] for v in u_all]
+        if R == 1:
+            return ys[0], u[0], yinf_all[idx, 0]
+        return ys, u, yinf_all[idx]
 
     params = list(ident.encoder.parameters())
     opt = torch.optim.Adam(params, lr=config.lr)
@@ -241,8 +293,9 @@ def train(structure: Structure, family, config: TrainConfig, *,
     if ckpt is not None and ckpt.exists():
         state = _resume(ckpt, fingerprint, ident, opt, generator)
 
-    def noisy(idx: torch.Tensor) -> torch.Tensor:
-        return _add_noise(y_all[idx], scale_all[idx], noise_lo, noise_hi, generator)
+    def noisy(idx: torch.Tensor):
+        return batch(idx, [_add_noise(y[idx], scale_all[idx, r], noise_lo, noise_hi, generator)
+                           for r, y in enumerate(y_all)])
 
     held_t = torch.as_tensor(held_idx)
     held_noise_gen = torch.Generator().manual_seed(config.seed + 3)
@@ -253,13 +306,12 @@ def train(structure: Structure, family, config: TrainConfig, *,
         with torch.no_grad():
             for i in range(0, len(held_t), 1024):
                 idx = held_t[i: i + 1024]
-                y = y_all[idx]
+                ys = [y[idx] for y in y_all]
                 if noise_hi > 0:
                     level = (noise_lo + noise_hi) / 2
-                    y = y + (level * scale_all[idx])[:, None] * torch.randn(
-                        y.shape, generator=held_noise_gen)
-                total += float(_batch_loss(ident, y, u_all[idx], yinf_all[idx],
-                                           config.gamma)) * len(idx)
+                    ys = [y + (level * scale_all[idx, r])[:, None] * torch.randn(
+                        y.shape, generator=held_noise_gen) for r, y in enumerate(ys)]
+                total += float(_batch_loss(ident, *batch(idx, ys), config.gamma)) * len(idx)
         ident.encoder.train()
         return total / len(held_t)
 
@@ -283,7 +335,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
             for group in opt.param_groups:
                 group["lr"] = lr
             idx = perm[j * config.batch: (j + 1) * config.batch]
-            loss = _batch_loss(ident, noisy(idx), u_all[idx], yinf_all[idx], config.gamma)
+            loss = _batch_loss(ident, *noisy(idx), config.gamma)
             opt.zero_grad(set_to_none=True)
             value = float(loss.detach())
             if not math.isfinite(value):

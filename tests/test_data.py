@@ -82,7 +82,8 @@ def test_excitations(kind):
 @pytest.mark.parametrize(
     "make, match",
     [
-        (lambda: LegFamily(subsystem="middle"), "subsystem must be 'stable' or 'unstable'"),
+        (lambda: LegFamily(subsystem="middle"),
+         "subsystem must be 'stable', 'unstable' or 'joint'"),
         (lambda: LegFamily(ranges={"k": (20, 25), "d": (2, 5)}), "ranges must name exactly"),
         (lambda: LegFamily(ranges={"k": (25, 20), "d": (2, 5), "m": (0.5, 1.5)}),
          r"ranges\['k'\] must satisfy lo <= hi"),
@@ -106,3 +107,30 @@ def test_leg_family_inverse_round_trips(sub, names):
     for name, value in {"k": 22.0, "d": 3.3, "m": 0.9}.items():
         if name in names:
             assert float(back[name]) == pytest.approx(value, rel=1e-12)
+
+
+def test_joint_leg_records_are_both_subsystems_on_their_own_grids():
+    fam = LegFamily(subsystem="joint")
+    rec = records(fam, 3, steps=(300, 100), dt=(0.01, 0.005), noise=0.01, seed=2)
+    assert rec.systems.records == 2 and rec.systems.A.shape == (3, 2, 2, 2)
+    assert [y.shape for y in rec.y] == [(3, 300), (3, 100)] and rec.dt == (0.01, 0.005)
+    for r, (sub, dt) in enumerate((("stable", 0.01), ("unstable", 0.005))):
+        single = LegFamily(subsystem=sub).systems(**rec.systems.params)
+        np.testing.assert_allclose(rec.systems.A[:, r], single.A, rtol=1e-14)
+        # each record is the subsystem's step response (python-control as the oracle)
+        t = np.arange(rec.y[r].shape[1]) * dt
+        sys = control.ss(single.A[0], single.b[0][:, None], single.c[0][None], 0.0)
+        ref = control.forced_response(sys, t, np.ones_like(t)).outputs
+        np.testing.assert_allclose(rec.y_clean[r][0], ref, rtol=1e-8, atol=1e-10 * abs(ref).max())
+        level = (rec.y[r] - rec.y_clean[r]).std(axis=1) / abs(rec.y_clean[r]).max(axis=1)
+        assert np.all((level > 0.005) & (level < 0.02))
+    alone = rec.record(1)
+    assert alone.dt == 0.005 and alone.systems.A.shape == (3, 2, 2)
+    np.testing.assert_array_equal(alone.y, rec.y[1])
+    with pytest.raises(ValueError, match=r"r must be a record index in \[0, 2\); got 2"):
+        rec.record(2)
+    sub = rec.take([0, 2])
+    assert len(sub) == 2 and sub.y[1].shape == (2, 100)
+    np.testing.assert_array_equal(sub.y[0][1], rec.y[0][2])
+    with pytest.raises(ValueError, match=r"steps and dt must be tuples of 2 entries"):
+        records(fam, 3, steps=300, dt=0.01)

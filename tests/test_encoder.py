@@ -62,3 +62,29 @@ def test_config_errors(kwargs, match):
 def test_unset_config_cannot_build():
     with pytest.raises(ValueError, match="config.steps and config.outputs must be set"):
         Encoder(EncoderConfig())
+
+
+def test_several_records_pool_each_to_a_common_length_and_stack_as_channels():
+    cfg = EncoderConfig(steps=(300, 100), outputs=3, pool=(6, 2), features=2, width=4,
+                        dense=(5,))
+    assert (cfg.records, cfg.channels, cfg.length) == (2, 2, 50)
+    enc = Encoder(cfg).double()
+    y1, y2 = torch.randn(3, 1, 300, dtype=torch.float64), torch.randn(3, 1, 100,
+                                                                      dtype=torch.float64)
+    f = torch.randn(3, 2, dtype=torch.float64)
+    # the same network fed the pooled records as one two-channel signal
+    pooled = torch.cat([y1.reshape(3, 1, 50, 6).mean(-1), y2.reshape(3, 1, 50, 2).mean(-1)], 1)
+    h = torch.cat([enc.main(pooled), enc.shortcut(pooled)], 1).flatten(1)
+    torch.testing.assert_close(enc([y1, y2], f), enc.head(torch.cat([h, f], 1)))
+    assert EncoderConfig.from_dict(cfg.to_dict()) == cfg
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(steps=(300, 100), pool=(6, 3)), r"every record must pool to the same positive length"),
+    (dict(steps=(300, 100), pool=(6, 2, 1)), r"pool must be a positive integer or a tuple of 2"),
+    (dict(steps=(300,), pool=1), r"steps must be a non-negative integer, or a tuple of two"),
+    (dict(steps=(300, 0)), r"steps must be a non-negative integer, or a tuple of two"),
+])
+def test_several_record_config_errors(kw, match):
+    with pytest.raises(ValueError, match=match):
+        EncoderConfig(outputs=3, **kw)

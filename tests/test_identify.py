@@ -219,3 +219,75 @@ def test_standalone_refine_uses_the_estimates_structure():
     bare = ae.Estimate(est.A, est.b, est.c, est.d, est.elements, y, np.ones(60), 0.05)
     with pytest.raises(ValueError, match="structure must be given: this estimate does not"):
         refine(bare, y, None, 0.05)
+
+
+# -- several records, one parameter set (the joint leg) ----------------------------------------
+def _joint_identifier(seed=0):
+    torch.manual_seed(seed)
+    structure = ae.Physical(leg.joint_map(), bounds={"k": (20, 25), "d": (2, 5),
+                                                     "m": (0.5, 1.5)},
+                            inverse=leg.joint_inverse())
+    enc = Encoder(EncoderConfig(steps=(60, 20), pool=(3, 1), outputs=3, features=2, width=4,
+                                dense=(8,)))
+    enc.eval()
+    return Identifier(enc, structure, dt=(0.05, 0.025), theta_mean=torch.zeros(3),
+                      theta_scale=torch.ones(3), scale="feature", feature_mean=(-3.0, 0.5),
+                      feature_scale=(0.2, 0.4))
+
+
+def _joint_records(count=4):
+    from aeid_struct.data import records
+
+    return records(ae.LegFamily(subsystem="joint"), count, steps=(60, 20), dt=(0.05, 0.025),
+                   seed=1)
+
+
+def test_joint_identifier_reads_both_records_and_decodes_each_on_its_grid(tmp_path):
+    ident = _joint_identifier()
+    assert (ident.records, ident.steps, ident.dt) == (2, (60, 20), (0.05, 0.025))
+    rec = _joint_records()
+    est = ident.identify(rec.y)
+    assert est.batched and est.records == 2 and est.A.shape == (4, 2, 2, 2)
+    # the estimate is the joint map of its own parameters, record by record
+    for r, f in ((0, leg.stable_map()), (1, leg.unstable_map())):
+        out = f(k=est.physical["k"][1], d=est.physical["d"][1], m=est.physical["m"][1])
+        np.testing.assert_allclose(est.A[1, r], np.array(out["A"]), rtol=1e-5)
+    # y_hat and fit per record, against the decoder and nrmse on each record's own grid
+    for r, dt in enumerate((0.05, 0.025)):
+        ref = ae.simulate(est.A[:, r], est.b[:, r], est.c[:, r], est.d[:, r],
+                          np.ones(rec.y[r].shape[1]), dt)
+        np.testing.assert_allclose(est.y_hat[r], ref, rtol=1e-12)
+        np.testing.assert_allclose(est.fit[:, r], nrmse_fit(rec.y[r], ref))
+    one = ident.identify([rec.y[0][2], rec.y[1][2]], dt=(0.05, 0.025))
+    assert not one.batched and one.A.shape == (2, 2, 2) and one.fit.shape == (2,)
+    for k in "kdm":
+        assert one.physical[k] == pytest.approx(est.physical[k][2], rel=1e-5)
+    assert len(one.to_control()) == 2 and len(est.to_control()[0]) == 2
+    # the scale features read each record's own magnitude: doubling one record changes k
+    twice = ident.identify([2 * rec.y[0][2], rec.y[1][2]])
+    assert twice.physical["k"] != pytest.approx(one.physical["k"], rel=1e-6)
+    path = ident.save(tmp_path / "joint.aeid")
+    back = Identifier.load(path)
+    assert back.dt == (0.05, 0.025) and back.feature_mean == (-3.0, 0.5)
+    np.testing.assert_array_equal(back.identify(rec.y).A, est.A)
+
+
+def test_joint_identifier_input_errors():
+    ident = _joint_identifier()
+    rec = _joint_records(2)
+    with pytest.raises(ValueError, match=r"y must be a sequence of 2 records \(one per subsystem"):
+        ident.identify(rec.y[0])
+    with pytest.raises(ValueError, match=r"y\[1\] must have shape \(20,\) or \(batch, 20\)"):
+        ident.identify([rec.y[0], rec.y[0]])
+    with pytest.raises(ValueError, match=r"y\[1\] must be batched like y\[0\]"):
+        ident.identify([rec.y[0], rec.y[1][:1]])
+    with pytest.raises(ValueError, match=r"u\[0\] must be a constant step"):
+        ident.identify(rec.y, [np.linspace(0.1, 1, 60), np.ones(20)])
+    with pytest.raises(ValueError, match=r"dt must be \(0.05, 0.025\) s"):
+        ident.identify(rec.y, dt=0.05)
+    with pytest.raises(ValueError, match=r"refine=True is not available for a several-record"):
+        ident.identify(rec.y, refine=True)
+    with pytest.raises(ValueError, match=r"the encoder reads 1 record\(s\) but .* describes 2"):
+        Identifier(Encoder(EncoderConfig(steps=60, outputs=3, features=1)),
+                   ident.structure, dt=0.05, theta_mean=torch.zeros(3),
+                   theta_scale=torch.ones(3), scale="feature")

@@ -693,3 +693,60 @@ def test_element_bounds_by_kind():
 def test_casadi_system_shape_error():
     with pytest.raises(ValueError, match=r"x must have shape \(4, 1\) for CCF"):
         CCF(2).casadi_system(casadi.SX.sym("x", 3))
+
+
+# -- several records, one parameter set (the joint leg) ----------------------------------------
+def _joint():
+    from symbolic import leg
+
+    return Physical(leg.joint_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)},
+                    inverse=leg.joint_inverse())
+
+
+def test_joint_physical_assembles_a_record_axis_equal_to_each_subsystem_map():
+    from symbolic import leg
+
+    s = _joint()
+    assert (s.records, s.p, s.q) == (2, 3, 3)
+    params = torch.tensor([[24.23, 2.24, 1.01], [20.5, 4.0, 0.6]], dtype=torch.float64)
+    sys = s.assemble(params)
+    assert tuple(sys.A.shape) == (2, 2, 2, 2) and tuple(sys.d.shape) == (2, 2)
+    for i, row in enumerate(params.tolist()):
+        for r, f in enumerate((leg.stable_map(), leg.unstable_map())):
+            out = f(k=row[0], d=row[1], m=row[2])
+            np.testing.assert_allclose(sys.A[i, r].numpy(), np.array(out["A"]), rtol=1e-14)
+            np.testing.assert_allclose(sys.b[i, r].numpy(), np.array(out["B"]).ravel())
+            np.testing.assert_allclose(sys.c[i, r].numpy(), np.array(out["C"]).ravel(),
+                                       rtol=1e-14)
+    # one parameter vector: the record axis leads
+    assert tuple(s.assemble(params[0]).A.shape) == (2, 2, 2)
+    assert len(s.assemble(params).to_control()[0]) == 2
+
+
+def test_joint_physical_elements_of_round_trips_and_rejects_inconsistent_records():
+    s = _joint()
+    params = torch.tensor([[24.23, 2.24, 1.01], [20.5, 4.0, 0.6]], dtype=torch.float64)
+    sys = s.assemble(params)
+    back = s.elements_of(sys.A, sys.b, sys.c, sys.d)
+    torch.testing.assert_close(back, params, rtol=1e-10, atol=0)
+    torch.testing.assert_close(s.elements_of(sys.A[1], sys.b[1], sys.c[1], sys.d[1]),
+                               params[1], rtol=1e-10, atol=0)
+    # the stable record of row 1 from another leg: no (k, d, m) rebuilds both records
+    A = sys.A.clone()
+    A[1, 0, 1, 0] *= 1.05
+    with pytest.raises(ValueError, match=r"the model \(row 1\) is not in the range"):
+        s.elements_of(A, sys.b, sys.c, sys.d)
+    with pytest.raises(ValueError, match=r"A must have shape \(batch, 2, 2, 2\) or \(2, 2, 2\)"):
+        s.elements_of(np.zeros((3, 2, 2)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3))
+
+
+def test_joint_physical_is_differentiable_and_serialisable():
+    s = _joint()
+    theta = torch.tensor([[0.3, -0.2, 0.5]], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: tuple(s(t)), (theta,))
+    assert Structure.from_config(json.loads(json.dumps(s.config()))) == s
+    with pytest.raises(ValueError, match=r"inverse stable_inverse must have inputs A1, B1"):
+        from symbolic import leg
+
+        Physical(leg.joint_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)},
+                 inverse=leg.stable_inverse())
