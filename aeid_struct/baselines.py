@@ -121,6 +121,7 @@ from .decoder import _check_dt
 from .identify import Estimate, _as_array, _require_finite
 
 __all__ = [
+    "Classical",
     "Continuous",
     "NoRealLogarithm",
     "casadi_cold",
@@ -974,3 +975,84 @@ def casadi_cold(y, u, dt: float, *, structure, start: dict | None = None, invers
              "status": result.status, "loss": result.loss, "loss_start": result.loss_start,
              "solver": result.solver}
     return _finish(structure, model, names, x, y, u, dt, start_time, info, source)
+
+
+# ----------------------------------------------------------------------------------------------
+# A method behind an identifier's interface
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Classical:
+    """A classical method behind an identifier's interface, record by record.
+
+    Attributes:
+        method: one of this module's methods with its keyword arguments bound, e.g.
+            ``functools.partial(least_squares, structure=CCF(2).fixed(a1=0.0), inverse=f)``;
+            called as ``method(y, u, dt)`` on one record.
+        dt, steps: the record format.
+
+    ``identify(y, u)`` applies the method to each record and stacks the estimates into one
+    batched :class:`Estimate` (NaN rows where a record failed), so that scorecards and
+    benchmarks score a classical method exactly like an encoder. ``info["records"]`` keeps each
+    record's own ``info`` and ``info["failed"]`` is a ``(batch,)`` bool array.
+    """
+
+    method: object
+    dt: float
+    steps: int
+
+    def __post_init__(self) -> None:
+        if not callable(self.method):
+            raise ValueError(f"method must be callable (e.g. functools.partial(least_squares, "
+                             f"structure=...)); got {type(self.method).__name__}")
+        _check_dt(self.dt)
+        if not isinstance(self.steps, int) or self.steps < 2:
+            raise ValueError(f"steps must be an integer >= 2; got {self.steps!r}")
+
+    def identify(self, y, u=None, *, refine: bool = False) -> Estimate:
+        """Identify each record of ``y (batch, steps)`` (or one ``(steps,)``) with ``u`` like
+        ``y`` (None: unit steps); ``refine`` polishes each estimate (:mod:`aeid_struct.refine`)."""
+        start = time.perf_counter()
+        Y = np.atleast_2d(_as_array("y", y))
+        if Y.ndim != 2 or Y.shape[1] != self.steps:
+            raise ValueError(f"y must have shape ({self.steps},) or (batch, {self.steps}); "
+                             f"got {np.shape(y)}")
+        U = np.ones_like(Y) if u is None else np.broadcast_to(
+            np.atleast_2d(_as_array("u", u)), Y.shape)
+        parts = []
+        for y_i, u_i in zip(Y, U, strict=True):
+            est = self.method(y_i, u_i, self.dt)
+            if refine and not est.info.get("failed") and est.structure is not None:
+                from .refine import refine as _refine
+
+                est = _refine(est, y_i, u_i, self.dt)
+            parts.append(est)
+        n = max(np.shape(p.A)[-1] for p in parts)
+        names = list(dict.fromkeys(k for p in parts for k in p.elements))
+
+        def stack(get, shape):
+            out = np.full((len(parts), *shape), math.nan)
+            for i, p in enumerate(parts):
+                value = np.asarray(get(p), dtype=np.float64)
+                if value.shape == shape:
+                    out[i] = value
+            return out
+
+        A, b, c = stack(lambda p: p.A, (n, n)), stack(lambda p: p.b, (n,)), \
+            stack(lambda p: p.c, (n,))
+        d = stack(lambda p: p.d, ())
+        elements = {k: stack(lambda p, k=k: p.elements.get(k, math.nan), ()) for k in names}
+        source = next((p._inverse for p in parts if p._inverse is not None), None)
+        info = {"method": parts[0].info.get("method", ""), "records": [p.info for p in parts],
+                "failed": np.array([bool(p.info.get("failed")) for p in parts])}
+        est = Estimate(A, b, c, d, elements, Y, np.asarray(U), self.dt,
+                       time.perf_counter() - start, bool(refine), info, source,
+                       structure=parts[0].structure)
+        return est if np.ndim(y) == 2 else _single(est)
+
+
+def _single(est: Estimate) -> Estimate:
+    """The one record of a batch-1 estimate, unbatched."""
+    return Estimate(est.A[0], est.b[0], est.c[0], float(est.d[0]),
+                    {k: float(v[0]) for k, v in est.elements.items()}, est.y[0], est.u[0],
+                    est.dt, est.seconds, est.refined, {**est.info, "failed": bool(
+                        est.info["failed"][0])}, est._inverse, structure=est.structure)

@@ -395,3 +395,33 @@ def test_casadi_cold_recovers_the_stable_leg_from_the_generic_start():
     assert not bl.failed(est, truth_y=y)
     for name, value in SCENARIO.items():
         assert est.physical[name] == pytest.approx(value, rel=1e-6)
+
+
+def test_classical_stacks_per_record_estimates_like_an_identifier():
+    from functools import partial
+
+    from aeid_struct.data import records
+
+    rec = records(LegFamily(subsystem="unstable"), 3, steps=UNSTABLE[1], dt=UNSTABLE[0], seed=4)
+    method = partial(bl.least_squares, structure=ae.CCF(2).fixed(a1=0.0),
+                     inverse=leg.unstable_inverse())
+    runner = bl.Classical(method, UNSTABLE[0], UNSTABLE[1])
+    est = runner.identify(rec.y)
+    assert est.batched and est.A.shape == (3, 2, 2) and est.info["failed"].tolist() == [False] * 3
+    for i in range(3):
+        one = method(rec.y[i], np.ones(UNSTABLE[1]), UNSTABLE[0])
+        np.testing.assert_array_equal(est.A[i], one.A)
+        assert est.elements["c0"][i] == one.elements["c0"]
+    # noise-free records: the true legs come back through the inverse
+    for name in ("k", "m"):
+        np.testing.assert_allclose(est.physical[name], rec.systems.params[name], rtol=1e-6)
+    single = runner.identify(rec.y[1])
+    assert not single.batched and single.physical["k"] == pytest.approx(est.physical["k"][1])
+    # a failed record is a NaN row, not an error
+    bad = bl.Classical(lambda y, u, dt: bl.n4sid(-np.cumsum(np.ones_like(y)) * (-1) ** np.arange(
+        y.size), u, dt, order=2), UNSTABLE[0], UNSTABLE[1]).identify(rec.y[:1])
+    assert bad.info["failed"].tolist() == [True] and np.isnan(bad.A).all()
+    with pytest.raises(ValueError, match=r"y must have shape \(100,\) or \(batch, 100\)"):
+        runner.identify(rec.y[:, :50])
+    with pytest.raises(ValueError, match=r"method must be callable"):
+        bl.Classical("least_squares", 0.01, 100)
