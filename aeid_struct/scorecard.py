@@ -58,6 +58,7 @@ COLUMNS = {
     "fit_median": ("fit median (%)", "{:.2f}"),
     "stable_share": ("stable (%)", "{:.1%}"),
     "magnitude_db_mean": ("magnitude mean (dB)", "{:.3f}"),
+    "pole_real_max": ("max Re(pole) (1/s)", "{:.3g}"),
     "valid_share": ("valid k,d,m (%)", "{:.1%}"),
     "k_mean": ("Δk mean (%)", "{:.2f}"),
     "d_mean": ("Δd mean (%)", "{:.2f}"),
@@ -106,9 +107,10 @@ class Score:
         shows the typical record);
         ``fit_mean``, ``fit_median``; ``stable_share`` (fraction of estimates with
         ``Re(eig A) < 0``); ``magnitude_db_mean``, ``phase_rad_mean`` over the records whose
-        Bode error is finite; ``ms_per_record``; and, where parameters are compared,
-        ``valid_share`` and per parameter ``<p>_mean``, ``<p>_median`` over the *valid* rows
-        only (nan if none is valid).
+        Bode error is finite; ``pole_real_max``, the largest real part of any estimated pole
+        (the worst stability margin; > 0 for an unstable estimate); ``ms_per_record``; and,
+        where parameters are compared, ``valid_share`` and per parameter ``<p>_mean``,
+        ``<p>_median`` over the *valid* rows only (nan if none is valid).
         """
         r = self.per_record
         out: dict[str, float] = {"count": len(self)}
@@ -123,6 +125,8 @@ class Score:
         for key in ("magnitude_db", "phase_rad"):
             v = r[key][np.isfinite(r[key])]
             out[f"{key}_mean"] = float(np.mean(v)) if v.size else math.nan
+        real = self.poles.real
+        out["pole_real_max"] = float(np.nanmax(real)) if np.any(np.isfinite(real)) else math.nan
         out["ms_per_record"] = 1e3 * self.seconds / max(len(self), 1)
         if "valid" in r:
             valid = r["valid"]

@@ -263,6 +263,9 @@ def execute(nb: nbformat.NotebookNode) -> float:
     from nbclient import NotebookClient
 
     env_fast = os.environ.pop("AEID_FAST", None)
+    # The kernel inherits the environment; without MPLBACKEND it selects the inline backend,
+    # so the figures are stored as PNG outputs (with MPLBACKEND=Agg they would be dropped).
+    env_backend = os.environ.pop("MPLBACKEND", None)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             start = time.perf_counter()
@@ -277,6 +280,8 @@ def execute(nb: nbformat.NotebookNode) -> float:
     finally:
         if env_fast is not None:
             os.environ["AEID_FAST"] = env_fast
+        if env_backend is not None:
+            os.environ["MPLBACKEND"] = env_backend
 
 
 def main(argv=None) -> None:

@@ -130,6 +130,7 @@ def test_stability_of_known_poles_and_overflow():
     assert np.all(np.isfinite(sc.per_record["step"][:4]))
     summary = sc.summary()
     assert summary["stable_share"] == pytest.approx(0.4)
+    assert summary["pole_real_max"] == pytest.approx(400.0, rel=1e-9)
     assert summary["step_mean"] == math.inf
     assert math.isfinite(summary["step_median"])
 
@@ -161,6 +162,7 @@ def test_summary_pool_and_table():
     assert s["fit_median"] == 75.0 and s["stable_share"] == 0.75
     assert s["magnitude_db_mean"] == 2.0          # the infinite row is left out
     assert s["ms_per_record"] == pytest.approx(1.0)
+    assert s["pole_real_max"] == 0.0
     b = Score("b", {k: v[:2] for k, v in a.per_record.items()}, np.zeros((2, 3), complex), 1.0)
     both = pool([a, b], name="both")
     assert len(both) == 6 and both.poles.shape == (6, 3) and both.seconds == 1.004
