@@ -42,7 +42,8 @@ training stability, accuracy, guaranteed stability of the outputs and, on the le
 parameters k, d, m.
 
 Set `AEID_FAST=1` to run it in seconds (the test suite does): a few hundred records, two epochs,
-one seed and 50 validation systems, which shows the mechanics but not the answer."""),
+one seed and 50 validation systems, which shows the mechanics but not the answer. The full mode
+trains 36 identifiers and takes about 8 minutes on one core."""),
     ("code", r"""import dataclasses
 import math
 import os
@@ -282,7 +283,49 @@ fig.suptitle(f"{worst[0]}, {worst[3]}: estimated poles, all seeds", y=1.02)
 plt.show()"""),
     ("md", r"""## Conclusion
 
-CONCLUSION_PLACEHOLDER"""),
+Measured in the full run above (3 seeds × 500 validation systems per row, identifiers trained
+noise-free, equal budgets: 4,000 records, 25 epochs).
+
+**Training stability.** With Descartes' constraint and the library's output standardisation the
+CCF showed none of the exploding gradients the paper reports: largest gradient norm 10–14, in
+the first epoch or two only (per-epoch medians 0.02–0.04 on the generic families), no skipped
+batch and no diverged run in 18 CCF runs, clipped or not. The MCF is the one whose gradients
+exploded: up to 2·10¹⁰ on the 4th-order family, where one seed in three never trained (best
+held-out loss 70 clipped, 1,040 unclipped, against 8.8·10⁻⁴ for the CCF). The cause is the
+scale, not the dynamics: a near-repeated pair of real poles in a training set (3.5·10⁻⁶ /s apart
+for seed 1) gives residues so large that their standard deviation is 2·10⁵ (median |c₀| ≈ 7),
+and that standard deviation is the scale `train()` gives the network's outputs. With one real
+pole (3rd order) the MCF trained without trouble (largest norm 30). On the leg no gradient
+reached the clip (largest 0.74), so clipped and unclipped runs are identical.
+
+**Clipping** lowered the held-out loss wherever it acted: median best held-out loss 1.55·10⁻³ vs
+2.02·10⁻³ (3rd-order CCF), 8.8·10⁻⁴ vs 1.7·10⁻³ (4th-order CCF), 3.2·10⁻² vs 7.3·10⁻² (4th-order
+MCF).
+
+**Accuracy** (clipped, noise-free, median step error): 3rd order CCF 6.4·10⁻³, MCF 9.7·10⁻³; 4th
+order CCF 5.8·10⁻³, MCF 7.0·10⁻² (mean 1.1: the failed seed); stable leg CCF 9.2·10⁻⁴, MCF
+8.6·10⁻⁴, with the same k, d, m errors (0.08 / 0.74 / 2.2 % and 0.08 / 0.73 / 2.0 %; on records
+with 5 % noise 0.8 / 22 / 10 % and 0.6 / 21 / 11 %). The CCF's Bode magnitude errors of 4–14 dB
+on the generic families come from fast poles that a step response barely shows (pole map).
+
+**Stability of the outputs.** Every MCF estimate is stable by construction (100,000 random
+outputs: largest real part −10⁻⁸). The CCF gave no unstable estimate among 24,000 (all families,
+seeds, noise levels and stress sets), but that is observed, not guaranteed: Descartes admits
+$s^3 + s^2 + s + 10$, and with 20 % noise the 3rd-order CCF estimates came within 0.048 /s of
+the imaginary axis, where the MCF's stayed left of −0.969 /s.
+
+**Which to pick.**
+- *A complex pair or a single real pole (the stable leg, the 3rd-order family):* the **MCF**. On
+  the leg it is as accurate as the CCF, gives the same k, d, m through the CCF conversion, and
+  guarantees stability for free; on the 3rd-order family the guarantee costs 1.5× in median step
+  error.
+- *Several real poles that may lie close together (the 4th-order family):* the **CCF with
+  Descartes' constraint**, 12× more accurate in median step error and reliable to train; check
+  the estimates' poles (`Score.per_record["stable"]`, `max Re(pole)`) where stability matters.
+  The MCF needs `train()` to scale its outputs by a robust spread (median, interquartile range)
+  instead of the standard deviation before it can compete there.
+- Keep gradient clipping on (the default, 1): it lowered the held-out loss wherever it acted; on
+  noisy records the clipped and unclipped CCFs' median step errors differ by at most 6 %."""),
     ("code", r"""print(f"notebook ran in {time.perf_counter() - START:.0f} s "
       f"({'fast' if FAST else 'full'} mode)")"""),
 ]
