@@ -248,6 +248,17 @@ def test_refine_is_passed_on():
     assert ident.calls == [True]
 
 
+def test_inverse_errors():
+    rec = _first_order()
+    s = rec.systems
+    ident = _Given(s.A, s.b, s.c, s.d, dt=0.1, steps=50)
+    with pytest.raises(ValueError, match="inverse must be a casadi.Function"):
+        score(ident, rec, name="x", inverse=lambda A: A)
+    with pytest.raises(ValueError, match=r"inverse must take A \(1, 1\), B, C, D of the "
+                                         r"estimates' order n = 1; got inputs \{'A': \(2, 2\)"):
+        score(ident, rec, name="x", inverse=leg.stable_inverse())
+
+
 @pytest.mark.parametrize("change, match", [
     (dict(name=""), "name must be a non-empty string"),
     (dict(records="y"), "records must be a data.Records"),
