@@ -1,6 +1,8 @@
 """Figures: step responses and Bode plots, true vs identified (paper Fig. 3); step error vs
-training-set size (paper Fig. 4). Each returns a matplotlib Figure and writes a PNG when a path
-is given; no display is needed (the CLI uses the Agg backend).
+training-set size (paper Fig. 4); training curves, pole maps and error distributions for
+comparing structures (``training_curves``, ``pole_map``, ``error_cdf``). Each returns a
+matplotlib Figure and writes a PNG when a path is given; no display is needed (the CLI uses
+the Agg backend).
 """
 
 from __future__ import annotations
@@ -99,4 +101,125 @@ def fig4(sizes, errors: dict[str, np.ndarray], path=None, paper: dict | None = N
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=120)
+    return fig
+
+
+def _save(fig, path) -> None:
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=120)
+
+
+def _runs(value) -> list:
+    """A history dict, or a list of them (e.g. one per seed), as a list."""
+    return [value] if isinstance(value, dict) else list(value)
+
+
+def training_curves(histories: dict, path=None):
+    """Held-out loss and largest gradient norm (before clipping) per epoch, log scale.
+
+    Args:
+        histories: label -> ``train()``'s history (``ident.meta["history"]``) or a list of them
+            (one line per run, e.g. per seed, in the label's colour). Epochs with batches
+            skipped for a non-finite loss or gradient are marked with an ``x``.
+    """
+    if not histories:
+        raise ValueError("histories must map at least one label to a training history")
+    plt = _pyplot()
+    fig, (ax_loss, ax_grad) = plt.subplots(1, 2, figsize=(12, 4.2))
+    for i, (label, runs) in enumerate(histories.items()):
+        for j, h in enumerate(_runs(runs)):
+            if "holdout_loss" not in h or "grad_norm_max" not in h:
+                raise ValueError(f"histories[{label!r}] must be train() histories with "
+                                 "holdout_loss and grad_norm_max")
+            epochs = np.arange(1, len(h["holdout_loss"]) + 1)
+            style = dict(color=f"C{i}", lw=1.2, alpha=0.85, label=label if j == 0 else None)
+            ax_loss.semilogy(epochs, h["holdout_loss"], **style)
+            ax_grad.semilogy(epochs, h["grad_norm_max"], **style)
+            skipped = np.asarray(h.get("skipped", [0] * len(epochs))) > 0
+            if skipped.any():
+                ax_grad.semilogy(epochs[skipped], np.asarray(h["grad_norm_max"])[skipped],
+                                 "x", color=f"C{i}", ms=7)
+    ax_loss.set(xlabel="epoch", ylabel="held-out loss (Eq. 14)", title="Held-out loss")
+    ax_grad.set(xlabel="epoch", ylabel="max gradient norm (before clipping)",
+                title="Largest gradient norm per epoch")
+    for ax in (ax_loss, ax_grad):
+        ax.grid(True, which="both", alpha=0.3)
+    ax_loss.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
+    return fig
+
+
+def pole_map(scores, path=None, reference=None, max_records: int = 1000):
+    """The estimated poles of each score in the complex plane, one panel per score; the poles
+    of estimates that are not stable (``per_record["stable"]`` False) are drawn as red crosses.
+
+    Args:
+        scores: ``scorecard.Score`` objects.
+        reference: optional ``(N, n)`` complex poles (e.g. of the true systems), drawn in grey.
+        max_records: at most this many records per panel (the first ones), to keep it legible.
+    """
+    scores = list(scores)
+    if not scores:
+        raise ValueError("scores must hold at least one Score")
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(scores), figsize=(4.2 * len(scores), 4.0), squeeze=False,
+                             sharex=True, sharey=True)
+    for ax, s in zip(axes[0], scores, strict=True):
+        poles = s.poles[:max_records]
+        stable = np.asarray(s.per_record["stable"], dtype=bool)[:max_records]
+        if reference is not None:
+            ref = np.asarray(reference)[:max_records].ravel()
+            ax.plot(ref.real, ref.imag, ".", color="0.7", ms=3, label="true")
+        good, bad = poles[stable].ravel(), poles[~stable].ravel()
+        ax.plot(good.real, good.imag, ".", color="C0", ms=3, alpha=0.6, label="stable estimate")
+        if bad.size:
+            ax.plot(bad.real, bad.imag, "x", color="C3", ms=6,
+                    label=f"unstable estimate ({int((~stable).sum())})")
+        ax.axvline(0.0, color="k", lw=0.8, ls="--")
+        ax.set(title=f"{s.name}: {stable.mean():.1%} stable", xlabel="Re(pole) [1/s]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[0, 0].set_ylabel("Im(pole) [rad/s]")
+    fig.tight_layout()
+    _save(fig, path)
+    return fig
+
+
+def error_cdf(scores, metric: str = "step", path=None, ax=None):
+    """Empirical distribution of a per-record error of each score (share of records with an
+    error below x), log x. Infinite errors (overflowing estimates) never reach the curve's top;
+    their count is given in the legend.
+
+    Args:
+        scores: ``scorecard.Score`` objects. metric: a key of ``per_record`` (e.g. ``"step"``,
+            ``"magnitude_db"``, ``"k"``). ax: draw into this axes instead of a new figure.
+    """
+    scores = list(scores)
+    if not scores:
+        raise ValueError("scores must hold at least one Score")
+    missing = [s.name for s in scores if metric not in s.per_record]
+    if missing:
+        raise ValueError(f"metric must be a per-record measure of every score; {metric!r} is "
+                         f"missing from {missing}")
+    plt = _pyplot()
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    else:
+        fig = ax.figure
+    for i, s in enumerate(scores):
+        v = np.asarray(s.per_record[metric], dtype=np.float64)
+        finite = np.sort(v[np.isfinite(v)])
+        share = np.arange(1, finite.size + 1) / v.size
+        overflow = v.size - finite.size
+        label = s.name + (f" ({overflow} inf)" if overflow else "")
+        ax.step(finite, share, where="post", color=f"C{i}", label=label)
+    ax.set_xscale("log")
+    ax.set(xlabel=f"{metric} error", ylabel="share of records", ylim=(0, 1.02),
+           title=f"Distribution of the {metric} error")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
     return fig

@@ -1,0 +1,414 @@
+"""Scorecard: how an identifier does on a validation record set, and how its training went.
+
+A :class:`Score` holds per-record measures of one identifier's estimates against the true
+systems behind a ``data.Records`` set; :meth:`Score.summary` condenses them, :func:`table` lays
+several scores side by side as markdown, :func:`training_summary` and :func:`training_table` do
+the same for the training histories that ``train()`` records.
+
+Per-record measures (``Score.per_record``, each ``(N,)``):
+
+- ``step``: the paper's Table-I step error (``metrics.step_error``) of the estimate's unit-step
+  response against the true system's, both simulated exactly (FOH) on the record grid
+  ``t_k = k dt``, ``k < steps``. A response that overflows (an unstable estimate) counts as
+  ``inf``: infinitely wrong, not missing.
+- ``fit``: NRMSE fit in % (``metrics.nrmse_fit``) of the estimate's response to the record's own
+  input ``u`` against the noise-free record ``y_clean`` (so noise does not cap it below 100 %);
+  ``-inf`` where that response overflows.
+- ``stable``: ``max Re(eig A) < 0`` of the estimate (False for a non-finite ``A``).
+- ``magnitude_db``, ``phase_rad``: the Bode errors of ``metrics.bode_errors`` over
+  ``metrics.FREQUENCIES``.
+- where the true systems carry physical parameters (``Systems.params``, e.g. the leg's k, d, m)
+  and the estimate yields them: one ``100 |p_hat - p| / |p|`` column per parameter, and
+  ``valid``: every recovered parameter finite and positive.
+
+Where the physical parameters come from: ``Estimate.physical`` (a ``Physical`` structure, or a
+canonical one trained with a CasADi ``inverse``), unless ``score`` is given an ``inverse``
+(a casadi.Function CCF ``A, B, C, D`` -> parameters, like ``LegFamily.inverse()``). Then every
+estimate is first converted to the bottom-row CCF of its transfer function
+(``CCF(n).elements_of``: characteristic polynomial and Markov parameters) and the inverse is
+applied to that. The parameters are functions of the transfer function only (for the stable leg
+``m = 1/c_0``, ``k = a_0 m``, ``d = a_1 m``), so this recovers them from any realisation, e.g.
+a modal (MCF) estimate, and gives CCF estimates the same numbers as ``Estimate.physical``.
+
+Identification and the per-record measures are small private functions of one record set, so
+that scores of identifiers that read several records per system can reuse them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .data import Records
+from .decoder import simulate
+from .metrics import FREQUENCIES, bode_errors, nrmse_fit, parameter_errors, step_error
+
+__all__ = ["Score", "pool", "score", "table", "training_summary", "training_table"]
+
+#: How ``table`` labels and formats each summary key: key -> (header, format).
+COLUMNS = {
+    "count": ("records", "{:d}"),
+    "step_mean": ("step error mean", "{:.2e}"),
+    "step_median": ("step error median", "{:.2e}"),
+    "step_p90": ("step error p90", "{:.2e}"),
+    "fit_median": ("fit median (%)", "{:.2f}"),
+    "stable_share": ("stable (%)", "{:.1%}"),
+    "magnitude_db_mean": ("magnitude mean (dB)", "{:.3f}"),
+    "pole_real_max": ("max Re(pole) (1/s)", "{:.3g}"),
+    "valid_share": ("valid k,d,m (%)", "{:.1%}"),
+    "k_mean": ("Δk mean (%)", "{:.2f}"),
+    "d_mean": ("Δd mean (%)", "{:.2f}"),
+    "m_mean": ("Δm mean (%)", "{:.2f}"),
+    "ms_per_record": ("ms / record", "{:.3f}"),
+}
+#: The columns ``table`` shows by default.
+DEFAULT_COLUMNS = ("count", "step_mean", "step_median", "fit_median", "stable_share",
+                   "magnitude_db_mean")
+#: Per-record keys that are not parameter errors.
+_MEASURES = ("step", "fit", "stable", "magnitude_db", "phase_rad", "valid")
+
+
+@dataclass(frozen=True)
+class Score:
+    """Per-record measures of one identifier on one record set (see the module docstring).
+
+    Attributes:
+        name: a label for tables and figures.
+        per_record: measure -> ``(N,)`` array: ``step``, ``fit``, ``stable`` (bool),
+            ``magnitude_db``, ``phase_rad``, and where physical parameters are compared one
+            ``%`` error per parameter (``k``, ``d``, ``m``) plus ``valid`` (bool).
+        poles: ``(N, n)`` complex poles of the estimates (nan for a non-finite ``A``).
+        seconds: wall time of identifying the whole set (one batched call).
+    """
+
+    name: str
+    per_record: dict[str, np.ndarray] = field(repr=False)
+    poles: np.ndarray = field(repr=False)
+    seconds: float
+
+    def __len__(self) -> int:
+        return len(self.per_record["step"])
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        """The physical parameters compared (empty for generic systems)."""
+        return tuple(k for k in self.per_record if k not in _MEASURES)
+
+    def summary(self) -> dict[str, float]:
+        """Means, medians and shares over the records.
+
+        Returns a dict with ``count``; ``step_mean``, ``step_median``, ``step_p90`` (90th
+        percentile, the order statistic at or above that rank) of the step error, over all
+        records (``inf`` counts: an overflowing estimate makes the mean ``inf``, the median
+        shows the typical record);
+        ``fit_mean``, ``fit_median``; ``stable_share`` (fraction of estimates with
+        ``Re(eig A) < 0``); ``magnitude_db_mean``, ``phase_rad_mean`` over the records whose
+        Bode error is finite; ``pole_real_max``, the largest real part of any estimated pole
+        (the worst stability margin; > 0 for an unstable estimate); ``ms_per_record``; and,
+        where parameters are compared, ``valid_share`` and per parameter ``<p>_mean``,
+        ``<p>_median`` over the *valid* rows only (nan if none is valid).
+        """
+        r = self.per_record
+        out: dict[str, float] = {"count": len(self)}
+        step = r["step"]
+        out["step_mean"] = float(np.mean(step))
+        out["step_median"] = float(np.median(step))
+        # "higher": an order statistic, never an interpolation (inf - inf would give nan)
+        out["step_p90"] = float(np.quantile(step, 0.9, method="higher"))
+        out["fit_mean"] = float(np.mean(r["fit"]))
+        out["fit_median"] = float(np.median(r["fit"]))
+        out["stable_share"] = float(np.mean(r["stable"]))
+        for key in ("magnitude_db", "phase_rad"):
+            v = r[key][np.isfinite(r[key])]
+            out[f"{key}_mean"] = float(np.mean(v)) if v.size else math.nan
+        real = self.poles.real
+        out["pole_real_max"] = float(np.nanmax(real)) if np.any(np.isfinite(real)) else math.nan
+        out["ms_per_record"] = 1e3 * self.seconds / max(len(self), 1)
+        if "valid" in r:
+            valid = r["valid"]
+            out["valid_share"] = float(np.mean(valid))
+            for p in self.parameters:
+                v = r[p][valid]
+                out[f"{p}_mean"] = float(np.mean(v)) if v.size else math.nan
+                out[f"{p}_median"] = float(np.median(v)) if v.size else math.nan
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Scoring
+# ---------------------------------------------------------------------------------------------
+def score(ident, records: Records, *, name: str, refine: bool = False,
+          inverse=None) -> Score:
+    """Identify every record of ``records`` with ``ident`` and score the estimates.
+
+    Args:
+        ident: an ``Identifier`` (anything with ``dt``, ``steps`` and
+            ``identify(y, u, refine=) -> Estimate``).
+        records: the validation set (``data.records``); ``y`` is what the identifier sees (noisy
+            where the set has noise), ``y_clean`` and ``systems`` are the truth.
+        name: the label of the score.
+        refine: polish every estimate with the CasADi refinement (``identify(refine=True)``).
+        inverse: optional casadi.Function from a CCF ``A, B, C, D`` to physical parameters;
+            then the estimates are converted to CCF through their transfer function first (see
+            the module docstring). Without it ``Estimate.physical`` is used.
+
+    Returns:
+        The ``Score``; parameter columns where both the truth and the estimate have parameters.
+    """
+    _check_arguments(ident, records, name)
+    est, seconds = _identify(ident, records, refine)
+    A, b, c, d = (np.asarray(x, dtype=np.float64) for x in (est.A, est.b, est.c, est.d))
+    _check_inverse(inverse, A.shape[-1])
+    per_record = _accuracy((A, b, c, d), records)
+    poles = _poles(A)
+    per_record["stable"] = np.all(poles.real < 0, axis=1)
+    physical = _physical(est, (A, b, c, d), inverse)
+    truth = records.systems.params
+    if truth and physical:
+        shared = [p for p in physical if p in truth]
+        if shared:
+            found = {p: physical[p] for p in shared}
+            per_record.update(parameter_errors(truth, found))
+            per_record["valid"] = _valid(found)
+    return Score(name, per_record, poles, seconds)
+
+
+def _check_arguments(ident, records, name) -> None:
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name must be a non-empty string; got {name!r}")
+    if not isinstance(records, Records):
+        raise ValueError(f"records must be a data.Records set (data.records(...)); "
+                         f"got {type(records).__name__}")
+    for attr in ("identify", "dt", "steps"):
+        if not hasattr(ident, attr):
+            raise ValueError(f"ident must be an Identifier (with {attr!r}); "
+                             f"got {type(ident).__name__}")
+    steps = records.u.shape[1]
+    if not math.isclose(records.dt, ident.dt, rel_tol=1e-9) or steps != ident.steps:
+        raise ValueError(
+            f"records must be on the identifier's grid (dt={ident.dt}, steps={ident.steps}); "
+            f"got dt={records.dt}, steps={steps}")
+
+
+def _check_inverse(inverse, n: int) -> None:
+    if inverse is None:
+        return
+    if not all(hasattr(inverse, m) for m in ("name_in", "name_out", "size_in", "map")):
+        raise ValueError(f"inverse must be a casadi.Function CCF (A, B, C, D) -> parameters; "
+                         f"got {type(inverse).__name__}")
+    names = list(inverse.name_in())
+    if names[:4] != ["A", "B", "C", "D"] or tuple(inverse.size_in("A")) != (n, n):
+        shapes = {k: tuple(inverse.size_in(k)) for k in names}
+        raise ValueError(f"inverse must take A ({n}, {n}), B, C, D of the estimates' order "
+                         f"n = {n}; got inputs {shapes}")
+
+
+def _identify(ident, records: Records, refine: bool):
+    """One batched identification of the whole set: ``(Estimate, seconds)``."""
+    start = time.perf_counter()
+    est = ident.identify(records.y, records.u, refine=refine)
+    return est, time.perf_counter() - start
+
+
+def _accuracy(model: tuple, records: Records) -> dict[str, np.ndarray]:
+    """``step``, ``fit``, ``magnitude_db``, ``phase_rad`` of ``model = (A, b, c, d)`` (batched
+    like ``records``) against the true systems."""
+    sys = records.systems
+    steps = records.u.shape[1]
+    step_input = np.ones(steps)
+    y_true = simulate(sys.A, sys.b, sys.c, sys.d, step_input, records.dt)
+    with np.errstate(all="ignore"):       # an unstable estimate may overflow: scored below
+        y_step = simulate(*model, step_input, records.dt)
+        # step records (the usual case) need no second simulation
+        y_hat = y_step if np.all(records.u == 1.0) else simulate(*model, records.u, records.dt)
+        err = step_error(y_true, y_step)
+        fit = nrmse_fit(records.y_clean, y_hat)
+        magnitude, phase = bode_errors((sys.A, sys.b, sys.c, sys.d), model, FREQUENCIES)
+    overflow = ~np.all(np.isfinite(y_step), axis=1) | ~np.isfinite(err)
+    err[overflow] = math.inf
+    fit[~np.all(np.isfinite(y_hat), axis=1) | ~np.isfinite(fit)] = -math.inf
+    return {"step": err, "fit": fit, "magnitude_db": magnitude, "phase_rad": phase}
+
+
+def _poles(A: np.ndarray) -> np.ndarray:
+    """Eigenvalues ``(N, n)`` of ``A (N, n, n)``; nan rows where ``A`` is not finite."""
+    poles = np.full(A.shape[:2], complex(math.nan, math.nan))
+    finite = np.all(np.isfinite(A), axis=(1, 2))
+    if finite.any():
+        poles[finite] = np.linalg.eigvals(A[finite])
+    return poles
+
+
+def _physical(est, model: tuple, inverse) -> dict[str, np.ndarray]:
+    """Physical parameters ``name -> (N,)`` of the estimates (module docstring), or {}."""
+    if inverse is None:
+        return {k: np.atleast_1d(np.asarray(v, dtype=np.float64))
+                for k, v in (est.physical or {}).items()}
+    return _through_ccf(model, inverse)
+
+
+def _through_ccf(model: tuple, inverse) -> dict[str, np.ndarray]:
+    """Apply a CCF -> parameters casadi.Function to any realisation: convert each finite model
+    to the bottom-row CCF of its transfer function, then map; nan for non-finite models."""
+    from .structures import CCF
+
+    A, b, c, d = model
+    count, n = A.shape[0], A.shape[-1]
+    finite = (np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
+              & np.all(np.isfinite(c), axis=1) & np.isfinite(d))
+    out = {name: np.full(count, math.nan) for name in inverse.name_out()}
+    rows = np.flatnonzero(finite)
+    if rows.size == 0:
+        return out
+    x = CCF(n).elements_of(A[rows], b[rows], c[rows], np.zeros(rows.size)).numpy()
+    a, num = x[:, :n], x[:, n:]
+    k = rows.size
+    Ac = np.zeros((k, n, n))
+    Ac[:, np.arange(n - 1), np.arange(1, n)] = 1.0
+    Ac[:, -1, :] = -a
+    bc = np.zeros((k, n))
+    bc[:, -1] = 1.0
+    f = inverse.map(k)
+    # Mapped casadi inputs are concatenated horizontally: A (n, n*k), B (n, k), C (1, n*k).
+    res = f(A=np.concatenate(list(Ac), axis=1), B=bc.T, C=num.reshape(1, k * n),
+            D=d[rows].reshape(1, k))
+    for name in inverse.name_out():
+        out[name][rows] = np.array(res[name]).reshape(k)
+    return out
+
+
+def _valid(params: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Rows where every physical parameter is finite and positive."""
+    stacked = np.stack([np.asarray(v, dtype=np.float64) for v in params.values()])
+    with np.errstate(invalid="ignore"):
+        return np.all(np.isfinite(stacked) & (stacked > 0), axis=0)
+
+
+def pool(scores: Sequence[Score], *, name: str) -> Score:
+    """One score over the records of several (e.g. the identifiers of several training seeds on
+    the same validation set): per-record arrays and poles concatenated, seconds added."""
+    scores = list(scores)
+    if not scores or not all(isinstance(s, Score) for s in scores):
+        raise ValueError("scores must be a non-empty sequence of Score")
+    keys = set(scores[0].per_record)
+    for s in scores[1:]:
+        if set(s.per_record) != keys:
+            raise ValueError(f"scores must have the same measures to be pooled; "
+                             f"{s.name!r} has {sorted(s.per_record)}, "
+                             f"{scores[0].name!r} has {sorted(keys)}")
+    n = max(s.poles.shape[1] for s in scores)
+    poles = np.concatenate([np.pad(s.poles, ((0, 0), (0, n - s.poles.shape[1])),
+                                   constant_values=complex(math.nan, math.nan))
+                            for s in scores])
+    per_record = {k: np.concatenate([s.per_record[k] for s in scores])
+                  for k in scores[0].per_record}
+    return Score(name, per_record, poles, float(sum(s.seconds for s in scores)))
+
+
+def table(scores: Sequence[Score], columns: Sequence[str] = DEFAULT_COLUMNS) -> str:
+    """A markdown table, one row per score, one column per summary key (``COLUMNS`` names the
+    keys with their headers; a key a score lacks shows as ``-``)."""
+    scores = list(scores)
+    if not scores or not all(isinstance(s, Score) for s in scores):
+        raise ValueError("scores must be a non-empty sequence of Score")
+    unknown = [c for c in columns if c not in COLUMNS]
+    if unknown:
+        raise ValueError(f"columns must be keys of scorecard.COLUMNS ({', '.join(COLUMNS)}); "
+                         f"got {unknown}")
+    lines = ["| identifier | " + " | ".join(COLUMNS[c][0] for c in columns) + " |",
+             "|---|" + "---:|" * len(columns)]
+    for s in scores:
+        summary = s.summary()
+        cells = [_format(summary.get(c), COLUMNS[c][1]) for c in columns]
+        lines.append(f"| {s.name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _format(value, fmt: str) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return fmt.format(value)
+
+
+# ---------------------------------------------------------------------------------------------
+# Training
+# ---------------------------------------------------------------------------------------------
+#: Held-out loss above this multiple of its best counts as diverged.
+DIVERGED_FACTOR = 10.0
+
+
+def training_summary(ident) -> dict:
+    """What ``train()``'s history says about the run (``ident.meta["history"]``, or a history
+    dict itself).
+
+    Returns a dict: ``epochs``; ``seconds`` (wall time); ``final_holdout`` (held-out loss of the
+    last epoch) and ``best_holdout`` (lowest finite one, whose weights ``train`` returned);
+    ``grad_norm_max`` (largest gradient norm before clipping, over all epochs) and
+    ``grad_norm_median`` (median of the per-epoch medians); ``skipped`` (batches skipped for a
+    non-finite loss or gradient, in total); ``diverged``: the final held-out loss is not finite
+    or exceeds ``DIVERGED_FACTOR`` times the best.
+    """
+    history = ident if isinstance(ident, Mapping) else getattr(ident, "meta", {}).get("history")
+    needed = ("holdout_loss", "grad_norm_max", "grad_norm_median", "skipped", "seconds")
+    if not isinstance(history, Mapping) or any(k not in history for k in needed):
+        raise ValueError("ident must be a trained Identifier (meta['history'] from train()) or "
+                         f"a history dict with {', '.join(needed)}")
+    held = np.asarray(history["holdout_loss"], dtype=np.float64)
+    if held.size == 0:
+        raise ValueError("ident's history must cover at least one epoch; got none")
+    finite = held[np.isfinite(held)]
+    best = float(finite.min()) if finite.size else math.inf
+    final = float(held[-1])
+    gmax = np.asarray(history["grad_norm_max"], dtype=np.float64)
+    gmed = np.asarray(history["grad_norm_median"], dtype=np.float64)
+    with np.errstate(all="ignore"):
+        grad_max = float(np.nanmax(gmax)) if np.any(~np.isnan(gmax)) else math.nan
+        grad_med = float(np.nanmedian(gmed)) if np.any(~np.isnan(gmed)) else math.nan
+    return {
+        "epochs": int(held.size),
+        "seconds": float(history["seconds"][-1]),
+        "final_holdout": final,
+        "best_holdout": best,
+        "grad_norm_max": grad_max,
+        "grad_norm_median": grad_med,
+        "skipped": int(np.sum(history["skipped"])),
+        "diverged": bool(not math.isfinite(final) or final > DIVERGED_FACTOR * best),
+    }
+
+
+def training_table(runs: Mapping[str, Sequence[dict]]) -> str:
+    """A markdown table of training stability, one row per label, each with the
+    ``training_summary`` dicts of its runs (e.g. seeds): runs, diverged runs, skipped batches
+    (total), the largest gradient norm (max over runs), the median per-epoch median gradient
+    norm (median over runs), best held-out loss (median and worst over runs) and seconds per
+    run (mean)."""
+    if not isinstance(runs, Mapping) or not runs:
+        raise ValueError("runs must be a non-empty mapping label -> list of training_summary")
+    lines = ["| run | runs | diverged | skipped batches | max grad norm | median grad norm | "
+             "best held-out loss (median) | (worst) | s / run |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for label, summaries in runs.items():
+        summaries = list(summaries)
+        if not summaries:
+            raise ValueError(f"runs[{label!r}] must hold at least one training summary")
+        col = {k: np.array([s[k] for s in summaries], dtype=np.float64)
+               for k in ("grad_norm_max", "grad_norm_median", "best_holdout", "seconds")}
+        with np.errstate(all="ignore"):
+            cells = [
+                str(len(summaries)),
+                str(sum(bool(s["diverged"]) for s in summaries)),
+                str(sum(int(s["skipped"]) for s in summaries)),
+                f"{np.nanmax(col['grad_norm_max']):.3g}",
+                f"{np.nanmedian(col['grad_norm_median']):.3g}",
+                f"{np.median(col['best_holdout']):.2e}",
+                f"{np.max(col['best_holdout']):.2e}",
+                f"{np.mean(col['seconds']):.1f}",
+            ]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
