@@ -128,6 +128,8 @@ class Estimate:
         with a CasADi inverse map (e.g. the leg's CCF -> k, d, m) they are that map's outputs.
         Empty otherwise.
         """
+        from .structures import CCF
+
         inverse = self._inverse
         if inverse is None:
             return {}
@@ -139,14 +141,19 @@ class Estimate:
         b = np.asarray(self.b, dtype=np.float64).reshape(count, n)
         c = np.asarray(self.c, dtype=np.float64).reshape(count, n)
         d = np.asarray(self.d, dtype=np.float64).reshape(count)
-        f = inverse.map(count)
-        out = f(
-            A=np.concatenate(list(A), axis=1),
-            B=b.T,
-            C=c.reshape(1, count * n),
-            D=d.reshape(1, count),
-        )
-        result = {name: np.array(out[name]).reshape(count) for name in inverse.name_out()}
+        if isinstance(self.structure, CCF):
+            f = inverse.map(count)
+            out = f(
+                A=np.concatenate(list(A), axis=1),
+                B=b.T,
+                C=c.reshape(1, count * n),
+                D=d.reshape(1, count),
+            )
+            result = {name: np.array(out[name]).reshape(count) for name in inverse.name_out()}
+        else:
+            # The inverse reads a bottom-row CCF: an MCF or n4sid model is another
+            # realisation of the same transfer function, so convert it first.
+            result = _through_ccf(A, b, c, d, inverse)
         if not self.batched:
             result = {k: float(v[0]) for k, v in result.items()}
         return result
@@ -167,6 +174,40 @@ class Estimate:
         if not self.batched:
             return one(self.A, self.b, self.c, self.d)
         return [one(*m) for m in zip(self.A, self.b, self.c, self.d, strict=True)]
+
+
+def _through_ccf(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
+                 inverse) -> dict[str, np.ndarray]:
+    """Apply a CCF -> parameters casadi.Function to models in any realisation.
+
+    Each finite model ``A (N, n, n), b, c (N, n), d (N,)`` is converted to the bottom-row CCF of
+    its transfer function (``CCF(n).elements_of``: characteristic polynomial and Markov
+    parameters), then mapped; NaN for non-finite models. Returns ``name -> (N,)``.
+    """
+    from .structures import CCF
+
+    count, n = A.shape[0], A.shape[-1]
+    finite = (np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
+              & np.all(np.isfinite(c), axis=1) & np.isfinite(d))
+    out = {name: np.full(count, math.nan) for name in inverse.name_out()}
+    rows = np.flatnonzero(finite)
+    if rows.size == 0:
+        return out
+    x = CCF(n).elements_of(A[rows], b[rows], c[rows], np.zeros(rows.size)).numpy()
+    a, num = x[:, :n], x[:, n:]
+    k = rows.size
+    Ac = np.zeros((k, n, n))
+    Ac[:, np.arange(n - 1), np.arange(1, n)] = 1.0
+    Ac[:, -1, :] = -a
+    bc = np.zeros((k, n))
+    bc[:, -1] = 1.0
+    f = inverse.map(k)
+    # Mapped casadi inputs are concatenated horizontally: A (n, n*k), B (n, k), C (1, n*k).
+    res = f(A=np.concatenate(list(Ac), axis=1), B=bc.T, C=num.reshape(1, k * n),
+            D=d[rows].reshape(1, k))
+    for name in inverse.name_out():
+        out[name][rows] = np.array(res[name]).reshape(k)
+    return out
 
 
 def _as_array(name: str, value) -> np.ndarray:

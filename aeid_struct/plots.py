@@ -1,8 +1,8 @@
 """Figures: step responses and Bode plots, true vs identified (paper Fig. 3); step error vs
-training-set size (paper Fig. 4); training curves, pole maps and error distributions for
-comparing structures (``training_curves``, ``pole_map``, ``error_cdf``). Each returns a
-matplotlib Figure and writes a PNG when a path is given; no display is needed (the CLI uses
-the Agg backend).
+training-set size (paper Fig. 4); training curves, pole maps, error distributions and parameter
+errors for comparing structures (``training_curves``, ``pole_map``, ``error_cdf``,
+``knowledge_bars``). Each returns a matplotlib Figure and writes a PNG when a path is given; no
+display is needed (the CLI uses the Agg backend).
 """
 
 from __future__ import annotations
@@ -220,6 +220,45 @@ def error_cdf(scores, metric: str = "step", path=None, ax=None):
            title=f"Distribution of the {metric} error")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
+    return fig
+
+
+def knowledge_bars(groups: dict, parameters=("k", "d", "m"), path=None):
+    """Mean physical-parameter errors of several identifiers as grouped bars, one panel per
+    group (e.g. noise level), log scale; the share of invalid estimates (parameters that are
+    not finite and positive, left out of the mean) is written above each identifier's bars.
+
+    Args:
+        groups: panel title -> ``scorecard.Score`` objects (one bar cluster each).
+        parameters: the parameters to draw (a score without one leaves its bar out).
+    """
+    if not groups or not all(list(g) for g in groups.values()):
+        raise ValueError("groups must map at least one title to a non-empty list of Scores")
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(groups), figsize=(6.5 * len(groups), 4.6), squeeze=False,
+                             sharey=True)
+    width = 0.8 / len(parameters)
+    for ax, (title, scores) in zip(axes[0], groups.items(), strict=True):
+        scores = list(scores)
+        x = np.arange(len(scores))
+        top = 0.0
+        for j, p in enumerate(parameters):
+            values = [s.summary().get(f"{p}_mean", np.nan) for s in scores]
+            ax.bar(x + (j - (len(parameters) - 1) / 2) * width, values, width, label=f"Δ{p}",
+                   color=f"C{j}")
+            top = max([top] + [v for v in values if np.isfinite(v)])
+        for i, s in enumerate(scores):
+            invalid = 1.0 - s.summary().get("valid_share", 1.0)
+            if invalid > 0:
+                ax.annotate(f"{invalid:.0%} invalid", (x[i], top), ha="center",
+                            va="bottom", fontsize=7, color="C3", rotation=90)
+        ax.set_yscale("log")
+        ax.set_xticks(x, [s.name for s in scores], rotation=60, ha="right", fontsize=8)
+        ax.set(title=title, ylabel="mean absolute error (%)")
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize=8)
     fig.tight_layout()
     _save(fig, path)
     return fig

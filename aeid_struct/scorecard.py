@@ -142,7 +142,7 @@ class Score:
 # Scoring
 # ---------------------------------------------------------------------------------------------
 def score(ident, records: Records, *, name: str, refine: bool = False,
-          inverse=None) -> Score:
+          inverse=None, record: int | None = None) -> Score:
     """Identify every record of ``records`` with ``ident`` and score the estimates.
 
     Args:
@@ -155,13 +155,33 @@ def score(ident, records: Records, *, name: str, refine: bool = False,
         inverse: optional casadi.Function from a CCF ``A, B, C, D`` to physical parameters;
             then the estimates are converted to CCF through their transfer function first (see
             the module docstring). Without it ``Estimate.physical`` is used.
+        record: for an identifier of several records (``ident.records = R > 1``, e.g. the joint
+            leg), which record's decoded system to score (0 .. R-1); the identifier reads all of
+            them, and the physical parameters (one set) are scored with every record.
 
     Returns:
         The ``Score``; parameter columns where both the truth and the estimate have parameters.
     """
-    _check_arguments(ident, records, name)
-    est, seconds = _identify(ident, records, refine)
-    A, b, c, d = (np.asarray(x, dtype=np.float64) for x in (est.A, est.b, est.c, est.d))
+    R = getattr(ident, "records", 1)
+    if R > 1:
+        if not isinstance(record, int) or not 0 <= record < R:
+            raise ValueError(f"record must name the record to score (0 .. {R - 1}) for an "
+                             f"identifier of {R} records; got {record!r}")
+        if inverse is not None:
+            raise ValueError("inverse must be None for an identifier of several records: its "
+                             "physical parameters are its elements")
+        _check_arguments(_Grid(ident, record), records.record(record), name)
+        est, seconds = _identify(ident, records, refine)
+        records = records.record(record)
+        A, b, c, d = (np.asarray(x, dtype=np.float64)[:, record]
+                      for x in (est.A, est.b, est.c, est.d))
+    else:
+        if record not in (None, 0):
+            raise ValueError(f"record must be None for an identifier of one record; "
+                             f"got {record!r}")
+        _check_arguments(ident, records, name)
+        est, seconds = _identify(ident, records, refine)
+        A, b, c, d = (np.asarray(x, dtype=np.float64) for x in (est.A, est.b, est.c, est.d))
     _check_inverse(inverse, A.shape[-1])
     per_record = _accuracy((A, b, c, d), records)
     poles = _poles(A)
@@ -175,6 +195,26 @@ def score(ident, records: Records, *, name: str, refine: bool = False,
             per_record.update(parameter_errors(truth, found))
             per_record["valid"] = _valid(found)
     return Score(name, per_record, poles, seconds)
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The record format of record ``r`` of a several-record identifier, as ``_check_arguments``
+    reads an identifier's."""
+
+    ident: object
+    r: int
+
+    @property
+    def dt(self) -> float:
+        return self.ident.dt[self.r]
+
+    @property
+    def steps(self) -> int:
+        return self.ident.steps[self.r]
+
+    def identify(self, *args, **kwargs):   # present for the interface check only
+        raise NotImplementedError
 
 
 def _check_arguments(ident, records, name) -> None:
@@ -248,37 +288,9 @@ def _physical(est, model: tuple, inverse) -> dict[str, np.ndarray]:
     if inverse is None:
         return {k: np.atleast_1d(np.asarray(v, dtype=np.float64))
                 for k, v in (est.physical or {}).items()}
-    return _through_ccf(model, inverse)
+    from .identify import _through_ccf
 
-
-def _through_ccf(model: tuple, inverse) -> dict[str, np.ndarray]:
-    """Apply a CCF -> parameters casadi.Function to any realisation: convert each finite model
-    to the bottom-row CCF of its transfer function, then map; nan for non-finite models."""
-    from .structures import CCF
-
-    A, b, c, d = model
-    count, n = A.shape[0], A.shape[-1]
-    finite = (np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
-              & np.all(np.isfinite(c), axis=1) & np.isfinite(d))
-    out = {name: np.full(count, math.nan) for name in inverse.name_out()}
-    rows = np.flatnonzero(finite)
-    if rows.size == 0:
-        return out
-    x = CCF(n).elements_of(A[rows], b[rows], c[rows], np.zeros(rows.size)).numpy()
-    a, num = x[:, :n], x[:, n:]
-    k = rows.size
-    Ac = np.zeros((k, n, n))
-    Ac[:, np.arange(n - 1), np.arange(1, n)] = 1.0
-    Ac[:, -1, :] = -a
-    bc = np.zeros((k, n))
-    bc[:, -1] = 1.0
-    f = inverse.map(k)
-    # Mapped casadi inputs are concatenated horizontally: A (n, n*k), B (n, k), C (1, n*k).
-    res = f(A=np.concatenate(list(Ac), axis=1), B=bc.T, C=num.reshape(1, k * n),
-            D=d[rows].reshape(1, k))
-    for name in inverse.name_out():
-        out[name][rows] = np.array(res[name]).reshape(k)
-    return out
+    return _through_ccf(*model, inverse)
 
 
 def _valid(params: Mapping[str, np.ndarray]) -> np.ndarray:

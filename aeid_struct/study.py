@@ -68,7 +68,7 @@ def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
     (reproducible whatever else the machine is doing) when ``epochs`` is given."""
     from .training import TrainConfig
 
-    dt, steps = RECORDS[subsystem]
+    dt, steps = _grid(subsystem)
     if epochs is not None:
         seconds = None
     # With a wall-time budget the epoch limit must not bind: 100,000 epochs are weeks here.
@@ -76,6 +76,13 @@ def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
                        seconds=seconds,
                        batch=128, lr=3e-3, gamma=1.0, noise=noise, seed=seed,
                        checkpoint=checkpoint, progress=progress)
+
+
+def _grid(subsystem: str):
+    """``(dt, steps)`` of a subsystem's record; tuples (stable, unstable) for the joint leg."""
+    if subsystem == "joint":
+        return tuple(RECORDS[s][0] for s in RECORDS), tuple(RECORDS[s][1] for s in RECORDS)
+    return RECORDS[subsystem]
 
 
 def leg_structure(subsystem: str):
@@ -93,7 +100,8 @@ def leg_encoder(subsystem: str):
     responses are smooth, and pooling divides the convolution cost for batch throughput."""
     from .encoder import EncoderConfig
 
-    pool = RECORDS[subsystem][1] // 50
+    pool = tuple(s // 50 for s in _grid(subsystem)[1]) if subsystem == "joint" \
+        else RECORDS[subsystem][1] // 50
     return EncoderConfig(width=8, kernel=5, depth=3, dense=(48, 48), pool=pool,
                          activation="tanh")
 

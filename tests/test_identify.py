@@ -291,3 +291,26 @@ def test_joint_identifier_input_errors():
         Identifier(Encoder(EncoderConfig(steps=60, outputs=3, features=1)),
                    ident.structure, dt=0.05, theta_mean=torch.zeros(3),
                    theta_scale=torch.ones(3), scale="feature")
+
+
+def test_physical_of_a_modal_estimate_goes_through_its_transfer_function():
+    # An MCF identifier with the leg's CCF inverse: the inverse reads a CCF, so the estimate is
+    # converted first. Oracle: python-control's transfer function and the closed forms
+    # m = 1/c0, k = a0 m, d = a1 m of G1 = (1/m) / (s^2 + (d/m) s + k/m).
+    import control
+
+    torch.manual_seed(1)
+    structure = ae.MCF(real=0, pairs=1)
+    enc = Encoder(EncoderConfig(steps=60, outputs=4, width=4, dense=(8,)))
+    enc.eval()
+    ident = Identifier(enc, structure, dt=0.05, theta_mean=torch.tensor([1.0, 1.5, 0.5, 0.3]),
+                       theta_scale=torch.full((4,), 0.1), inverse=leg.stable_inverse())
+    est = ident.identify(np.stack([_record(), 2 * _record()]))
+    for i in range(2):
+        G = control.ss2tf(control.ss(est.A[i], est.b[i][:, None], est.c[i][None], 0.0))
+        num, den = np.ravel(G.num[0][0]), np.ravel(G.den[0][0])
+        a1, a0, c0 = den[-2] / den[0], den[-1] / den[0], num[-1] / den[0]
+        m = 1 / c0
+        assert est.physical["m"][i] == pytest.approx(m, rel=1e-8)
+        assert est.physical["k"][i] == pytest.approx(a0 * m, rel=1e-8)
+        assert est.physical["d"][i] == pytest.approx(a1 * m, rel=1e-8)

@@ -70,3 +70,23 @@ def test_error_cdf_counts_overflow(tmp_path):
 
     fig2, ax = plt.subplots()
     assert plots.error_cdf([a], ax=ax) is fig2
+
+
+def test_knowledge_bars_draw_the_mean_errors_over_valid_estimates(tmp_path):
+    def scored(name, k, valid):
+        base = _score(name, [0.1, 0.1, 0.1], [True] * 3, np.zeros((3, 2)))
+        return Score(name, {**base.per_record, "k": np.asarray(k, dtype=float),
+                            "valid": np.asarray(valid)}, base.poles, 0.1)
+
+    scores = [scored("CCF", [1.0, 3.0, 1e6], [True, True, False]),
+              scored("physical", [2.0, 2.0, 2.0], [True] * 3)]
+    path = tmp_path / "bars.png"
+    fig = plots.knowledge_bars({"5 % noise": scores}, parameters=("k",), path=path)
+    assert path.stat().st_size > 0
+    ax = fig.axes[0]
+    heights = [p.get_height() for p in ax.patches]
+    assert heights == pytest.approx([2.0, 2.0])           # the invalid 1e6 is left out
+    notes = [t.get_text() for t in ax.texts]
+    assert notes == ["33% invalid"]
+    with pytest.raises(ValueError, match=r"groups must map at least one title"):
+        plots.knowledge_bars({})
