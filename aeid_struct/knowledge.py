@@ -31,7 +31,7 @@ record cannot tell). Physical parameters of canonical estimates come from the Ca
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .data import LegFamily
@@ -180,8 +180,11 @@ def evaluate(variant: Variant, ident, val, *, label: str = "") -> list:
     if variant.subsystem == "joint":
         return [score(ident, val, name=f"{name} ({sub} record)", record=r)
                 for r, sub in enumerate(("stable", "unstable"))]
-    r = 0 if variant.subsystem == "stable" else 1
-    return [score(ident, val.record(r), name=name)]
+    if variant.subsystem == "stable":
+        return [score(ident, val.record(0), name=name)]
+    # d does not enter G2: what an unstable identifier says of d is no estimate, not scored
+    s = score(ident, val.record(1), name=name)
+    return [replace(s, per_record={k: v for k, v in s.per_record.items() if k != "d"})]
 
 
 def least_squares(variant: Variant):

@@ -63,6 +63,9 @@ COLUMNS = {
     "k_mean": ("Δk mean (%)", "{:.2f}"),
     "d_mean": ("Δd mean (%)", "{:.2f}"),
     "m_mean": ("Δm mean (%)", "{:.2f}"),
+    "k_median": ("Δk median (%)", "{:.2f}"),
+    "d_median": ("Δd median (%)", "{:.2f}"),
+    "m_median": ("Δm median (%)", "{:.2f}"),
     "ms_per_record": ("ms / record", "{:.3f}"),
 }
 #: The columns ``table`` shows by default.
