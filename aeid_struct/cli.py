@@ -193,8 +193,11 @@ def _load_records(path: str, name: str) -> np.ndarray:
 def _identify(args: argparse.Namespace) -> int:
     from .identify import Identifier, load_pretrained
 
-    y = _load_records(args.y, "y")
-    u = _load_records(args.u, "u") if args.u else None
+    # One file per record: a joint identifier (several records) takes one per subsystem.
+    ys = [_load_records(p, "y") for p in args.y]
+    us = [_load_records(p, "u") for p in args.u] if args.u else None
+    y = ys[0] if len(ys) == 1 else ys
+    u = None if us is None else (us[0] if len(us) == 1 else us)
     try:
         ident = (Identifier.load(args.model) if Path(args.model).exists()
                  else load_pretrained(args.model))
@@ -207,6 +210,7 @@ def _identify(args: argparse.Namespace) -> int:
     np.set_printoptions(precision=6, suppress=False)
     result = {"A": est.A.tolist(), "b": est.b.tolist(), "c": est.c.tolist(),
               "d": np.asarray(est.d).tolist(), "fit_percent": np.asarray(est.fit).tolist(),
+              "records": est.records,
               "physical": {k: np.asarray(v).tolist() for k, v in est.physical.items()},
               "seconds": est.seconds}
     print(f"{ident!r}")
@@ -334,8 +338,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     idp = sub.add_parser("identify", help="identify a system from a record file")
     idp.add_argument("model", help="an .aeid file or a shipped name (leg-stable, leg-unstable)")
-    idp.add_argument("--y", required=True, help="output record(s): .npy or .csv, one per row")
-    idp.add_argument("--u", default=None, help="input record(s); default: a unit step")
+    idp.add_argument("--y", required=True, nargs="+",
+                     help="output record(s): .npy or .csv, one per row; one file per record "
+                          "(subsystem) for a joint identifier")
+    idp.add_argument("--u", default=None, nargs="+",
+                     help="input record(s), files like --y; default: a unit step")
     idp.add_argument("--refine", action="store_true", help="polish with the CasADi NLP")
     idp.add_argument("--json", default=None, help="write the estimate as JSON")
     idp.set_defaults(func=_identify)

@@ -93,3 +93,33 @@ def test_bench_quick_compares_all_methods(tmp_path, capsys):
         if r["noise"] == 0.0 and r["method"] == "encoder + refine":
             assert r["step_mean"] < 1e-8 and r["failure_rate"] == 0.0
     assert all(v > 0 for v in result["identification"]["throughput_per_s"].values())
+
+
+def test_identify_a_joint_identifier_from_one_file_per_record(tmp_path, capsys):
+    import torch
+
+    import aeid_struct as ae
+    from aeid_struct.encoder import Encoder, EncoderConfig
+    from symbolic import leg
+
+    torch.manual_seed(0)
+    structure = ae.Physical(leg.joint_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)})
+    enc = Encoder(EncoderConfig(steps=(60, 20), pool=(3, 1), outputs=3, features=2, width=4,
+                                dense=(8,)))
+    ident = ae.Identifier(enc.eval(), structure, dt=(0.05, 0.025), theta_mean=torch.zeros(3),
+                          theta_scale=torch.ones(3), scale="feature")
+    model = ident.save(tmp_path / "joint.aeid")
+    legs = ae.LegFamily(subsystem="joint").systems(**{k: [v] for k, v in leg.SCENARIO.items()})
+    files = []
+    for r, (steps, dt) in enumerate(((60, 0.05), (20, 0.025))):
+        y = ae.simulate(legs.A[0, r], legs.b[0, r], legs.c[0, r], 0.0, np.ones(steps), dt)
+        files.append(str(tmp_path / f"y{r}.csv"))
+        np.savetxt(files[-1], y, delimiter=",")
+    js = tmp_path / "est.json"
+    assert main(["identify", str(model), "--y", *files, "--json", str(js)]) == 0
+    est = json.loads(js.read_text())
+    assert est["records"] == 2 and np.shape(est["A"]) == (2, 2, 2)
+    direct = ident.identify([np.loadtxt(f, delimiter=",") for f in files])
+    assert est["physical"]["k"] == pytest.approx(direct.physical["k"], rel=1e-12)
+    with pytest.raises(SystemExit, match=r"y must be a sequence of 2 records"):
+        main(["identify", str(model), "--y", files[0]])
