@@ -97,6 +97,7 @@ __all__ = [
     "Discrete",
     "denormalise",
     "discretise",
+    "initial_state",
     "loss",
     "normalise",
     "record_scale",
@@ -284,6 +285,29 @@ def _simulate(A, b, c, d, u, dt: float, x0=None) -> torch.Tensor:
     return _simulate_chunked(A, b, c, d, u, dt, x0)
 
 
+def _free_response(A, c, dt: float, steps: int) -> torch.Tensor:
+    """``O (batch, steps, n)`` with ``O[:, k] = c^T e^{A k dt}``: the output of the free
+    response, ``y_k = O[:, k] x_0``, from the doubling of ``_powers``."""
+    n = A.shape[-1]
+    Phi = torch.linalg.matrix_exp(A * dt)
+    O, _ = _powers(c, Phi, steps)
+    return O[:, :steps, :n]
+
+
+def _initial_state(A, b, c, d, u, y, dt: float) -> torch.Tensor:
+    """The least-squares initial state of records that do not start from rest: ``x0 (batch, n)``
+    minimising ``sum_k (y_k - c^T e^{A k dt} x0 - y_forced_k)^2`` (``y_forced``: Eq. 10-13 from
+    rest). The free response is linear in ``x0``, so this is exact for noise-free records of the
+    model; solved by a QR of the column-scaled free-response matrix (the columns of an unstable
+    or fast mode differ by orders of magnitude), differentiable."""
+    r = y - _simulate(A, b, c, d, u, dt, None)
+    O = _free_response(A, c, dt, u.shape[1])
+    scale = O.norm(dim=1).clamp_min(torch.finfo(O.dtype).tiny)      # (batch, n)
+    Q, R = torch.linalg.qr(O / scale[:, None, :])
+    z = torch.linalg.solve_triangular(R, (Q.mT @ r[..., None]), upper=True)[..., 0]
+    return z / scale
+
+
 def _stationary_value(A, b, c, d) -> torch.Tensor:
     """Eq. 4: ``y_inf = d - c^T A^{-1} b`` (batch,), by a solve, not an inverse."""
     return d - (c * torch.linalg.solve(A, b[..., None])[..., 0]).sum(-1)
@@ -374,7 +398,12 @@ _AXES = {
     "x0": ("record", "entry"),
     "d": ("record",),
     "u": ("record", "sample"),
+    "y": ("record", "sample"),
 }
+
+
+#: Dimensions of one (unbatched) argument: more means a leading batch axis.
+_CORE = {"A": 2, "b": 1, "c": 1, "x0": 1, "d": 0, "u": 1, "y": 1}
 
 
 def _check_system(t: dict[str, torch.Tensor | None]) -> tuple[int, int, bool]:
@@ -396,8 +425,12 @@ def _check_system(t: dict[str, torch.Tensor | None]) -> tuple[int, int, bool]:
         raise ValueError(
             f"u must have shape (batch, steps) or (steps,) with steps >= 1; got {_shape(u)}"
         )
-    core = {"A": 2, "b": 1, "c": 1, "x0": 1, "d": 0, "u": 1}
-    sizes = {k: v.shape[0] for k, v in t.items() if v is not None and v.ndim > core[k]}
+    y = t.get("y")
+    if y is not None and (y.ndim not in (1, 2) or y.shape[-1] == 0):
+        raise ValueError(
+            f"y must have shape (batch, steps) or (steps,) with steps >= 1; got {_shape(y)}"
+        )
+    sizes = {k: v.shape[0] for k, v in t.items() if v is not None and v.ndim > _CORE[k]}
     batch, batched = _common_batch(sizes)
     for name, v in t.items():
         if v is not None:
@@ -417,11 +450,10 @@ def _common_batch(sizes: dict[str, int]) -> tuple[int, bool]:
 
 def _batched(t: dict[str, torch.Tensor | None], batch: int) -> dict[str, torch.Tensor | None]:
     """Give every argument the common leading batch axis (views, no copies)."""
-    core = {"A": 2, "b": 1, "c": 1, "x0": 1, "d": 0, "u": 1}
     out = {}
     for k, v in t.items():
         if v is not None:
-            v = v if v.ndim > core[k] else v[None]
+            v = v if v.ndim > _CORE[k] else v[None]
             v = v.expand(batch, *v.shape[1:])
         out[k] = v
     return out
@@ -532,6 +564,38 @@ def simulate(
     t = _batched(t, batch)
     y = _simulate(t["A"], t["b"], t["c"], t["d"], t["u"], dt, t["x0"])
     return _output(y, torch_out, batched)
+
+
+def initial_state(A: Array, b: Array, c: Array, d: Array | float, u: Array, y: Array,
+                  dt: float) -> Array:
+    """The initial state of a record that starts mid-motion, by linear least squares.
+
+    With ``x_0 != 0`` the response is the response from rest (Eq. 10-13) plus the free response
+    ``c^T e^{A k dt} x_0``, which is linear in ``x_0``; so ``x_0`` is the least-squares solution
+    of ``O x_0 = y - y_forced`` with ``O[k] = c^T e^{A k dt}``. Exact (to rounding) for a
+    noise-free record of the model; with noise, the best fit. ``simulate(..., x0=x0)`` then
+    reproduces the record.
+
+    Parameters
+    ----------
+    A, b, c, d : the model, shapes as in :func:`simulate` (observable: ``O`` of full rank)
+    u, y : (batch, steps) or (steps,)
+        Input and measured output on ``t_k = k dt``.
+    dt : float, > 0
+
+    Returns
+    -------
+    x0 : (batch, n), or (n,) when no input had a batch axis; numpy float64 for numpy input.
+    """
+    t, torch_out = _prepare({"A": A, "b": b, "c": c, "d": d, "u": u, "y": y})
+    dt = _check_dt(dt)
+    if t["y"].shape[-1] != t["u"].shape[-1]:
+        raise ValueError(f"y must have as many samples as u ({t['u'].shape[-1]}); "
+                         f"got {t['y'].shape[-1]}")
+    _, batch, batched = _check_system(t)
+    t = _batched(t, batch)
+    x0 = _initial_state(t["A"], t["b"], t["c"], t["d"], t["u"], t["y"], dt)
+    return _output(x0, torch_out, batched)
 
 
 def stationary_value(A: Array, b: Array, c: Array, d: Array | float) -> Array:

@@ -645,3 +645,35 @@ def test_bench_decoder_smoke():
         bench_decoder(dtype=torch.float16)
     with pytest.raises(ValueError, match=r"batch must be an integer >= 1; got 0"):
         bench_decoder(batch=0)
+
+
+# -- the initial state of a record that starts mid-motion ---------------------------------------
+@pytest.mark.parametrize("n, stable", [(1, True), (2, True), (3, True), (4, False)])
+def test_initial_state_is_exact_for_a_noise_free_record_mid_motion(n, stable):
+    # Oracle: python-control's forced_response from the state x0 (a record that does not start
+    # from rest); the least-squares initial state must give x0 back and reproduce the record.
+    A, b, c, d = _system(n, stable, salt=11)
+    rng = np.random.default_rng(n)
+    x0 = rng.normal(size=n)
+    t = np.arange(120) * 0.02
+    u = np.sin(3 * t) + 0.5 * (t > 0.7)
+    sys = control.ss(A, b[:, None], c[None, :], d)
+    y = control.forced_response(sys, t, u, X0=x0).outputs
+    found = decoder.initial_state(A, b, c, d, u, y, 0.02)
+    np.testing.assert_allclose(found, x0, rtol=1e-7, atol=1e-9 * np.abs(x0).max())
+    assert rel_max_error(ae.simulate(A, b, c, d, u, 0.02, x0=found), y) < 1e-9
+
+
+def test_initial_state_batches_and_differentiates():
+    A, b, c, d = _torch(*_system(2, True, salt=3)[:3], np.array(0.0))
+    x0 = torch.tensor([[0.3, -1.0], [2.0, 0.5]], dtype=torch.float64)
+    u = torch.linspace(0, 1, 50, dtype=torch.float64).expand(2, 50)
+    y = ae.simulate(A, b, c, d, u, 0.05, x0=x0)
+    torch.testing.assert_close(decoder.initial_state(A, b, c, d, u, y, 0.05), x0)
+    Ag = A.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(
+        lambda M: decoder._initial_state(M[None].expand(2, 2, 2), b[None].expand(2, 2),
+                                         c[None].expand(2, 2), d.expand(2), u, y, 0.05),
+        (Ag,))
+    with pytest.raises(ValueError, match=r"y must have as many samples as u \(50\); got 49"):
+        decoder.initial_state(A, b, c, d, u, y[:, :49], 0.05)
