@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .decoder import simulate
+from .decoder import simulate, states
 
 EXCITATIONS = ("step", "ramp", "prbs", "multisine", "noise", "mix")
 
@@ -274,6 +274,8 @@ class Records:
         u: ``(N, steps)`` inputs; y: ``(N, steps)`` measured (noisy) outputs;
         y_clean: ``(N, steps)`` noise-free outputs; systems: the true systems;
         dt: sample time; noise: per-record noise level (std relative to max|y_clean|), ``(N,)``.
+        x0: ``(N, n)`` state at the first sample (records that start mid-motion, ``warmup``
+            > 0), or None for records from rest.
 
     Systems of several records (``systems.records = R > 1``) have a record on its own grid each:
     ``u, y, y_clean`` are then tuples of ``R`` arrays ``(N, steps_r)`` and ``dt`` a tuple.
@@ -285,6 +287,7 @@ class Records:
     systems: Systems
     dt: float
     noise: np.ndarray
+    x0: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.noise)
@@ -299,18 +302,19 @@ class Records:
         if not isinstance(r, int) or not 0 <= r < len(self.u):
             raise ValueError(f"r must be a record index in [0, {len(self.u)}); got {r!r}")
         return Records(self.u[r], self.y[r], self.y_clean[r], self.systems.record(r),
-                       self.dt[r], self.noise)
+                       self.dt[r], self.noise, None if self.x0 is None else self.x0[r])
 
     def take(self, index) -> Records:
         def pick(x):
             return tuple(r[index] for r in x) if isinstance(x, tuple) else x[index]
 
         return Records(pick(self.u), pick(self.y), pick(self.y_clean),
-                       self.systems.take(index), self.dt, self.noise[index])
+                       self.systems.take(index), self.dt, self.noise[index],
+                       None if self.x0 is None else pick(self.x0))
 
 
 def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
-            noise=0.0, seed: int = 0) -> Records:
+            noise=0.0, seed: int = 0, warmup: int = 0) -> Records:
     """Sample ``count`` systems from ``family``, excite and simulate them exactly.
 
     Args:
@@ -321,30 +325,41 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
         excitation_kind: one of ``EXCITATIONS``.
         noise: a level (std relative to max|y_clean|) or a (lo, hi) range drawn per record.
         seed: seeds every draw.
+        warmup: samples simulated (from rest, with the same excitation) before each record
+            begins, so that records start mid-motion, like windows cut from a running system;
+            their initial states are ``Records.x0``. 0: records from rest (the paper).
     """
     if not isinstance(count, int) or count < 1:
         raise ValueError(f"count must be a positive integer; got {count!r}")
     R = getattr(family, "records", 1)
     grids = _grids(steps, dt, R)
+    if not isinstance(warmup, int) or isinstance(warmup, bool) or warmup < 0:
+        raise ValueError(f"warmup must be a non-negative integer; got {warmup!r}")
     rng = np.random.default_rng(seed)
     systems = family.sample(count, rng)
-    u = [excitation(excitation_kind, count, steps_r, dt_r, rng) for steps_r, dt_r in grids]
+    u = [excitation(excitation_kind, count, steps_r + warmup, dt_r, rng)
+         for steps_r, dt_r in grids]
     if np.ndim(noise) == 0:
         level = np.full(count, float(noise))
     else:
         level = rng.uniform(*_check_range("noise", noise), size=count)
     if np.any(level < 0):
         raise ValueError(f"noise must be >= 0; got {noise!r}")
-    parts = []
+    parts, x0 = [], []
     for r, (_, dt_r) in enumerate(grids):
         s = systems.record(r)
-        y_clean = simulate(s.A, s.b, s.c, s.d, u[r], dt_r)
+        y_clean = simulate(s.A, s.b, s.c, s.d, u[r], dt_r)[:, warmup:]
+        if warmup:
+            x0.append(states(s.A, s.b, u[r][:, : warmup + 1], dt_r)[:, warmup])
         scale = level * np.max(np.abs(y_clean), axis=1)
-        parts.append((u[r], y_clean + scale[:, None] * rng.normal(size=y_clean.shape), y_clean))
+        parts.append((u[r][:, warmup:], y_clean + scale[:, None] * rng.normal(size=y_clean.shape),
+                      y_clean))
+    x0 = x0 or None
     if R == 1:
-        return Records(*parts[0], systems, grids[0][1], level)
+        return Records(*parts[0], systems, grids[0][1], level, x0 and x0[0])
     u, y, y_clean = (tuple(p[i] for p in parts) for i in range(3))
-    return Records(u, y, y_clean, systems, tuple(g[1] for g in grids), level)
+    return Records(u, y, y_clean, systems, tuple(g[1] for g in grids), level,
+                   x0 and tuple(x0))
 
 
 def _grids(steps, dt, records: int) -> list[tuple[int, float]]:

@@ -294,18 +294,25 @@ def _free_response(A, c, dt: float, steps: int) -> torch.Tensor:
     return O[:, :steps, :n]
 
 
-def _initial_state(A, b, c, d, u, y, dt: float) -> torch.Tensor:
-    """The least-squares initial state of records that do not start from rest: ``x0 (batch, n)``
-    minimising ``sum_k (y_k - c^T e^{A k dt} x0 - y_forced_k)^2`` (``y_forced``: Eq. 10-13 from
-    rest). The free response is linear in ``x0``, so this is exact for noise-free records of the
-    model; solved by a QR of the column-scaled free-response matrix (the columns of an unstable
-    or fast mode differ by orders of magnitude), differentiable."""
-    r = y - _simulate(A, b, c, d, u, dt, None)
+def _free_fit(A, b, c, d, u, y, dt: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The least-squares initial state of records that do not start from rest, and the response
+    from it: ``x0 (batch, n)`` minimising ``sum_k (y_k - c^T e^{A k dt} x0 - y_forced_k)^2``
+    (``y_forced``: Eq. 10-13 from rest), and ``y_hat = y_forced + O x0 (batch, steps)``.
+
+    The free response is linear in ``x0``, so this is exact for noise-free records of the model;
+    solved by a QR of the column-scaled free-response matrix ``O`` (the columns of an unstable or
+    fast mode differ by orders of magnitude), differentiable."""
+    y_forced = _simulate(A, b, c, d, u, dt, None)
     O = _free_response(A, c, dt, u.shape[1])
     scale = O.norm(dim=1).clamp_min(torch.finfo(O.dtype).tiny)      # (batch, n)
     Q, R = torch.linalg.qr(O / scale[:, None, :])
-    z = torch.linalg.solve_triangular(R, (Q.mT @ r[..., None]), upper=True)[..., 0]
-    return z / scale
+    z = torch.linalg.solve_triangular(R, (Q.mT @ (y - y_forced)[..., None]), upper=True)
+    return z[..., 0] / scale, y_forced + (Q @ (R @ z))[..., 0]
+
+
+def _initial_state(A, b, c, d, u, y, dt: float) -> torch.Tensor:
+    """``x0 (batch, n)`` of :func:`_free_fit`."""
+    return _free_fit(A, b, c, d, u, y, dt)[0]
 
 
 def _stationary_value(A, b, c, d) -> torch.Tensor:

@@ -49,6 +49,9 @@ from .structures import Structure, System
 
 FORMAT = "aeid-struct/identifier/1"
 SCALE_MODES = ("denormalise", "feature")
+#: How the decoder treats a record's initial state: from rest (the paper), or fitted by least
+#: squares (records that start mid-motion; ``decoder.initial_state``).
+INITIAL_STATES = ("rest", "fitted")
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +71,8 @@ class Estimate:
         info: extra diagnostics (refinement iterations, loss, ...).
         structure: the structure the model is in, where known (set by ``Identifier``), so that
             ``refine(estimate, y, u, dt)`` needs no further argument.
+        initial: ``"rest"`` (the record starts from rest) or ``"fitted"`` (it starts
+            mid-motion: ``x0`` is the least-squares initial state and ``y_hat`` starts there).
 
     ``fit``, ``y_hat`` and ``physical`` are computed on first access, so that a plain
     identification costs one encoder pass.
@@ -86,6 +91,7 @@ class Estimate:
     info: dict = field(default_factory=dict)
     _inverse: object = field(default=None, repr=False)
     structure: object = field(default=None, repr=False)
+    initial: str = "rest"
 
     @property
     def records(self) -> int:
@@ -103,10 +109,42 @@ class Estimate:
         from .decoder import simulate
 
         if self.records == 1:
-            return simulate(self.A, self.b, self.c, self.d, self.u, self.dt)
+            return simulate(self.A, self.b, self.c, self.d, self.u, self.dt, x0=self._x0())
+        x0 = self._x0()
         return tuple(simulate(self.A[..., r, :, :], self.b[..., r, :], self.c[..., r, :],
-                              self.d[..., r], self.u[r], self.dt[r])
+                              self.d[..., r], self.u[r], self.dt[r],
+                              x0=None if x0 is None else x0[r])
                      for r in range(self.records))
+
+    @cached_property
+    def x0(self):
+        """The state at the first sample: zeros for a record from rest, else the least-squares
+        initial state of the estimate (``decoder.initial_state``); ``(n,)`` / ``(batch, n)``, a
+        tuple of them for several records."""
+        x0 = self._x0()
+        if x0 is not None:
+            return x0
+        zeros = np.zeros(np.shape(self.b)[:-1] if self.records == 1
+                         else np.shape(self.b[..., 0, :])[:-1])
+        n = np.shape(self.A)[-1]
+        one = np.zeros((*zeros.shape, n))
+        return one if self.records == 1 else tuple(one for _ in range(self.records))
+
+    def _x0(self):
+        """The fitted initial state(s), or None for records from rest."""
+        if self.initial != "fitted":
+            return None
+        if "_x0_fitted" not in self.__dict__:
+            from .decoder import initial_state
+
+            if self.records == 1:
+                value = initial_state(self.A, self.b, self.c, self.d, self.u, self.y, self.dt)
+            else:
+                value = tuple(initial_state(self.A[..., r, :, :], self.b[..., r, :],
+                                            self.c[..., r, :], self.d[..., r], self.u[r],
+                                            self.y[r], self.dt[r]) for r in range(self.records))
+            self.__dict__["_x0_fitted"] = value
+        return self.__dict__["_x0_fitted"]
 
     @cached_property
     def fit(self):
@@ -267,14 +305,19 @@ class Identifier:
             one per record (tuples) for several records.
         inverse: optional casadi.Function from the CCF model to physical parameters.
         meta: provenance (training command, seed, metrics), stored in the file.
+        initial: ``"rest"`` (records start from rest, the paper) or ``"fitted"`` (records may
+            start mid-motion; the estimate's initial state is fitted by least squares).
     """
 
     def __init__(self, encoder: Encoder, structure: Structure, *, dt,
                  theta_mean: torch.Tensor, theta_scale: torch.Tensor,
                  scale: str = "denormalise", feature_mean=0.0,
-                 feature_scale=1.0, inverse=None, meta: dict | None = None):
+                 feature_scale=1.0, inverse=None, meta: dict | None = None,
+                 initial: str = "rest"):
         if scale not in SCALE_MODES:
             raise ValueError(f"scale must be one of {SCALE_MODES}; got {scale!r}")
+        if initial not in INITIAL_STATES:
+            raise ValueError(f"initial must be one of {INITIAL_STATES}; got {initial!r}")
         R = encoder.config.records
         if structure.records != R:
             raise ValueError(f"the encoder reads {R} record(s) but {structure!r} describes "
@@ -309,6 +352,7 @@ class Identifier:
                              f"got {tuple(self.theta_mean.shape)}, "
                              f"{tuple(self.theta_scale.shape)}")
         self.scale = scale
+        self.initial = initial
         fm, fs = (np.broadcast_to(np.asarray(v, dtype=np.float64), (R,)).copy()
                   for v in (feature_mean, feature_scale))
         self.feature_mean = float(fm[0]) if R == 1 else tuple(fm.tolist())
@@ -568,7 +612,7 @@ class Identifier:
             y_out, u_out = tuple(v[0] for v in ys), tuple(v[0] for v in us)
         return Estimate(A, b, c, d, elements, y_out, u_out, self._dts,
                         time.perf_counter() - start, False, {}, self._physical_source(),
-                        structure=self.structure)
+                        structure=self.structure, initial=self.initial)
 
     def _estimate(self, A, b, c, d, el, y2, u2, batched, start, refine) -> Estimate:
         """Wrap float64 arrays ``A (count, n, n)``, ..., ``el (count, q)`` as an Estimate."""
@@ -578,14 +622,20 @@ class Identifier:
             elements = {name: el[:, i] for i, name in enumerate(self.structure.element_names)}
             est = Estimate(A, b, c, d, elements, y2, np.asarray(u2), self.dt,
                            time.perf_counter() - start, False, {}, self._physical_source(),
-                           structure=self.structure)
+                           structure=self.structure, initial=self.initial)
         else:
             elements = dict(zip(self.structure.element_names, el[0].tolist(), strict=True))
             est = Estimate(A[0], b[0], c[0], float(d[0]), elements, y2[0], np.asarray(u2)[0],
                            self.dt, time.perf_counter() - start, False, {},
-                           self._physical_source(), structure=self.structure)
+                           self._physical_source(), structure=self.structure,
+                           initial=self.initial)
         if refine:
             from .refine import refine as _refine
+
+            if self.initial == "fitted":
+                raise ValueError("refine=True is not available for an identifier of records that "
+                                 "start mid-motion (initial='fitted'): the refinement fits "
+                                 "records from rest")
 
             est = _refine(est, est.y, est.u, self.dt, structure=self.structure)
         return est
@@ -606,6 +656,7 @@ class Identifier:
             "structure": self.structure.config(),
             "dt": self.dt,
             "scale": self.scale,
+            "initial": self.initial,
             "feature_mean": self.feature_mean,
             "feature_scale": self.feature_scale,
             "inverse": None if self.inverse is None else self.inverse.serialize(),
@@ -661,6 +712,7 @@ class Identifier:
             theta_mean=tensors["theta_mean"],
             theta_scale=tensors["theta_scale"],
             scale=header["scale"],
+            initial=header.get("initial", "rest"),
             feature_mean=header["feature_mean"],
             feature_scale=header["feature_scale"],
             inverse=None if inverse is None else casadi.Function.deserialize(inverse),

@@ -25,6 +25,11 @@ Choices the paper leaves open, and ours:
 - Several records (a ``Physical`` structure of ``R`` subsystems, e.g. the joint leg): ``dt`` and
   ``steps`` are tuples, one per record; the loss is the mean of Eq. 14 over the records, each
   normalised by its own ``y_bar``, so that no record dominates by its magnitude.
+- Records mid-motion (``warmup > 0``, windows cut from a running system): the decoder cannot
+  assume rest, so with ``initial="fitted"`` it fits the initial state by linear least squares
+  (``decoder.initial_state``; the free response is linear in ``x0``) and the loss compares the
+  record with the response from that state. The encoder still outputs only the structure's
+  parameters: ``x0`` is profiled out, exactly for noise-free windows.
 - Checkpoints: every epoch (atomically, ``torch.save`` of tensors and numbers only, loaded with
   ``weights_only=True``); a killed run started again with the same checkpoint path resumes at
   the epoch after the last checkpoint, with the same optimizer state and shuffling.
@@ -44,9 +49,16 @@ import numpy as np
 import torch
 
 from .data import EXCITATIONS, records
-from .decoder import _loss, _record_scale, _simulate, _stationary_value, stationary_value
+from .decoder import (
+    _free_fit,
+    _loss,
+    _record_scale,
+    _simulate,
+    _stationary_value,
+    stationary_value,
+)
 from .encoder import Encoder, EncoderConfig
-from .identify import Identifier
+from .identify import INITIAL_STATES, Identifier
 from .structures import Physical, Structure
 
 
@@ -65,6 +77,10 @@ class TrainConfig:
         noise: measurement noise level, or a (lo, hi) range drawn per record and epoch.
         excitation: input kind (data.EXCITATIONS); "step" is the paper's.
         seed: seeds the data, the initial weights and the shuffling.
+        warmup: samples each simulated record runs before it begins (records start
+            mid-motion, as windows of a running system do); 0 = from rest (the paper).
+        initial: the decoder's initial state: ``"rest"`` (zero, the paper) or ``"fitted"``
+            (least squares per record, ``decoder.initial_state``), needed when ``warmup > 0``.
         checkpoint: file to checkpoint to and resume from (None = no checkpoints).
         progress: print a progress line (to stderr).
         threads: torch threads (None = leave torch's setting).
@@ -83,6 +99,8 @@ class TrainConfig:
     noise: float | tuple[float, float] = 0.0
     excitation: str = "step"
     seed: int = 0
+    warmup: int = 0
+    initial: str = "rest"
     checkpoint: str | None = None
     progress: bool = True
     threads: int | None = None
@@ -125,6 +143,13 @@ class TrainConfig:
             raise ValueError(f"noise must be a level >= 0 or a (lo, hi) range; got {self.noise!r}")
         if self.excitation not in EXCITATIONS:
             raise ValueError(f"excitation must be one of {EXCITATIONS}; got {self.excitation!r}")
+        if not isinstance(self.warmup, int) or isinstance(self.warmup, bool) or self.warmup < 0:
+            raise ValueError(f"warmup must be a non-negative integer; got {self.warmup!r}")
+        if self.initial not in INITIAL_STATES:
+            raise ValueError(f"initial must be one of {INITIAL_STATES}; got {self.initial!r}")
+        if self.warmup and self.initial == "rest":
+            raise ValueError("records that start mid-motion (warmup > 0) need initial='fitted': "
+                             "a decoder from rest cannot explain their free response")
 
     @property
     def grids(self) -> tuple[tuple[int, float], ...]:
@@ -159,7 +184,10 @@ def _batch_loss(ident: Identifier, y, u, yinf, gamma: float) -> torch.Tensor:
     total = 0.0
     for r in range(R):
         A, b, c, d = (x[:, r] for x in sys) if R > 1 else sys
-        y_hat = _simulate(A, b, c, d, us[r], ident._dts[r], None)
+        if ident.initial == "fitted":
+            y_hat = _free_fit(A, b, c, d, us[r], ys[r], ident._dts[r])[1]
+        else:
+            y_hat = _simulate(A, b, c, d, us[r], ident._dts[r], None)
         scale = 2.0 / _record_scale(ys[r])
         yinf_r = yinf[:, r] if R > 1 else yinf
         yinf_hat = _stationary_value(A, b, c, d) * scale if gamma > 0 else None
@@ -248,7 +276,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     rec = records(family, config.count, steps=config.steps, dt=config.dt,
-                  excitation_kind=config.excitation, seed=config.seed)
+                  excitation_kind=config.excitation, seed=config.seed, warmup=config.warmup)
     scale_mode = "feature" if isinstance(structure, Physical) or not _c_free(structure) \
         else "denormalise"
     ys_clean, us = (rec.y_clean, rec.u) if R > 1 else ((rec.y_clean,), (rec.u,))
@@ -269,6 +297,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
     ident = Identifier(
         Encoder(enc_config), structure, dt=config.dt,
         theta_mean=torch.tensor(mean), theta_scale=torch.tensor(spread), scale=scale_mode,
+        initial=config.initial,
         feature_mean=log_gain.mean(axis=0), feature_scale=np.where(log_spread > 0, log_spread,
                                                                    1.0),
         inverse=inverse, meta=meta,

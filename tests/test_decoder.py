@@ -677,3 +677,15 @@ def test_initial_state_batches_and_differentiates():
         (Ag,))
     with pytest.raises(ValueError, match=r"y must have as many samples as u \(50\); got 49"):
         decoder.initial_state(A, b, c, d, u, y[:, :49], 0.05)
+
+
+def test_free_fit_response_is_the_simulation_from_the_fitted_state():
+    A, b, c, d = _torch(*_system(3, True, salt=5))
+    u = torch.cos(torch.linspace(0, 6, 80, dtype=torch.float64))[None]
+    y = torch.randn(1, 80, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    x0, y_hat = decoder._free_fit(A[None], b[None], c[None], d[None], u, y, 0.05)
+    torch.testing.assert_close(y_hat, ae.simulate(A[None], b[None], c[None], d[None], u, 0.05,
+                                                  x0=x0))
+    # the least-squares residual is orthogonal to every free-response column
+    O = decoder._free_response(A[None], c[None], 0.05, 80)
+    assert (O.mT @ (y - y_hat)[..., None]).abs().max() < 1e-9 * y.abs().max() * O.abs().max()
