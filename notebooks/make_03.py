@@ -43,7 +43,7 @@ parameters k, d, m.
 
 Set `AEID_FAST=1` to run it in seconds (the test suite does): a few hundred records, two epochs,
 one seed and 50 validation systems, which shows the mechanics but not the answer. The full mode
-trains 36 identifiers and takes about 8 minutes on one core."""),
+trains 36 identifiers and takes 8–10 minutes on one core."""),
     ("code", r"""import dataclasses
 import math
 import os
@@ -101,7 +101,8 @@ print(f"MCF(real=2, pairs=1), 100,000 random theta: largest Re(pole) = {worst:.2
 together give residues $c_{1,2} \approx \pm\, r / (\lambda_1 - \lambda_2)$ that nearly
 cancel: they are large, heavy-tailed over a family, and a small relative error in either becomes
 a large error in the response. The CCF's coefficients are smooth in the poles. Over 4,000
-systems of the 4th-order family below:"""),
+systems of the 4th-order family below (the tail that the scaling of the network's outputs must
+not follow; see *Where did the large gradients come from?*):"""),
     ("code", r"""fam4 = ae.PoleFamily(real=2, pairs=1)
 s4 = fam4.sample(4000, np.random.default_rng(0))
 for structure in (ae.CCF(4, descartes=True), ae.MCF(real=2, pairs=1)):
@@ -155,10 +156,11 @@ for name, spec in FAMILIES.items():
           + ", ".join(map(repr, spec["structures"].values())))"""),
     ("md", r"""## Training: 2 structures × 2 clip settings × seeds, per family
 
-The leg identifiers get the leg's CasADi inverse for the CCF (as the shipped ones do); for the
-scores below both structures' estimates go through `scorecard.score(..., inverse=leg_inverse)`,
-which converts any realisation to the CCF of its transfer function first, so the MCF's k, d, m
-come out of the same map."""),
+The CCF leg identifiers store the leg's CasADi inverse (as the shipped ones do); the inverse is
+only stored, training does not use it. For the scores below both structures' estimates go
+through `scorecard.score(..., inverse=leg_inverse)`, which converts any realisation to the CCF of
+its transfer function first, so the MCF's k, d, m come out of the same map (`Estimate.physical`
+does the same conversion, so an MCF identifier could carry the inverse too)."""),
     ("code", r"""runs = {}           # (family, structure, clip) -> identifiers, one per seed
 for fam_name, spec in FAMILIES.items():
     for s_name, structure in spec["structures"].items():
@@ -195,12 +197,23 @@ The worst run's best held-out loss shows a run that never converged."""),
     fig.suptitle(f"{fam_name}: held-out loss and largest gradient norm per epoch (one line "
                  "per seed)", y=1.02)
     plt.show()"""),
-    ("md", r"""Where do the large gradients come from? `train()` standardises the encoder's outputs
-by the mean and standard deviation of the raw parameters of the training systems (knowledge of
-the family's ranges, not of any label). The modal residues of two real modes are heavy-tailed
-(above): a single near-repeated pair of real poles among the training systems sets their
-standard deviation, and a unit output of the network then means a residue of that size. Per
-seed, the 4th-order training sets:"""),
+    ("md", r"""### Where did the large gradients come from?
+
+`train()` standardises the encoder's outputs by a centre and a spread of the raw parameters of
+the training systems (knowledge of the family's ranges, not of any label): a unit output of the
+network means one spread. Until commit 5c2684b these were the **mean and standard deviation**,
+and the first full run of this notebook measured what that does to the modal form: the 4th-order
+MCF's gradients reached a norm of **1.98·10¹⁰**, and **one seed in three never trained** (best
+held-out loss 70 clipped, 1,040 unclipped, against 8.8·10⁻⁴ for the CCF; median step error
+7.0·10⁻² against 5.8·10⁻³, mean 1.1). The modal residues of two real modes are heavy-tailed
+(above): in that seed's training set two real poles lay 3.5·10⁻⁶ /s apart, their residues were
+±10⁵, and the residue's standard deviation, 2.2·10⁵ against a median |c₀| of 7, became the scale
+of the network's output.
+
+`train()` now uses the **median and IQR / 1.349** (the standard deviation of a normal
+distribution; the standard deviation, then 1, only where the IQR vanishes), which ignore such a
+tail. Per seed, the 4th-order training sets, the standard deviation that was used before and the
+scale used now:"""),
     ("code", r"""spec = FAMILIES["4th order"]
 mcf4 = spec["structures"]["MCF"]
 for seed, ident in zip(SEEDS, runs["4th order", "MCF", "clip 1"], strict=True):
@@ -208,9 +221,11 @@ for seed, ident in zip(SEEDS, runs["4th order", "MCF", "clip 1"], strict=True):
     el = mcf4.elements_of(s.A, s.b, s.c, s.d).numpy()
     c0 = el[:, mcf4.element_names.index("c0")]
     gap = np.abs(el[:, 0] - el[:, 1]).min()
+    used = float(ident.theta_scale[mcf4.free_names.index("c0")])   # train()'s output scale
     summary = scorecard.training_summary(ident)
-    print(f"seed {seed}: residue c0 median |c0| {np.median(np.abs(c0)):.3g}, std {c0.std():.3g};"
-          f" closest real poles {gap:.1e} apart; max grad norm {summary['grad_norm_max']:.3g},"
+    print(f"seed {seed}: residue c0 median |c0| {np.median(np.abs(c0)):.3g}, std {c0.std():.3g},"
+          f" scale used {used:.3g}; closest real poles {gap:.1e} apart;"
+          f" max grad norm {summary['grad_norm_max']:.3g},"
           f" best held-out loss {summary['best_holdout']:.2e}")"""),
     ("md", r"""## Accuracy and guaranteed stability on fresh systems
 
@@ -284,48 +299,63 @@ plt.show()"""),
     ("md", r"""## Conclusion
 
 Measured in the full run above (3 seeds × 500 validation systems per row, identifiers trained
-noise-free, equal budgets: 4,000 records, 25 epochs).
+noise-free, equal budgets: 4,000 records, 25 epochs), with the robust output scaling.
 
-**Training stability.** With Descartes' constraint and the library's output standardisation the
-CCF showed none of the exploding gradients the paper reports: largest gradient norm 10–14, in
-the first epoch or two only (per-epoch medians 0.02–0.04 on the generic families), no skipped
-batch and no diverged run in 18 CCF runs, clipped or not. The MCF is the one whose gradients
-exploded: up to 2·10¹⁰ on the 4th-order family, where one seed in three never trained (best
-held-out loss 70 clipped, 1,040 unclipped, against 8.8·10⁻⁴ for the CCF). The cause is the
-scale, not the dynamics: a near-repeated pair of real poles in a training set (3.5·10⁻⁶ /s apart
-for seed 1) gives residues so large that their standard deviation is 2·10⁵ (median |c₀| ≈ 7),
-and that standard deviation is the scale `train()` gives the network's outputs. With one real
-pole (3rd order) the MCF trained without trouble (largest norm 30). On the leg no gradient
-reached the clip (largest 0.74), so clipped and unclipped runs are identical.
+**Training stability.** No run diverged and no batch was skipped in 36 runs. With Descartes'
+constraint the CCF showed none of the exploding gradients the paper reports: largest gradient
+norm 19–20 on the generic families, in the first epoch, about 1 or less from the third on
+(median norm 0.017–0.03), and 0.77 on the leg. The modal form's blow-up in this notebook's first
+run came from the library, not from the structure: the standard-deviation scaling of the outputs
+(above) gave the 4th-order MCF gradient norms up to 1.98·10¹⁰ and a seed that never trained.
+With the median/IQR scaling, on the same seeds and records, the scale of its residue c₀ is 11
+instead of 345–2.2·10⁵, the largest gradient norm 363 (clipped runs; 257 unclipped), and every
+seed trains (best held-out loss 2.2–2.8·10⁻³; seed 1's fell from 70 to 2.8·10⁻³). Its gradients
+are still the largest: 13–18× the CCF's in the first epoch, and the largest gradient of each
+epoch stays above the clip until about epoch 19 (median norm 2.8 in the clipped runs). The
+3rd-order MCF's largest norm fell too, from 30.5 to 8–10. On the leg no gradient reached the
+clip (largest 0.77 CCF, 0.43 MCF), so clipped and unclipped runs are identical.
 
-**Clipping** lowered the held-out loss wherever it acted: median best held-out loss 1.55·10⁻³ vs
-2.02·10⁻³ (3rd-order CCF), 8.8·10⁻⁴ vs 1.7·10⁻³ (4th-order CCF), 3.2·10⁻² vs 7.3·10⁻² (4th-order
-MCF).
+**Clipping** lowered the median best held-out loss wherever it acted: 1.63 vs 2.25·10⁻³
+(3rd-order CCF), 1.60 vs 1.98·10⁻³ (3rd-order MCF), 7.9·10⁻⁴ vs 1.65·10⁻³ (4th-order CCF),
+2.4 vs 5.8·10⁻³ (4th-order MCF), and the noise-free median step error in all four (most for the
+4th-order MCF: 9.3·10⁻³ vs 1.8·10⁻², 2×). On records with 5 % noise the effect is mixed: the
+CCFs within 3 %, the 4th-order MCF 8 % lower clipped, the 3rd-order MCF 14 % higher clipped.
 
-**Accuracy** (clipped, noise-free, median step error): 3rd order CCF 6.4·10⁻³, MCF 9.7·10⁻³; 4th
-order CCF 5.8·10⁻³, MCF 7.0·10⁻² (mean 1.1: the failed seed); stable leg CCF 9.2·10⁻⁴, MCF
-8.6·10⁻⁴, with the same k, d, m errors (0.08 / 0.74 / 2.2 % and 0.08 / 0.73 / 2.0 %; on records
-with 5 % noise 0.8 / 22 / 10 % and 0.6 / 21 / 11 %). The CCF's Bode magnitude errors of 4–14 dB
-on the generic families come from fast poles that a step response barely shows (pole map).
+**Accuracy** (clipped, noise-free, median step error): 3rd order CCF 6.2·10⁻³, MCF 7.9·10⁻³
+(1.3×; with 5 % noise 1.44 vs 2.25·10⁻², 1.6×); 4th order CCF 5.4·10⁻³, MCF 9.3·10⁻³ (1.7×;
+with 5 % noise 1.7 vs 3.0·10⁻², 1.8×). Before the fix the 4th-order MCF was 12× worse (7.0·10⁻²,
+mean 1.1); its mean is now 1.25·10⁻². Stable leg: CCF 8.9·10⁻⁴, MCF 8.1·10⁻⁴, with nearly the
+same k, d, m errors (noise-free 0.09 / 0.82 / 2.4 % and 0.08 / 0.71 / 2.2 %; with 5 % noise
+0.9 / 23 / 9.9 % and 1.0 / 21 / 11 %). On systems slower than any in training (decay 0.3–1 /s)
+the CCF extrapolates better: 2.0 vs 2.6·10⁻² (3rd order), 1.35 vs 5.6·10⁻² (4th order, 4×). The
+Bode magnitude errors of 4–13 dB on the generic families, for both structures (noise-free CCF
+4.6 / 11.7 dB, MCF 3.7 / 12.6 dB), come from fast poles that a step response barely shows (pole
+map).
 
 **Stability of the outputs.** Every MCF estimate is stable by construction (100,000 random
-outputs: largest real part −10⁻⁸). The CCF gave no unstable estimate among 24,000 (all families,
-seeds, noise levels and stress sets), but that is observed, not guaranteed: Descartes admits
-$s^3 + s^2 + s + 10$, and with 20 % noise the 3rd-order CCF estimates came within 0.048 /s of
-the imaginary axis, where the MCF's stayed left of −0.969 /s.
+outputs: largest real part −10⁻⁸), and all 24,000 were. The CCF's are not: with 20 % noise the
+3rd-order CCF gave 10 unstable estimates among 1,500 (99.3 % stable: complex pairs at 6–8 rad/s
+crossed the imaginary axis, largest real part +0.43 /s), and the 4th-order CCF came within
+0.003 /s of the axis, where the MCF's stayed left of −0.56 and −0.71 /s. Noise-free, with 5 %
+noise and on the slower systems no CCF estimate was unstable (10 of 24,000 in all): Descartes'
+constraint removes positive real poles only, as $s^3 + s^2 + s + 10$ shows.
 
 **Which to pick.**
-- *A complex pair or a single real pole (the stable leg, the 3rd-order family):* the **MCF**. On
-  the leg it is as accurate as the CCF, gives the same k, d, m through the CCF conversion, and
-  guarantees stability for free; on the 3rd-order family the guarantee costs 1.5× in median step
-  error.
-- *Several real poles that may lie close together (the 4th-order family):* the **CCF with
-  Descartes' constraint**, 12× more accurate in median step error and reliable to train; check
-  the estimates' poles (`Score.per_record["stable"]`, `max Re(pole)`) where stability matters.
-  The MCF needs `train()` to scale its outputs by a robust spread (median, interquartile range)
-  instead of the standard deviation before it can compete there.
-- Keep gradient clipping on (the default, 1): it lowered the held-out loss wherever it acted; on
-  noisy records the clipped and unclipped CCFs' median step errors differ by at most 6 %."""),
+- *A complex pair (the stable leg):* the **MCF**. As accurate as the CCF (median step error
+  8.1 vs 8.9·10⁻⁴), nearly the same k, d, m through the CCF conversion, smaller gradients, and
+  stability for free.
+- *Real poles beside a pair (the 3rd- and 4th-order families) when the estimates must be stable
+  (noisy records, models that go on into a controller or a simulation):* the **MCF**, now that
+  it trains reliably with the robust scaling. The guarantee costs 1.3–1.8× in median step error,
+  and up to 4× on systems slower than the training family; keep the clip on for it, its
+  gradients are the largest.
+- *The same families when accuracy matters most and the records are clean:* the **CCF with
+  Descartes' constraint**, 1.3–1.7× more accurate, better at extrapolating and the easiest to
+  train; check its estimates' poles (`Score.per_record["stable"]`, `max Re(pole)`), since on very
+  noisy records it did return unstable models.
+- Keep gradient clipping on (the default, 1): it lowered the best held-out loss in every run
+  where it acted and the noise-free step error in all of them; with 5 % noise it moved the median
+  step error by −8 % to +14 %."""),
     ("code", r"""print(f"notebook ran in {time.perf_counter() - START:.0f} s "
       f"({'fast' if FAST else 'full'} mode)")"""),
 ]
