@@ -322,7 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--seconds", type=float, default=None)
     tr.add_argument("--batch", type=int, default=128)
     tr.add_argument("--lr", type=float, default=3e-3)
-    tr.add_argument("--gamma", type=float, default=1.0)
+    tr.add_argument("--gamma", type=float, default=None,
+                    help="weight of Eq. 14's stationary-value term (default: 1 for steps, else 0)")
     tr.add_argument("--noise", type=float, nargs="+", default=[0.0],
                     help="a level, or LO HI drawn per record (std relative to max|y|)")
     tr.add_argument("--excitation", default="step")

@@ -73,7 +73,11 @@ class TrainConfig:
         epochs: at most this many epochs; ``seconds``: at most this much wall time (None = no
             limit).
         batch: records per gradient step; lr: peak learning rate; clip: gradient-norm limit.
-        gamma: weight of the stationary-value term of Eq. 14.
+        gamma: weight of the stationary-value term of Eq. 14; None (default): 1 for step
+            records (the paper), 0 for other excitations. Why: the term compares DC gains in
+            units of the record's ``y_bar``, and for a PRBS or a multisine, whose response stays
+            far below the DC gain, it swamps the record's own error (measured on a first-order
+            family with mixed excitations: held-out loss 0.81 with gamma = 1, 0.19 with 0).
         noise: measurement noise level, or a (lo, hi) range drawn per record and epoch.
         excitation: input kind (data.EXCITATIONS); "step" is the paper's.
         seed: seeds the data, the initial weights and the shuffling.
@@ -95,7 +99,7 @@ class TrainConfig:
     batch: int = 256
     lr: float = 3e-3
     clip: float = 1.0
-    gamma: float = 1.0
+    gamma: float | None = None
     noise: float | tuple[float, float] = 0.0
     excitation: str = "step"
     seed: int = 0
@@ -136,8 +140,8 @@ class TrainConfig:
         for name in ("lr", "clip"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive; got {getattr(self, name)!r}")
-        if not self.gamma >= 0:
-            raise ValueError(f"gamma must be >= 0; got {self.gamma!r}")
+        if self.gamma is not None and not self.gamma >= 0:
+            raise ValueError(f"gamma must be >= 0 or None; got {self.gamma!r}")
         lo, hi = (self.noise, self.noise) if np.ndim(self.noise) == 0 else tuple(self.noise)
         if not (0 <= lo <= hi):
             raise ValueError(f"noise must be a level >= 0 or a (lo, hi) range; got {self.noise!r}")
@@ -150,6 +154,13 @@ class TrainConfig:
         if self.warmup and self.initial == "rest":
             raise ValueError("records that start mid-motion (warmup > 0) need initial='fitted': "
                              "a decoder from rest cannot explain their free response")
+
+    @property
+    def stationary_weight(self) -> float:
+        """``gamma`` as used: given, or 1 for step records and 0 otherwise."""
+        if self.gamma is not None:
+            return float(self.gamma)
+        return 1.0 if self.excitation == "step" else 0.0
 
     @property
     def grids(self) -> tuple[tuple[int, float], ...]:
@@ -314,6 +325,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
         for r in range(R)], 1), dtype=dtype)                                  # (count, R)
     scale_all = torch.tensor(y_bar, dtype=dtype)
     noise_lo, noise_hi = config.noise_range
+    gamma = config.stationary_weight
 
     def batch(idx: torch.Tensor, ys: list[torch.Tensor]):
         """``(y, u, yinf)`` of the records ``idx`` as the loss takes them (tensors for one
@@ -352,7 +364,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
                     level = (noise_lo + noise_hi) / 2
                     ys = [y + (level * scale_all[idx, r])[:, None] * torch.randn(
                         y.shape, generator=held_noise_gen) for r, y in enumerate(ys)]
-                total += float(_batch_loss(ident, *batch(idx, ys), config.gamma)) * len(idx)
+                total += float(_batch_loss(ident, *batch(idx, ys), gamma)) * len(idx)
         ident.encoder.train()
         return total / len(held_t)
 
@@ -376,7 +388,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
             for group in opt.param_groups:
                 group["lr"] = lr
             idx = perm[j * config.batch: (j + 1) * config.batch]
-            loss = _batch_loss(ident, *noisy(idx), config.gamma)
+            loss = _batch_loss(ident, *noisy(idx), gamma)
             opt.zero_grad(set_to_none=True)
             value = float(loss.detach())
             if not math.isfinite(value):

@@ -209,3 +209,11 @@ def test_windows_mid_motion_train_with_a_fitted_initial_state():
                                                       x0=est.x0), rtol=1e-12)
     with pytest.raises(ValueError, match=r"need initial='fitted'"):
         _config(warmup=5)
+
+
+def test_stationary_weight_defaults_to_the_paper_for_steps_only():
+    assert _config().stationary_weight == 1.0
+    assert _config(excitation="mix").stationary_weight == 0.0
+    assert _config(excitation="mix", gamma=0.5).stationary_weight == 0.5
+    with pytest.raises(ValueError, match=r"gamma must be >= 0 or None; got -1"):
+        _config(gamma=-1)
