@@ -1,0 +1,219 @@
+"""Online identification: a sliding-window tracker over a stream of (u, y) samples.
+
+The paper's purpose is to identify a system during use, e.g. to follow the wear of a robot leg.
+:class:`Tracker` keeps the last ``steps`` samples of a stream (the identifier's record format),
+identifies every ``hop`` samples the window that just ended in one encoder pass, smooths the
+physical-parameter estimates and raises a change alarm when they drift.
+
+Initial state. A window cut from a running system does not start from rest. The identifier must
+therefore be one trained on such windows: ``TrainConfig(warmup=..., initial="fitted")``, whose
+decoder fits the window's initial state by linear least squares (``decoder.initial_state``), so
+that the encoder only has to output the structure's parameters. The tracker never needs the
+state itself (its estimates' ``x0`` is there when asked for).
+
+Smoothing and alarm. Each parameter ``p`` is smoothed by an exponential moving average,
+``s_j = s_{j-1} + alpha (p_j - s_{j-1})`` (``alpha = TrackerConfig.smoothing``). The reference
+is the mean of the first ``baseline`` smoothed values; the alarm is raised once
+``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive windows for any
+parameter, and stays raised (a change alarm, not a level indicator) until :meth:`Tracker.reset`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrackerConfig:
+    """How the tracker windows, smooths and alarms; validates itself.
+
+    Attributes:
+        hop: samples between two identifications (window starts), >= 1.
+        smoothing: the moving-average weight ``alpha`` in (0, 1] (1 = no smoothing).
+        threshold: relative drift of a smoothed parameter from its reference that alarms.
+        baseline: windows whose smoothed estimates are averaged into the reference.
+        patience: consecutive windows over the threshold before the alarm is raised.
+        parameters: the physical parameters to smooth and watch (empty: all the estimate has).
+    """
+
+    hop: int = 50
+    smoothing: float = 0.2
+    threshold: float = 0.05
+    baseline: int = 10
+    patience: int = 3
+    parameters: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("hop", "baseline", "patience"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name} must be a positive integer; got {v!r}")
+        if not (isinstance(self.smoothing, (int, float)) and 0 < self.smoothing <= 1):
+            raise ValueError(f"smoothing must be in (0, 1]; got {self.smoothing!r}")
+        if not (isinstance(self.threshold, (int, float)) and self.threshold > 0):
+            raise ValueError(f"threshold must be positive; got {self.threshold!r}")
+        object.__setattr__(self, "parameters", tuple(self.parameters))
+
+
+@dataclass(frozen=True)
+class Update:
+    """One identified window.
+
+    Attributes:
+        t: time of the window's last sample, s (stream time, ``k dt``).
+        estimate: the physical parameters of this window alone, name -> value.
+        smoothed: their moving averages.
+        drift: ``smoothed / reference - 1`` per parameter (nan until the reference exists).
+        alarm: whether the change alarm is raised (it stays raised).
+        seconds: wall time of the identification.
+    """
+
+    t: float
+    estimate: dict[str, float]
+    smoothed: dict[str, float]
+    drift: dict[str, float]
+    alarm: bool
+    seconds: float
+
+
+@dataclass
+class _State:
+    u: np.ndarray
+    y: np.ndarray
+    filled: int = 0
+    since: int = 0
+    samples: int = 0
+    smoothed: dict = field(default_factory=dict)
+    history: list = field(default_factory=list)
+    reference: dict | None = None
+    over: int = 0
+    alarm: bool = False
+
+
+class Tracker:
+    """Sliding-window identification of a stream (module docstring).
+
+    Args:
+        identifier: an ``Identifier`` whose estimates have physical parameters (a physical
+            structure, or a canonical one with a CasADi inverse), trained on windows that start
+            mid-motion (``initial="fitted"``) and, for arbitrary inputs, reading ``u``.
+        config: a :class:`TrackerConfig`.
+    """
+
+    def __init__(self, identifier, config: TrackerConfig = TrackerConfig()) -> None:  # noqa: B008
+        if not isinstance(config, TrackerConfig):
+            raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
+        for attr in ("identify", "steps", "dt", "initial", "records"):
+            if not hasattr(identifier, attr):
+                raise ValueError(f"identifier must be an Identifier; got "
+                                 f"{type(identifier).__name__}")
+        if identifier.records != 1:
+            raise ValueError("identifier must read one record per window; got one of "
+                             f"{identifier.records} records")
+        if identifier.initial != "fitted":
+            raise ValueError("identifier must be trained on windows that start mid-motion "
+                             "(TrainConfig(warmup=..., initial='fitted')); this one assumes "
+                             "records from rest")
+        self.identifier, self.config = identifier, config
+        self.steps, self.dt = identifier.steps, identifier.dt
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the stream, the smoothing, the reference and the alarm."""
+        self._s = _State(np.zeros(self.steps), np.zeros(self.steps))
+
+    def push(self, u, y) -> list[Update]:
+        """Feed samples ``u, y (k,)`` (any number, in stream order); returns the updates of the
+        windows completed by them (one per ``hop`` samples once the first window is full)."""
+        u = np.atleast_1d(np.asarray(u, dtype=np.float64))
+        y = np.atleast_1d(np.asarray(y, dtype=np.float64))
+        if u.ndim != 1 or u.shape != y.shape:
+            raise ValueError(f"u and y must be 1-D sample arrays of one length; got shapes "
+                             f"{u.shape} and {y.shape}")
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+            raise ValueError("u and y must be finite")
+        s, steps, hop = self._s, self.steps, self.config.hop
+        updates = []
+        i = 0
+        while i < len(u):
+            # copy up to the next identification point into the ring (kept in order: shift)
+            need = steps - s.filled if s.filled < steps else hop - s.since
+            take = min(need, len(u) - i)
+            s.u = np.concatenate([s.u[take:], u[i: i + take]])
+            s.y = np.concatenate([s.y[take:], y[i: i + take]])
+            s.samples += take
+            i += take
+            if s.filled < steps:
+                s.filled += take
+                if s.filled == steps:
+                    updates.append(self._identify())
+            else:
+                s.since += take
+                if s.since == hop:
+                    s.since = 0
+                    updates.append(self._identify())
+        return updates
+
+    def _identify(self) -> Update:
+        s, cfg = self._s, self.config
+        est = self.identifier.identify(s.y, s.u)
+        values = {k: float(v) for k, v in est.physical.items()
+                  if not cfg.parameters or k in cfg.parameters}
+        if not values:
+            raise ValueError("identifier must give physical parameters (a physical structure, or "
+                             "an inverse map); its estimates have none"
+                             + (f" named {cfg.parameters}" if cfg.parameters else ""))
+        for k, v in values.items():
+            prev = s.smoothed.get(k)
+            s.smoothed[k] = v if prev is None or not math.isfinite(prev) \
+                else prev + cfg.smoothing * (v - prev)
+        s.history.append(dict(s.smoothed))
+        drift = {k: math.nan for k in values}
+        if s.reference is None and len(s.history) >= cfg.baseline:
+            s.reference = {k: float(np.mean([h[k] for h in s.history[: cfg.baseline]]))
+                           for k in values}
+        if s.reference is not None:
+            drift = {k: s.smoothed[k] / s.reference[k] - 1.0 for k in values}
+            s.over = s.over + 1 if any(abs(v) > cfg.threshold for v in drift.values()) else 0
+            s.alarm = s.alarm or s.over >= cfg.patience
+        return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
+                      est.seconds)
+
+
+def wearing_leg(k, d, m, u, dt: float) -> np.ndarray:
+    """The translational leg subsystem with slowly varying parameters: the response ``y (N,)``
+    to ``u (N,)`` from rest, for ``k, d, m (N,)`` given per sample.
+
+    Simulated in the physical state (position, velocity) ``m x'' + d x' + k x = u``, ``y = x``,
+    which stays continuous when the parameters change (a CCF state would not: its output row is
+    ``1/m``). On each sample interval the parameters are held at their value at its start and
+    the input is first-order-hold, discretised exactly (Eq. 10). For constant parameters this
+    is ``G1 = (1/m) / (s^2 + (d/m) s + k/m)`` from rest, as ``simulate`` gives it.
+    """
+    import torch
+
+    from .decoder import _discretise
+
+    k, d, m, u = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (k, d, m, u))
+    N = u.shape[0]
+    if not (k.shape == d.shape == m.shape == (N,)):
+        raise ValueError(f"k, d, m must have one value per sample of u ({N}); got "
+                         f"{k.shape}, {d.shape}, {m.shape}")
+    if np.any(k <= 0) or np.any(m <= 0) or np.any(d < 0):
+        raise ValueError("k, m must be positive and d non-negative")
+    A = np.zeros((N, 2, 2))
+    A[:, 0, 1] = 1.0
+    A[:, 1, 0] = -k / m
+    A[:, 1, 1] = -d / m
+    b = np.stack([np.zeros(N), 1.0 / m], axis=1)
+    Phi, g1, g2 = (t.numpy() for t in _discretise(torch.from_numpy(A), torch.from_numpy(b), dt))
+    x = np.zeros(2)
+    y = np.empty(N)
+    du = np.diff(u, append=u[-1])
+    for i in range(N):
+        y[i] = x[0]
+        x = Phi[i] @ x + g1[i] * u[i] + g2[i] * du[i]
+    return y

@@ -1,0 +1,102 @@
+"""The sliding-window tracker: windows, hop, smoothing and alarm against closed forms, on a stub
+identifier whose estimate is known exactly; the wearing leg against the decoder."""
+
+import math
+
+import numpy as np
+import pytest
+
+import aeid_struct as ae
+from aeid_struct.online import Tracker, TrackerConfig, wearing_leg
+
+
+class _Stub:
+    """An identifier's interface; its estimate of k is the mean of the window's last samples of
+    ``y`` (the test streams the true k as y), so every update's value is known in advance."""
+
+    steps, dt, initial, records = 20, 0.01, "fitted", 1
+
+    def __init__(self):
+        self.windows = []
+
+    def identify(self, y, u):
+        self.windows.append((np.array(u), np.array(y)))
+
+        class _Est:
+            physical = {"k": float(np.mean(y[-5:])), "m": 1.0}
+            seconds = 1e-4
+
+        return _Est()
+
+
+def test_windows_come_every_hop_in_stream_order_whatever_the_chunking():
+    stub = _Stub()
+    tracker = Tracker(stub, TrackerConfig(hop=7, baseline=2))
+    stream = np.arange(60.0)
+    updates = []
+    for chunk in np.array_split(stream, [3, 4, 25, 26, 41]):     # uneven chunks, one empty
+        updates += tracker.push(chunk, chunk)
+    # first window when 20 samples are in, then one per 7 samples: ends at 19, 26, .., 54
+    ends = [19, 26, 33, 40, 47, 54]
+    assert [round(up.t / 0.01) for up in updates] == ends
+    for (u, y), end in zip(stub.windows, ends, strict=True):
+        np.testing.assert_array_equal(y, stream[end - 19: end + 1])
+        np.testing.assert_array_equal(u, y)
+
+
+def test_smoothing_reference_and_alarm_follow_their_definitions():
+    stub = _Stub()
+    cfg = TrackerConfig(hop=20, smoothing=0.5, threshold=0.1, baseline=2, patience=2,
+                        parameters=("k",))
+    tracker = Tracker(stub, cfg)
+    # k = 25 for 4 windows, then it drops to 20 (a 20 % fall)
+    k = np.concatenate([np.full(80, 25.0), np.full(120, 20.0)])
+    updates = tracker.push(np.ones_like(k), k)
+    raw = [up.estimate["k"] for up in updates]
+    assert raw == [25.0] * 4 + [20.0] * 6
+    s, smoothed = None, []
+    for v in raw:
+        s = v if s is None else s + 0.5 * (v - s)
+        smoothed.append(s)
+    assert [up.smoothed["k"] for up in updates] == pytest.approx(smoothed)
+    assert set(updates[0].estimate) == {"k"}                        # only the watched parameter
+    assert math.isnan(updates[0].drift["k"])                        # no reference yet
+    drift = [sm / 25.0 - 1 for sm in smoothed]
+    assert [up.drift["k"] for up in updates[1:]] == pytest.approx(drift[1:])
+    # over the threshold from the window where the drift first exceeds 10 %, alarm one later
+    first = next(i for i, v in enumerate(drift) if abs(v) > 0.1)
+    alarms = [up.alarm for up in updates]
+    assert alarms == [False] * (first + 1) + [True] * (len(updates) - first - 1)
+    tracker.reset()
+    assert not tracker.push(np.ones(20), np.full(20, 25.0))[0].alarm
+
+
+def test_tracker_refuses_identifiers_from_rest_and_bad_samples():
+    ident = ae.load_pretrained("leg-stable")
+    with pytest.raises(ValueError, match=r"identifier must be trained on windows that start "
+                                         r"mid-motion"):
+        Tracker(ident)
+    tracker = Tracker(_Stub())
+    with pytest.raises(ValueError, match=r"u and y must be 1-D sample arrays of one length"):
+        tracker.push(np.ones(3), np.ones(4))
+    with pytest.raises(ValueError, match=r"u and y must be finite"):
+        tracker.push(np.ones(3), np.array([1.0, np.nan, 1.0]))
+    with pytest.raises(ValueError, match=r"smoothing must be in \(0, 1\]; got 0"):
+        TrackerConfig(smoothing=0)
+
+
+def test_wearing_leg_is_the_decoder_for_constant_parameters_and_continuous_when_they_change():
+    N, dt = 400, 0.01
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.choice([-1.0, 1.0], size=N // 10), 10)
+    y = wearing_leg(np.full(N, 24.23), np.full(N, 2.24), np.full(N, 1.01), u, dt)
+    s = ae.LegFamily(subsystem="stable").systems(24.23, 2.24, 1.01)
+    ref = ae.simulate(s.A[0], s.b[0], s.c[0], 0.0, u, dt)
+    assert np.abs(y - ref).max() < 1e-12 * np.abs(ref).max()
+    # a step in k halfway: the response is the constant-k response up to the change
+    k = np.where(np.arange(N) < 200, 25.0, 20.0)
+    y2 = wearing_leg(k, np.full(N, 2.24), np.full(N, 1.01), u, dt)
+    s25 = ae.LegFamily(subsystem="stable").systems(25.0, 2.24, 1.01)
+    ref25 = ae.simulate(s25.A[0], s25.b[0], s25.c[0], 0.0, u, dt)
+    np.testing.assert_allclose(y2[:201], ref25[:201], rtol=1e-10, atol=1e-14)
+    assert np.abs(y2[260:] - ref25[260:]).max() > 1e-3 * np.abs(ref25).max()
