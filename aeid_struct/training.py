@@ -85,6 +85,11 @@ class TrainConfig:
             mid-motion, as windows of a running system do); 0 = from rest (the paper).
         initial: the decoder's initial state: ``"rest"`` (zero, the paper) or ``"fitted"``
             (least squares per record, ``decoder.initial_state``), needed when ``warmup > 0``.
+        fresh: draw new training systems, excitations and initial states every epoch (the
+            held-out records stay fixed). Why: an identifier of arbitrary inputs overfits a
+            fixed set -- measured on the stable leg's mid-motion windows with mixed excitation,
+            8,000 fixed records gave a training loss of 0.018 against 0.062 held out -- and the
+            exact simulator makes new records cheap.
         checkpoint: file to checkpoint to and resume from (None = no checkpoints).
         progress: print a progress line (to stderr).
         threads: torch threads (None = leave torch's setting).
@@ -105,6 +110,7 @@ class TrainConfig:
     seed: int = 0
     warmup: int = 0
     initial: str = "rest"
+    fresh: bool = False
     checkpoint: str | None = None
     progress: bool = True
     threads: int | None = None
@@ -378,6 +384,8 @@ def train(structure: Structure, family, config: TrainConfig, *,
         elapsed = time.perf_counter() - start
         if config.seconds is not None and elapsed >= config.seconds:
             break
+        if config.fresh and epoch > 0:
+            _redraw(family, config, epoch, train_idx, u_all, y_all, yinf_all, scale_all)
         perm = train_t[torch.randperm(len(train_t), generator=generator)]
         running, skipped, norms = 0.0, 0, []
         for j in range(steps_per_epoch):
@@ -435,6 +443,26 @@ def train(structure: Structure, family, config: TrainConfig, *,
         "encoder": enc_config.to_dict(),
     }
     return ident
+
+
+def _redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_all,
+            yinf_all, scale_all) -> None:
+    """New training records for ``epoch`` (``TrainConfig.fresh``): the rows ``rows`` of the
+    record tensors are replaced in place by records drawn with a seed of their own, so that a
+    resumed run draws the same ones."""
+    rec = records(family, len(rows), steps=config.steps, dt=config.dt,
+                  excitation_kind=config.excitation, seed=config.seed + 7919 * epoch,
+                  warmup=config.warmup)
+    multi = isinstance(rec.u, tuple)
+    ys, us = (rec.y_clean, rec.u) if multi else ((rec.y_clean,), (rec.u,))
+    index = torch.as_tensor(rows)
+    for r, (y, u) in enumerate(zip(ys, us, strict=True)):
+        y_all[r][index] = torch.as_tensor(y, dtype=y_all[r].dtype)
+        u_all[r][index] = torch.as_tensor(u, dtype=u_all[r].dtype)
+        scale_all[index, r] = torch.as_tensor(np.max(np.abs(y), axis=1), dtype=scale_all.dtype)
+        s = rec.systems.record(r)
+        yinf_all[index, r] = torch.as_tensor(stationary_value(s.A, s.b, s.c, s.d),
+                                             dtype=yinf_all.dtype)
 
 
 def _c_free(structure: Structure) -> bool:
