@@ -1,0 +1,83 @@
+"""TorchScript export: the file alone identifies a record like the Identifier, to float32
+precision, with neither aeid_struct nor CasADi importable."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+import aeid_struct as ae
+from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.export import to_torchscript
+from aeid_struct.identify import Identifier
+from symbolic import leg
+
+
+def _identifier(structure, inputs):
+    torch.manual_seed(0)
+    enc = Encoder(EncoderConfig(steps=60, outputs=structure.p, inputs=inputs, width=4, pool=2,
+                                dense=(8,)))
+    return Identifier(enc.eval(), structure, dt=0.05, theta_mean=torch.zeros(structure.p),
+                      theta_scale=torch.full((structure.p,), 0.3))
+
+
+@pytest.mark.parametrize("structure, inputs", [
+    (ae.CCF(2, descartes=True), False),
+    (ae.CCF(2).fixed(a1=0.0), True),
+    (ae.MCF(real=1, pairs=1), True),
+])
+def test_exported_module_identifies_like_the_identifier(tmp_path, structure, inputs):
+    ident = _identifier(structure, inputs)
+    path = to_torchscript(ident, tmp_path / "ident.pt")
+    module = torch.jit.load(str(path))
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        y = np.cumsum(rng.uniform(0.1, 1.0, 60)) * rng.uniform(0.5, 5)
+        u = rng.uniform(0.5, 1.5, 60) if inputs else np.ones(60)
+        est = ident.identify(y, u if inputs else None)
+        A, b, c, d, el = (t.numpy() for t in module(torch.tensor(y, dtype=torch.float32),
+                                                     torch.tensor(u, dtype=torch.float32)))
+        for got, want in ((A, est.A), (b, est.b), (c, est.c), (d, est.d)):
+            np.testing.assert_allclose(got, want, rtol=2e-6, atol=2e-6 * np.abs(want).max())
+        np.testing.assert_allclose(el, [est.elements[k] for k in structure.element_names],
+                                   rtol=2e-6, atol=1e-6)
+
+
+def test_exported_file_needs_neither_aeid_struct_nor_casadi(tmp_path):
+    ident = ae.load_pretrained("leg-stable")
+    path = to_torchscript(ident, tmp_path / "leg.pt")
+    s = ae.LegFamily(subsystem="stable").systems(24.23, 2.24, 1.01)
+    y = ae.simulate(s.A[0], s.b[0], s.c[0], 0.0, np.ones(300), 0.01)
+    np.save(tmp_path / "y.npy", y.astype(np.float32))
+    script = (
+        "import sys\n"
+        "sys.modules['aeid_struct'] = None; sys.modules['casadi'] = None; "
+        "sys.modules['symbolic'] = None\n"
+        "import numpy as np, torch\n"
+        f"m = torch.jit.load({str(path)!r})\n"
+        f"y = torch.from_numpy(np.load({str(tmp_path / 'y.npy')!r}))\n"
+        "A, b, c, d, el = m(y, torch.ones(300))\n"
+        "print(' '.join(repr(float(v)) for v in el))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True, cwd=tmp_path).stdout.split()
+    est = ident.identify(y)
+    a0, a1, c0 = (float(v) for v in out[:3])
+    assert a0 == pytest.approx(est.elements["a0"], rel=1e-5)
+    assert a1 == pytest.approx(est.elements["a1"], rel=1e-5)
+    assert c0 == pytest.approx(est.elements["c0"], rel=1e-5)
+    # and it identifies the leg: k = a0 / c0 within the shipped identifier's accuracy
+    assert a0 / c0 == pytest.approx(24.23, rel=1e-3)
+
+
+def test_export_refuses_what_torchscript_cannot_hold(tmp_path):
+    phys = ae.Physical(leg.stable_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)})
+    enc = Encoder(EncoderConfig(steps=60, outputs=3, features=1, width=4, dense=(8,)))
+    ident = Identifier(enc, phys, dt=0.05, theta_mean=torch.zeros(3), theta_scale=torch.ones(3),
+                       scale="feature")
+    with pytest.raises(ValueError, match=r"ident's structure is Physical"):
+        to_torchscript(ident, tmp_path / "x.pt")
+    with pytest.raises(ValueError, match=r"ident must be an Identifier"):
+        to_torchscript("leg-stable", tmp_path / "x.pt")
