@@ -49,6 +49,10 @@ from .structures import Structure, System
 
 FORMAT = "aeid-struct/identifier/1"
 SCALE_MODES = ("denormalise", "feature")
+#: Margins of ``Estimate.outside``: a fraction of each element's training span, on each side,
+#: and fit points (NRMSE %) below the held-out 1st percentile.
+RANGE_MARGIN = 0.05
+FIT_MARGIN = 5.0
 #: How the decoder treats a record's initial state: from rest (the paper), or fitted by least
 #: squares (records that start mid-motion; ``decoder.initial_state``).
 INITIAL_STATES = ("rest", "fitted")
@@ -73,6 +77,8 @@ class Estimate:
             ``refine(estimate, y, u, dt)`` needs no further argument.
         initial: ``"rest"`` (the record starts from rest) or ``"fitted"`` (it starts
             mid-motion: ``x0`` is the least-squares initial state and ``y_hat`` starts there).
+        training_range: the identifier's training range (``Identifier.training_range``), or
+            None where unknown; see ``outside``.
 
     ``fit``, ``y_hat`` and ``physical`` are computed on first access, so that a plain
     identification costs one encoder pass.
@@ -92,6 +98,7 @@ class Estimate:
     _inverse: object = field(default=None, repr=False)
     structure: object = field(default=None, repr=False)
     initial: str = "rest"
+    training_range: dict | None = field(default=None, repr=False)
 
     @property
     def records(self) -> int:
@@ -115,6 +122,46 @@ class Estimate:
                               self.d[..., r], self.u[r], self.dt[r],
                               x0=None if x0 is None else x0[r])
                      for r in range(self.records))
+
+    @cached_property
+    def outside(self):
+        """Whether the estimate lies outside the identifier's training range: some free element,
+        or physical parameter, beyond its range over the training family by more than its
+        margin. A bool, or ``(batch,)``; None when the identifier carries no training range.
+
+        The margin of each quantity is ``max(RANGE_MARGIN * span, 3 * err)``: ``err`` is the
+        90th percentile of the identifier's own error on held-out records of its family at its
+        largest training noise, measured at the end of training. So a quantity the records
+        determine poorly (k and m of the leg's unstable subsystem) needs a large departure to
+        flag, and none flags on estimation noise alone. Quantities the family holds constant
+        (the leg's c1 = 0) are not compared.
+
+        And the decoded response: a fit (``fit``, NRMSE %) more than ``FIT_MARGIN`` points below
+        the 1st percentile of the identifier's held-out fits at its largest training noise
+        flags too -- a record noisier than any the identifier was trained on, or one whose
+        system the encoder cannot reach and saturates on.
+
+        Why both: an encoder that extrapolates decodes a record from beyond the range well (its
+        residual says nothing) while its parameters land outside the range; one that saturates
+        keeps the parameters inside and misfits. Physical parameters (through an inverse map)
+        are compared too: the bounding box of the elements is much larger than the image of the
+        parameter box.
+        """
+        rng = self.training_range
+        if not rng:
+            return None
+        values = {**self.elements, **(self.physical or {})}
+        flags = np.zeros(np.shape(np.asarray(next(iter(self.elements.values())))), dtype=bool)
+        if "fit" in rng:
+            flags |= np.asarray(self.fit) < rng["fit"] - FIT_MARGIN
+        for group in ("elements", "physical"):
+            for name, (lo, hi, err) in rng.get(group, {}).items():
+                if name not in values or not hi - lo > 1e-8 * max(abs(lo), abs(hi), 1e-300):
+                    continue
+                pad = max(RANGE_MARGIN * (hi - lo), 3.0 * err)
+                value = np.asarray(values[name], dtype=np.float64)
+                flags |= (value < lo - pad) | (value > hi + pad) | ~np.isfinite(value)
+        return flags if self.batched else bool(flags)
 
     @cached_property
     def x0(self):
@@ -380,6 +427,19 @@ class Identifier:
         return self.encoder.config.records
 
     @property
+    def training_range(self) -> dict | None:
+        """``{"elements": {name: (lo, hi, err)}, "physical": {name: (lo, hi, err)}, "fit": f}``:
+        each free element's and physical parameter's range over the training family and the
+        identifier's 90th-percentile held-out error on it, and the 1st percentile of its
+        held-out fits (recorded by ``train``; see ``Estimate.outside``), or None for an
+        identifier without it."""
+        rng = self.meta.get("training_range")
+        if not rng:
+            return None
+        return {g: ({k: tuple(v) for k, v in rng[g].items()} if isinstance(rng[g], dict)
+                    else rng[g]) for g in rng}
+
+    @property
     def inputs(self) -> bool:
         """Whether the encoder reads the input record (arbitrary excitation)."""
         return self.encoder.config.inputs
@@ -612,7 +672,8 @@ class Identifier:
             y_out, u_out = tuple(v[0] for v in ys), tuple(v[0] for v in us)
         return Estimate(A, b, c, d, elements, y_out, u_out, self._dts,
                         time.perf_counter() - start, False, {}, self._physical_source(),
-                        structure=self.structure, initial=self.initial)
+                        structure=self.structure, initial=self.initial,
+                        training_range=self.training_range)
 
     def _estimate(self, A, b, c, d, el, y2, u2, batched, start, refine) -> Estimate:
         """Wrap float64 arrays ``A (count, n, n)``, ..., ``el (count, q)`` as an Estimate."""
@@ -622,13 +683,14 @@ class Identifier:
             elements = {name: el[:, i] for i, name in enumerate(self.structure.element_names)}
             est = Estimate(A, b, c, d, elements, y2, np.asarray(u2), self.dt,
                            time.perf_counter() - start, False, {}, self._physical_source(),
-                           structure=self.structure, initial=self.initial)
+                           structure=self.structure, initial=self.initial,
+                           training_range=self.training_range)
         else:
             elements = dict(zip(self.structure.element_names, el[0].tolist(), strict=True))
             est = Estimate(A[0], b[0], c[0], float(d[0]), elements, y2[0], np.asarray(u2)[0],
                            self.dt, time.perf_counter() - start, False, {},
                            self._physical_source(), structure=self.structure,
-                           initial=self.initial)
+                           initial=self.initial, training_range=self.training_range)
         if refine:
             from .refine import refine as _refine
 

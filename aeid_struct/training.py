@@ -442,7 +442,38 @@ def train(structure: Structure, family, config: TrainConfig, *,
         "best_holdout_loss": state["best"], "config": _config_dict(config),
         "encoder": enc_config.to_dict(),
     }
+    if R == 1:
+        ident.meta["training_range"] = _training_range(ident, rec, held_idx, noise_hi,
+                                                       config.seed + 4)
     return ident
+
+
+def _training_range(ident: Identifier, rec, held: np.ndarray, noise: float,
+                    seed: int) -> dict:
+    """What ``Estimate.outside`` compares with: per free element and physical parameter, its
+    ``[lo, hi]`` over the training family and the identifier's 90th-percentile absolute error on
+    the held-out records at the largest training noise (one record per system); and ``fit``, the
+    1st percentile of the NRMSE fit (%) on those records."""
+    systems = rec.systems
+    X = ident.structure.elements_of(systems.A, systems.b, systems.c, systems.d).numpy()
+    rng = np.random.default_rng(seed)
+    y = rec.y_clean[held]
+    y = y + noise * np.abs(y).max(axis=1, keepdims=True) * rng.normal(size=y.shape)
+    est = ident.identify(y, rec.u[held])
+    out: dict[str, dict] = {"elements": {}, "physical": {}}
+    for i, name in enumerate(ident.structure.element_names):
+        if name in ident.structure.free_names:
+            err = np.abs(np.asarray(est.elements[name]) - X[held, i])
+            out["elements"][name] = [float(X[:, i].min()), float(X[:, i].max()),
+                                     float(np.nanpercentile(err, 90))]
+    out["fit"] = float(np.nanpercentile(est.fit, 1))
+    for name, value in (est.physical or {}).items():
+        if name in systems.params:
+            truth = systems.params[name]
+            err = np.abs(np.asarray(value) - truth[held])
+            out["physical"][name] = [float(truth.min()), float(truth.max()),
+                                     float(np.nanpercentile(err, 90))]
+    return out
 
 
 def _redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_all,

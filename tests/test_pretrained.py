@@ -70,3 +70,13 @@ def test_batch_matches_single_and_unknown_name():
     with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-stable-noisy', "
                                          r"'leg-unstable', 'leg-unstable-noisy'\]; got"):
         ae.load_pretrained("leg-middle")
+
+
+def test_shipped_identifiers_flag_legs_outside_their_training_range():
+    ident = ae.load_pretrained("leg-stable")
+    fam = ae.LegFamily(subsystem="stable")
+    legs = fam.systems(k=[24.23, 32.5, 22.0], d=[2.24, 3.0, 6.5], m=[1.01, 1.0, 1.0])
+    y = ae.simulate(legs.A, legs.b, legs.c, legs.d, np.ones(300), 0.01)
+    # the paper's scenario is inside; k 30 % above and d 30 % above the ranges are not
+    assert ident.identify(y).outside.tolist() == [False, True, True]
+    assert set(ident.training_range) == {"elements", "physical", "fit"}

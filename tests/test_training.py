@@ -238,3 +238,20 @@ def test_fresh_records_every_epoch_are_new_and_reproducible(monkeypatch):
     for (k, va), vb in zip(a.encoder.state_dict().items(), b.encoder.state_dict().values(),
                            strict=True):
         assert torch.equal(va, vb), k                    # seeded draws: the same run twice
+
+
+def test_training_records_its_range_and_estimates_outside_it_are_flagged():
+    ident = train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL)
+    rng = ident.training_range
+    assert set(rng["elements"]) == {"a0", "c0"}
+    lo, hi, err = rng["elements"]["a0"]
+    # the family's poles are -1 .. -4: a0 = -pole spans [1, 4] (up to sampling), err >= 0
+    assert 1.0 <= lo < 1.2 and 3.8 < hi <= 4.0 and err >= 0
+    t = np.arange(40) * 0.05
+    inside = 1.2 * (1 - np.exp(-2.5 * t))                # pole -2.5, gain 1.2: in the family
+    far = 1.2 * (1 - np.exp(-12.0 * t))                  # pole -12: three times the fastest
+    est = ident.identify(np.stack([inside, far]))
+    assert est.outside.tolist() == [False, True]
+    assert ident.identify(inside).outside is False
+    ident.meta.pop("training_range")
+    assert ident.identify(inside).outside is None        # unknown range: no verdict
