@@ -34,6 +34,7 @@ tensors only -- no pickle, so a model file never executes code.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -122,6 +123,15 @@ class Estimate:
                               self.d[..., r], self.u[r], self.dt[r],
                               x0=None if x0 is None else x0[r])
                      for r in range(self.records))
+
+    def take(self, index) -> Estimate:
+        """The estimates of the records ``index`` (an int array, slice or mask) of a batch."""
+        if not self.batched or self.records != 1:
+            raise ValueError("take needs a batched estimate of one record per system")
+        return dataclasses.replace(
+            self, A=self.A[index], b=self.b[index], c=self.c[index], d=self.d[index],
+            elements={k: np.asarray(v)[index] for k, v in self.elements.items()},
+            y=self.y[index], u=self.u[index])
 
     @cached_property
     def outside(self):
@@ -535,7 +545,7 @@ class Identifier:
 
     # -- public identification -----------------------------------------------------------------
     def identify(self, y, u=None, *, dt: float | None = None,
-                 refine: bool = False) -> Estimate:
+                 refine: bool | str = False) -> Estimate:
         """Identify the system behind a record in one encoder pass.
 
         Args:
@@ -547,12 +557,16 @@ class Identifier:
                 None) for several records.
             dt: the record's sample time, if you want it checked against the identifier's
                 (an identifier only knows records on the grid it was trained for).
-            refine: polish the estimate with a CasADi NLP in the same structure (refine.py).
+            refine: polish the estimate with a CasADi NLP in the same structure (refine.py):
+                True for every record, ``"auto"`` for exactly the records whose estimate is
+                flagged ``outside`` the training range (``info["refined_rows"]`` says which).
 
         Returns:
             An ``Estimate``; batched when ``y`` is.
         """
         start = time.perf_counter()
+        if refine not in (True, False, "auto"):
+            raise ValueError(f"refine must be True, False or 'auto'; got {refine!r}")
         if dt is not None and not _same_dt(dt, self._dts):
             raise ValueError(f"dt must be {self.dt} s for this identifier (trained on records of "
                              f"{self.steps} samples at dt={self.dt}); got dt={dt!r}")
@@ -698,9 +712,36 @@ class Identifier:
                 raise ValueError("refine=True is not available for an identifier of records that "
                                  "start mid-motion (initial='fitted'): the refinement fits "
                                  "records from rest")
-
+            if refine == "auto":
+                return self._refine_flagged(est, _refine)
             est = _refine(est, est.y, est.u, self.dt, structure=self.structure)
         return est
+
+    def _refine_flagged(self, est: Estimate, _refine) -> Estimate:
+        """``refine="auto"``: refine exactly the records flagged ``outside``."""
+        flags = est.outside
+        if flags is None:
+            raise ValueError("refine='auto' needs an identifier that knows its training range "
+                             "(trained by this version of train(), or a shipped one)")
+        if not est.batched:
+            if not flags:
+                return dataclasses.replace(est, info={**est.info, "refined_rows": False})
+            est = _refine(est, est.y, est.u, self.dt, structure=self.structure)
+            return dataclasses.replace(est, info={**est.info, "refined_rows": True})
+        rows = np.flatnonzero(flags)
+        if rows.size == 0:
+            return dataclasses.replace(est, info={**est.info, "refined_rows": flags})
+        sub = _refine(est.take(rows), est.y[rows], est.u[rows], self.dt,
+                      structure=self.structure)
+        A, b, c, d = (np.array(x, copy=True) for x in (est.A, est.b, est.c, est.d))
+        A[rows], b[rows], c[rows], d[rows] = sub.A, sub.b, sub.c, sub.d
+        elements = {k: np.array(v, copy=True) for k, v in est.elements.items()}
+        for k in elements:
+            elements[k][rows] = sub.elements[k]
+        return dataclasses.replace(
+            est, A=A, b=b, c=c, d=d, elements=elements, refined=True,
+            seconds=est.seconds + sub.info["seconds"].sum(),
+            info={**est.info, "refined_rows": flags, "refine": sub.info})
 
     def _physical_source(self):
         from .structures import Physical

@@ -80,3 +80,23 @@ def test_shipped_identifiers_flag_legs_outside_their_training_range():
     # the paper's scenario is inside; k 30 % above and d 30 % above the ranges are not
     assert ident.identify(y).outside.tolist() == [False, True, True]
     assert set(ident.training_range) == {"elements", "physical", "fit"}
+
+
+def test_refine_auto_polishes_exactly_the_flagged_records():
+    ident = ae.load_pretrained("leg-stable")
+    fam = ae.LegFamily(subsystem="stable")
+    legs = fam.systems(k=[24.23, 32.5, 22.0], d=[2.24, 3.0, 3.0], m=[1.01, 1.0, 1.0])
+    y = ae.simulate(legs.A, legs.b, legs.c, legs.d, np.ones(300), 0.01)
+    plain = ident.identify(y)
+    auto = ident.identify(y, refine="auto")
+    assert auto.info["refined_rows"].tolist() == [False, True, False]
+    for i in (0, 2):                                   # untouched rows: the encoder's estimate
+        np.testing.assert_array_equal(auto.A[i], plain.A[i])
+    alone = ident.identify(y[1], refine=True)          # the flagged row: as refined alone
+    np.testing.assert_allclose(auto.A[1], alone.A, rtol=1e-9)
+    # noise-free record: the refinement recovers the leg exactly, the encoder did not
+    assert abs(auto.physical["k"][1] / 32.5 - 1) < 1e-8 < abs(plain.physical["k"][1] / 32.5 - 1)
+    one = ident.identify(y[0], refine="auto")
+    assert one.info["refined_rows"] is False and not one.refined
+    with pytest.raises(ValueError, match=r"refine must be True, False or 'auto'; got 'yes'"):
+        ident.identify(y[0], refine="yes")
