@@ -262,3 +262,30 @@ def knowledge_bars(groups: dict, parameters=("k", "d", "m"), path=None):
     fig.tight_layout()
     _save(fig, path)
     return fig
+
+
+def wear(result, path=None):
+    """True against tracked physical parameters of a wear scenario (``online.wear_study``), one
+    panel per parameter, with the alarm time marked."""
+    names = list(result.true)
+    if not names:
+        raise ValueError("result must hold at least one tracked parameter with a true value")
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(names), 1, figsize=(8, 2.4 * len(names)), sharex=True,
+                             squeeze=False)
+    for ax, p in zip(axes[:, 0], names, strict=True):
+        ax.plot(result.t, result.true[p], "k-", lw=1.5, label="true")
+        ax.plot(result.t, result.estimate[p], ".", color="C0", ms=3, alpha=0.5,
+                label="window estimate")
+        ax.plot(result.t, result.smoothed[p], "-", color="C3", lw=1.2, label="smoothed")
+        if np.isfinite(result.alarm_time):
+            ax.axvline(result.alarm_time, color="C1", ls="--", lw=1, label="alarm")
+        if np.isfinite(result.drift_time):
+            ax.axvline(result.drift_time, color="0.5", ls=":", lw=1, label="true drift > threshold")
+        ax.set_ylabel(p)
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=3)
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.tight_layout()
+    _save(fig, path)
+    return fig

@@ -100,3 +100,53 @@ def test_wearing_leg_is_the_decoder_for_constant_parameters_and_continuous_when_
     ref25 = ae.simulate(s25.A[0], s25.b[0], s25.c[0], 0.0, u, dt)
     np.testing.assert_allclose(y2[:201], ref25[:201], rtol=1e-10, atol=1e-14)
     assert np.abs(y2[260:] - ref25[260:]).max() > 1e-3 * np.abs(ref25).max()
+
+
+def _window_identifier():
+    fam = ae.LegFamily(subsystem="stable", ranges={"k": (19.0, 27.0), "d": (1.5, 5.5),
+                                                   "m": (0.5, 1.5)})
+    config = ae.TrainConfig(dt=0.01, steps=100, count=200, epochs=1, batch=50, seed=0,
+                            excitation="prbs", warmup=50, initial="fitted", progress=False)
+    return ae.train(ae.CCF(2, descartes=True), fam, config,
+                    encoder=ae.EncoderConfig(width=4, kernel=3, dense=(8,), pool=2),
+                    inverse=fam.inverse())
+
+
+def test_wear_study_scenario_truth_and_outputs(tmp_path):
+    from aeid_struct import plots
+    from aeid_struct.online import wear_study
+
+    ident = _window_identifier()
+    cfg = TrackerConfig(hop=100, baseline=3)
+    result = wear_study(ident, seconds=20.0, noise=0.01, config=cfg)
+    # windows end every 100 samples from the first full window on
+    np.testing.assert_allclose(result.t, np.arange(99, 2000, 100) * 0.01)
+    # the scenario in closed form at each window's middle sample
+    mid = np.arange(99, 2000, 100) - 49
+    ramp = np.clip((mid * 0.01 / 20.0 - 0.25) / 0.5, 0, 1)
+    np.testing.assert_allclose(result.true["k"], 25 - 5 * ramp)
+    np.testing.assert_allclose(result.true["d"], 2.5 + ramp)
+    # k is 5 % below 25 when the ramp is a quarter down: t = (0.25 + 0.5 / 4) * 20 s
+    assert result.drift_time == pytest.approx(7.5, abs=0.011)
+    assert set(result.rms) == {"k", "d", "m"} and all(np.isfinite(list(result.rms.values())))
+    assert result.latency_ms > 0
+    path = tmp_path / "wear.png"
+    plots.wear(result, path)
+    assert path.stat().st_size > 10_000
+
+
+def test_track_command_prints_and_writes(tmp_path, capsys):
+    import json
+
+    from aeid_struct.cli import main
+
+    model = _window_identifier().save(tmp_path / "window.aeid")
+    assert main(["track", "--model", str(model), "--seconds", "10", "--hop", "100",
+                 "--baseline", "2", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "tracking error" in out and "alarm" in out and "update" in out
+    result = json.loads((tmp_path / "out" / "wear_tracking.json").read_text())
+    assert set(result["rms_percent"]) == {"k", "d", "m"} and result["windows"] == 10
+    assert (tmp_path / "out" / "wear_tracking.png").stat().st_size > 10_000
+    with pytest.raises(SystemExit, match=r"identifier must be trained on windows that start"):
+        main(["track", "--model", "leg-stable", "--out", str(tmp_path / "x")])
