@@ -236,7 +236,11 @@ class Estimate:
         b = np.asarray(self.b, dtype=np.float64).reshape(count, n)
         c = np.asarray(self.c, dtype=np.float64).reshape(count, n)
         d = np.asarray(self.d, dtype=np.float64).reshape(count)
-        if isinstance(self.structure, CCF):
+        if isinstance(self.structure, CCF) and count == 1:
+            # one model: the Function itself, not a map of it (0.1 ms against 0.4 ms)
+            out = inverse(A=A[0], B=b[0][:, None], C=c[0][None, :], D=d[0])
+            result = {name: np.array([float(out[name])]) for name in inverse.name_out()}
+        elif isinstance(self.structure, CCF):
             f = inverse.map(count)
             out = f(
                 A=np.concatenate(list(A), axis=1),
