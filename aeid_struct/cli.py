@@ -234,7 +234,8 @@ def _track(args: argparse.Namespace) -> int:
         ident = (Identifier.load(args.model) if Path(args.model).exists()
                  else load_pretrained(args.model))
         config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, threshold=args.threshold,
-                               baseline=args.baseline, patience=args.patience)
+                               baseline=args.baseline, patience=args.patience,
+                               watch=tuple(args.watch))
         result = wear_study(ident, seconds=args.seconds, noise=args.noise, seed=args.seed,
                             config=config)
     except ValueError as err:
@@ -385,6 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
     trk.add_argument("--threshold", type=float, default=0.05, help="relative drift that alarms")
     trk.add_argument("--baseline", type=int, default=10, help="windows in the reference")
     trk.add_argument("--patience", type=int, default=3, help="windows over the threshold")
+    trk.add_argument("--watch", nargs="*", default=["k"],
+                     help="parameters whose drift raises the alarm (default: k, the spring)")
     trk.add_argument("--seed", type=int, default=0)
     trk.add_argument("--out", default="out/track", help="folder for the PNG and JSON")
     trk.set_defaults(func=_track)

@@ -921,13 +921,16 @@ class _Batch1:
         return A, b, c, d, el
 
 
-PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-noisy", "leg-unstable-noisy")
+PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-noisy", "leg-unstable-noisy",
+              "leg-stable-window")
 
 
 def load_pretrained(name: str) -> Identifier:
     """An identifier shipped in the package (``PRETRAINED``): ``"leg-stable"``,
     ``"leg-unstable"``, and their noise-trained variants ``"leg-stable-noisy"``,
-    ``"leg-unstable-noisy"`` for measured (noisy) records."""
+    ``"leg-unstable-noisy"`` for measured (noisy) records; ``"leg-stable-window"`` reads the
+    input too and identifies windows of a running leg under a random binary force (records
+    that start mid-motion; the tracker's identifier, ``aeid-struct track``)."""
     from importlib.resources import files
 
     root = files("aeid_struct.pretrained")

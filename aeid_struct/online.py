@@ -13,7 +13,8 @@ state itself (its estimates' ``x0`` is there when asked for).
 
 Smoothing and alarm. Each parameter ``p`` is smoothed by an exponential moving average,
 ``s_j = s_{j-1} + alpha (p_j - s_{j-1})`` (``alpha = TrackerConfig.smoothing``). The reference
-is the mean of the first ``baseline`` smoothed values; the alarm is raised once
+is the median of the first ``baseline`` window estimates (not of the smoothed values, which
+are still settling from the first estimate then); the alarm is raised once
 ``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive windows for any
 parameter, and stays raised (a change alarm, not a level indicator) until :meth:`Tracker.reset`.
 """
@@ -34,9 +35,10 @@ class TrackerConfig:
         hop: samples between two identifications (window starts), >= 1.
         smoothing: the moving-average weight ``alpha`` in (0, 1] (1 = no smoothing).
         threshold: relative drift of a smoothed parameter from its reference that alarms.
-        baseline: windows whose smoothed estimates are averaged into the reference.
+        baseline: windows whose estimates' median is the reference.
         patience: consecutive windows over the threshold before the alarm is raised.
-        parameters: the physical parameters to smooth and watch (empty: all the estimate has).
+        parameters: the physical parameters to track (empty: all the estimate has).
+        watch: those of them whose drift raises the alarm (empty: all tracked ones).
     """
 
     hop: int = 50
@@ -45,6 +47,7 @@ class TrackerConfig:
     baseline: int = 10
     patience: int = 3
     parameters: tuple[str, ...] = ()
+    watch: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("hop", "baseline", "patience"):
@@ -56,6 +59,10 @@ class TrackerConfig:
         if not (isinstance(self.threshold, (int, float)) and self.threshold > 0):
             raise ValueError(f"threshold must be positive; got {self.threshold!r}")
         object.__setattr__(self, "parameters", tuple(self.parameters))
+        object.__setattr__(self, "watch", tuple(self.watch))
+        stray = [p for p in self.watch if self.parameters and p not in self.parameters]
+        if stray:
+            raise ValueError(f"watch must name tracked parameters {self.parameters}; got {stray}")
 
 
 @dataclass(frozen=True)
@@ -170,14 +177,15 @@ class Tracker:
             prev = s.smoothed.get(k)
             s.smoothed[k] = v if prev is None or not math.isfinite(prev) \
                 else prev + cfg.smoothing * (v - prev)
-        s.history.append(dict(s.smoothed))
+        s.history.append(dict(values))
         drift = {k: math.nan for k in values}
         if s.reference is None and len(s.history) >= cfg.baseline:
-            s.reference = {k: float(np.mean([h[k] for h in s.history[: cfg.baseline]]))
+            s.reference = {k: float(np.median([h[k] for h in s.history[: cfg.baseline]]))
                            for k in values}
         if s.reference is not None:
             drift = {k: s.smoothed[k] / s.reference[k] - 1.0 for k in values}
-            s.over = s.over + 1 if any(abs(v) > cfg.threshold for v in drift.values()) else 0
+            watched = [v for k, v in drift.items() if not cfg.watch or k in cfg.watch]
+            s.over = s.over + 1 if any(abs(v) > cfg.threshold for v in watched) else 0
             s.alarm = s.alarm or s.over >= cfg.patience
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
                       est.seconds)
@@ -255,25 +263,30 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
     """A running leg that wears, tracked window by window.
 
     Scenario: the translational subsystem driven by a random binary force (levels +-1 held
-    3-12 samples) for ``seconds``; k stays at 25 N/m for the first quarter, falls linearly to
-    20 N/m until three quarters of the time and stays there; d rises from 2.5 to 3.5 kg/s over
-    the same span; m = 1 kg. White measurement noise of ``noise * max|y|``. The samples are
-    pushed to a :class:`Tracker` in chunks of one hop, as a controller would.
+    3-12 samples) for ``seconds``, already running when tracking starts (the force has acted for
+    one window length before ``t = 0``: a running leg is not at rest); k stays at 25 N/m for
+    the first quarter, falls linearly to 20 N/m until three quarters of the time and stays
+    there; d rises from 2.5 to 3.5 kg/s over the same span; m = 1 kg. White measurement noise
+    of ``noise * max|y|``. The samples are pushed to a :class:`Tracker` in chunks of one hop,
+    as a controller would.
     """
     import time as _time
 
     if not seconds > 0:
         raise ValueError(f"seconds must be positive; got {seconds!r}")
     dt = identifier.dt
-    N = int(round(seconds / dt))
+    N, before = int(round(seconds / dt)), identifier.steps
     t = np.arange(N) * dt
     ramp = np.clip((t / seconds - 0.25) / 0.5, 0.0, 1.0)
     k, d, m = 25.0 - 5.0 * ramp, 2.5 + 1.0 * ramp, np.ones(N)
     rng = np.random.default_rng(seed)
-    ends = np.cumsum(rng.integers(3, 13, size=N))
-    level = rng.choice([-1.0, 1.0], size=N)
-    u = level[np.searchsorted(ends, np.arange(N), side="right")]
-    y = wearing_leg(k, d, m, u, dt)
+    ends = np.cumsum(rng.integers(3, 13, size=N + before))
+    level = rng.choice([-1.0, 1.0], size=N + before)
+    u = level[np.searchsorted(ends, np.arange(N + before), side="right")]
+    pad = np.ones(before)
+    y = wearing_leg(np.concatenate([k[0] * pad, k]), np.concatenate([d[0] * pad, d]),
+                    np.concatenate([m[0] * pad, m]), u, dt)[before:]
+    u = u[before:]
     y = y + noise * np.abs(y).max() * rng.normal(size=N)
     tracker = Tracker(identifier, config)
     updates, times = [], []

@@ -68,7 +68,8 @@ def test_batch_matches_single_and_unknown_name():
     for i in range(5):
         np.testing.assert_allclose(ident.identify(y[i]).A, batch.A[i], rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-stable-noisy', "
-                                         r"'leg-unstable', 'leg-unstable-noisy'\]; got"):
+                                         r"'leg-stable-window', 'leg-unstable', "
+                                         r"'leg-unstable-noisy'\]; got"):
         ae.load_pretrained("leg-middle")
 
 
