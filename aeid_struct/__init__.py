@@ -9,6 +9,7 @@ forward pass; an optional CasADi NLP polishes the estimate. Implements and exten
 from .data import LegFamily as LegFamily
 from .data import PoleFamily as PoleFamily
 from .decoder import discretise as discretise
+from .decoder import initial_state as initial_state
 from .decoder import simulate as simulate
 from .decoder import stationary_value as stationary_value
 from .encoder import EncoderConfig as EncoderConfig
@@ -38,6 +39,7 @@ __all__ = [
     "System",
     "TrainConfig",
     "discretise",
+    "initial_state",
     "load_pretrained",
     "simulate",
     "stationary_value",

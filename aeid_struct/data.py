@@ -356,10 +356,10 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
                       y_clean))
     x0 = x0 or None
     if R == 1:
-        return Records(*parts[0], systems, grids[0][1], level, x0 and x0[0])
+        return Records(*parts[0], systems, grids[0][1], level, x0[0] if x0 else None)
     u, y, y_clean = (tuple(p[i] for p in parts) for i in range(3))
     return Records(u, y, y_clean, systems, tuple(g[1] for g in grids), level,
-                   x0 and tuple(x0))
+                   tuple(x0) if x0 else None)
 
 
 def _grids(steps, dt, records: int) -> list[tuple[int, float]]:

@@ -181,11 +181,9 @@ class Estimate:
         x0 = self._x0()
         if x0 is not None:
             return x0
-        zeros = np.zeros(np.shape(self.b)[:-1] if self.records == 1
-                         else np.shape(self.b[..., 0, :])[:-1])
-        n = np.shape(self.A)[-1]
-        one = np.zeros((*zeros.shape, n))
-        return one if self.records == 1 else tuple(one for _ in range(self.records))
+        if self.records == 1:
+            return np.zeros(np.shape(self.b))                 # (n,) or (batch, n)
+        return tuple(np.zeros(np.shape(self.b[..., r, :])) for r in range(self.records))
 
     def _x0(self):
         """The fitted initial state(s), or None for records from rest."""
@@ -236,19 +234,8 @@ class Estimate:
         b = np.asarray(self.b, dtype=np.float64).reshape(count, n)
         c = np.asarray(self.c, dtype=np.float64).reshape(count, n)
         d = np.asarray(self.d, dtype=np.float64).reshape(count)
-        if isinstance(self.structure, CCF) and count == 1:
-            # one model: the Function itself, not a map of it (0.1 ms against 0.4 ms)
-            out = inverse(A=A[0], B=b[0][:, None], C=c[0][None, :], D=d[0])
-            result = {name: np.array([float(out[name])]) for name in inverse.name_out()}
-        elif isinstance(self.structure, CCF):
-            f = inverse.map(count)
-            out = f(
-                A=np.concatenate(list(A), axis=1),
-                B=b.T,
-                C=c.reshape(1, count * n),
-                D=d.reshape(1, count),
-            )
-            result = {name: np.array(out[name]).reshape(count) for name in inverse.name_out()}
+        if isinstance(self.structure, CCF):
+            result = _apply_inverse(inverse, A, b, c, d)
         else:
             # The inverse reads a bottom-row CCF: an MCF or n4sid model is another
             # realisation of the same transfer function, so convert it first.
@@ -275,37 +262,40 @@ class Estimate:
         return [one(*m) for m in zip(self.A, self.b, self.c, self.d, strict=True)]
 
 
+def _apply_inverse(inverse, A: np.ndarray, b: np.ndarray, c: np.ndarray,
+                   d: np.ndarray) -> dict[str, np.ndarray]:
+    """A CCF -> parameters casadi.Function on bottom-row CCF models ``A (N, n, n), b, c (N, n),
+    d (N,)``: ``name -> (N,)``. One model calls the Function itself (0.1 ms, against 0.4 ms for
+    a map of it: the tracker's hot path); a batch, one map over all."""
+    count, n = A.shape[0], A.shape[-1]
+    if count == 1:
+        out = inverse(A=A[0], B=b[0][:, None], C=c[0][None, :], D=d[0])
+        return {name: np.array([float(out[name])]) for name in inverse.name_out()}
+    # Mapped casadi inputs are concatenated horizontally: A (n, n*N), B (n, N), C (1, n*N).
+    out = inverse.map(count)(A=np.concatenate(list(A), axis=1), B=b.T,
+                             C=c.reshape(1, count * n), D=d.reshape(1, count))
+    return {name: np.array(out[name]).reshape(count) for name in inverse.name_out()}
+
+
 def _through_ccf(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
                  inverse) -> dict[str, np.ndarray]:
     """Apply a CCF -> parameters casadi.Function to models in any realisation.
 
     Each finite model ``A (N, n, n), b, c (N, n), d (N,)`` is converted to the bottom-row CCF of
-    its transfer function (``CCF(n).elements_of``: characteristic polynomial and Markov
-    parameters), then mapped; NaN for non-finite models. Returns ``name -> (N,)``.
+    its transfer function (characteristic polynomial and Markov parameters, as
+    ``Structure.elements_of`` does), then mapped; NaN for non-finite models. Returns
+    ``name -> (N,)``.
     """
-    from .structures import CCF
+    from .structures import _ccf_coefficients, _ccf_matrices
 
-    count, n = A.shape[0], A.shape[-1]
     finite = (np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
               & np.all(np.isfinite(c), axis=1) & np.isfinite(d))
-    out = {name: np.full(count, math.nan) for name in inverse.name_out()}
+    out = {name: np.full(A.shape[0], math.nan) for name in inverse.name_out()}
     rows = np.flatnonzero(finite)
-    if rows.size == 0:
-        return out
-    x = CCF(n).elements_of(A[rows], b[rows], c[rows], np.zeros(rows.size)).numpy()
-    a, num = x[:, :n], x[:, n:]
-    k = rows.size
-    Ac = np.zeros((k, n, n))
-    Ac[:, np.arange(n - 1), np.arange(1, n)] = 1.0
-    Ac[:, -1, :] = -a
-    bc = np.zeros((k, n))
-    bc[:, -1] = 1.0
-    f = inverse.map(k)
-    # Mapped casadi inputs are concatenated horizontally: A (n, n*k), B (n, k), C (1, n*k).
-    res = f(A=np.concatenate(list(Ac), axis=1), B=bc.T, C=num.reshape(1, k * n),
-            D=d[rows].reshape(1, k))
-    for name in inverse.name_out():
-        out[name][rows] = np.array(res[name]).reshape(k)
+    if rows.size:
+        Ac, bc, cc = _ccf_matrices(*_ccf_coefficients(A[rows], b[rows], c[rows]))
+        for name, value in _apply_inverse(inverse, Ac, bc, cc, d[rows]).items():
+            out[name][rows] = value
     return out
 
 
@@ -586,6 +576,13 @@ class Identifier:
             A, b, c, d, el = fast(y2[0], None if u2 is None else u2[0])
             return self._estimate(A, b, c, d, el, y2, u2, batched, start, refine)
         yt = torch.from_numpy(y2.astype(np.float32))
+        A, b, c, d, el = self._batched([yt], [ut])
+        return self._estimate(A, b, c, d, el, y2, u2, batched, start, refine)
+
+    def _batched(self, ys: list[torch.Tensor], us: list[torch.Tensor]):
+        """Float64 ``A, b, c, d, elements`` of records ``ys, us`` (one ``(count, steps_r)`` tensor
+        per record) through the encoder, in chunks, without gradients."""
+        count = ys[0].shape[0]
         # Small batches are dominated by per-operation overhead, which a second thread only
         # adds to (thread wake-ups); large ones gain from both cores.
         threads = torch.get_num_threads()
@@ -597,14 +594,16 @@ class Identifier:
                 # of 16k in one pass ran at half the throughput of chunks of 1k.
                 parts = []
                 for i in range(0, count, 1024):
-                    sys, el = self._forward(yt[i: i + 1024], ut[i: i + 1024])
+                    y = [v[i: i + 1024] for v in ys]
+                    u = [v[i: i + 1024] for v in us]
+                    sys, el = (self._forward(y[0], u[0]) if self.records == 1
+                               else self._forward(y, u))
                     parts.append((sys.A, sys.b, sys.c, sys.d, el))
-                A, b, c, d, el = (torch.cat(t).numpy().astype(np.float64)
-                                  for t in zip(*parts, strict=True))
+                return tuple(torch.cat(t).numpy().astype(np.float64)
+                             for t in zip(*parts, strict=True))
         finally:
             if torch.get_num_threads() != threads:
                 torch.set_num_threads(threads)
-        return self._estimate(A, b, c, d, el, y2, u2, batched, start, refine)
 
     def _check_records(self, yname: str, uname: str, y2: np.ndarray, u, steps: int,
                        dt: float) -> np.ndarray | None:
@@ -665,21 +664,13 @@ class Identifier:
                                      steps, dt)
             ys.append(y2)
             us.append(np.ones_like(y2) if u2 is None else np.asarray(u2))
-        count = ys[0].shape[0]
         if refine:
             raise ValueError("refine=True is not available for a several-record identifier: "
                              "the refinement fits one record; refine each subsystem's estimate "
                              "in its own structure")
-        yt = [torch.from_numpy(v.astype(np.float32)) for v in ys]
-        ut = [torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for v in us]
-        with torch.no_grad():
-            parts = []
-            for i in range(0, count, 1024):
-                sys, el = self._forward([v[i: i + 1024] for v in yt],
-                                        [v[i: i + 1024] for v in ut])
-                parts.append((sys.A, sys.b, sys.c, sys.d, el))
-            A, b, c, d, el = (torch.cat(t).numpy().astype(np.float64)
-                              for t in zip(*parts, strict=True))
+        A, b, c, d, el = self._batched(
+            [torch.from_numpy(v.astype(np.float32)) for v in ys],
+            [torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for v in us])
         names = self.structure.element_names
         if batched:
             elements = {name: el[:, i] for i, name in enumerate(names)}

@@ -173,7 +173,7 @@ def score(ident, records: Records, *, name: str, refine: bool = False,
         if inverse is not None:
             raise ValueError("inverse must be None for an identifier of several records: its "
                              "physical parameters are its elements")
-        _check_arguments(_Grid(ident, record), records.record(record), name)
+        _check_arguments(ident, records, name, record)
         est, seconds = _identify(ident, records, refine)
         records = records.record(record)
         A, b, c, d = (np.asarray(x, dtype=np.float64)[:, record]
@@ -200,27 +200,9 @@ def score(ident, records: Records, *, name: str, refine: bool = False,
     return Score(name, per_record, poles, seconds)
 
 
-@dataclass(frozen=True)
-class _Grid:
-    """The record format of record ``r`` of a several-record identifier, as ``_check_arguments``
-    reads an identifier's."""
-
-    ident: object
-    r: int
-
-    @property
-    def dt(self) -> float:
-        return self.ident.dt[self.r]
-
-    @property
-    def steps(self) -> int:
-        return self.ident.steps[self.r]
-
-    def identify(self, *args, **kwargs):   # present for the interface check only
-        raise NotImplementedError
-
-
-def _check_arguments(ident, records, name) -> None:
+def _check_arguments(ident, records, name, record: int | None = None) -> None:
+    """Validate the arguments of ``score``; ``record``: the record of a several-record
+    identifier whose grid the records' record ``record`` must be on."""
     if not isinstance(name, str) or not name:
         raise ValueError(f"name must be a non-empty string; got {name!r}")
     if not isinstance(records, Records):
@@ -230,11 +212,14 @@ def _check_arguments(ident, records, name) -> None:
         if not hasattr(ident, attr):
             raise ValueError(f"ident must be an Identifier (with {attr!r}); "
                              f"got {type(ident).__name__}")
-    steps = records.u.shape[1]
-    if not math.isclose(records.dt, ident.dt, rel_tol=1e-9) or steps != ident.steps:
+    dt, steps = ident.dt, ident.steps
+    if record is not None:
+        dt, steps, records = dt[record], steps[record], records.record(record)
+    got = records.u.shape[1]
+    if not math.isclose(records.dt, dt, rel_tol=1e-9) or got != steps:
         raise ValueError(
-            f"records must be on the identifier's grid (dt={ident.dt}, steps={ident.steps}); "
-            f"got dt={records.dt}, steps={steps}")
+            f"records must be on the identifier's grid (dt={dt}, steps={steps}); "
+            f"got dt={records.dt}, steps={got}")
 
 
 def _check_inverse(inverse, n: int) -> None:

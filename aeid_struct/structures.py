@@ -975,7 +975,8 @@ class Physical(Structure):
         if "A" not in outs and "A1" in outs:
             while f"A{records + 1}" in outs:
                 records += 1
-        self._keys = (["A", "B", "C", "D"] if "A" in outs or records == 1 and "A1" not in outs
+        # Unnumbered outputs (A, B, C, D) unless only numbered ones (A1, .., DR) are there.
+        self._keys = (["A", "B", "C", "D"] if "A" in outs or "A1" not in outs
                       else [f"{k}{r}" for r in range(1, records + 1) for k in "ABCD"])
         missing = [k for k in self._keys if k not in outs]
         if missing:

@@ -4,7 +4,9 @@ knows what it says it knows, trains, caches, and has a classical counterpart."""
 import numpy as np
 import pytest
 
+import aeid_struct as ae
 from aeid_struct import knowledge
+from aeid_struct.metrics import step_error
 from aeid_struct.structures import Physical
 
 VARIANTS = knowledge.variants()
@@ -92,5 +94,18 @@ def test_evaluate_scores_a_joint_identifier_per_record_with_one_parameter_set(tm
         truth = val.record(r)
         np.testing.assert_allclose(s.per_record["k"], 100 * np.abs(
             est.physical["k"] / truth.systems.params["k"] - 1), rtol=1e-9)
-    assert stable.per_record["step"].shape == (5,)
-    assert not np.allclose(stable.per_record["step"], unstable.per_record["step"])
+        # the step error of record r's own decoded subsystem, on its own grid (Table I)
+        steps, dt = truth.y.shape[1], truth.dt
+        one = np.ones(steps)
+        y_true = ae.simulate(truth.systems.A, truth.systems.b, truth.systems.c,
+                             truth.systems.d, one, dt)
+        y_hat = ae.simulate(est.A[:, r], est.b[:, r], est.c[:, r], est.d[:, r], one, dt)
+        np.testing.assert_allclose(s.per_record["step"], step_error(y_true, y_hat),
+                                   rtol=1e-9)
+
+
+def test_evaluate_leaves_d_out_of_an_unstable_identifiers_score(tmp_path):
+    v = VARIANTS["unstable / physical"]
+    ident = knowledge.train_variant(v, noisy=False, count=200, epochs=1, cache=tmp_path)
+    (s,) = knowledge.evaluate(v, ident, knowledge.validation(5, seed=9))
+    assert "d" not in s.per_record and {"k", "m"} <= set(s.per_record)

@@ -81,6 +81,10 @@ def test_shipped_identifiers_flag_legs_outside_their_training_range():
     # the paper's scenario is inside; k 30 % above and d 30 % above the ranges are not
     assert ident.identify(y).outside.tolist() == [False, True, True]
     assert set(ident.training_range) == {"elements", "physical", "fit"}
+    # records from rest: the estimate's initial state is zero, shaped like b
+    est = ident.identify(y)
+    np.testing.assert_array_equal(est.x0, np.zeros((3, 2)))
+    np.testing.assert_array_equal(ident.identify(y[0]).x0, np.zeros(2))
 
 
 def test_refine_auto_polishes_exactly_the_flagged_records():
