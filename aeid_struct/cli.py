@@ -237,7 +237,7 @@ def _track(args: argparse.Namespace) -> int:
                                baseline=args.baseline, patience=args.patience,
                                watch=tuple(args.watch))
         result = wear_study(ident, seconds=args.seconds, noise=args.noise, seed=args.seed,
-                            config=config)
+                            config=config, engine=args.engine)
     except ValueError as err:
         raise SystemExit(f"aeid-struct: {err}") from None
     out = Path(args.out)
@@ -251,11 +251,13 @@ def _track(args: argparse.Namespace) -> int:
           + ", ".join(f"{p} {v:.2f} %" for p, v in result.rms.items()))
     print(f"true k left its start by {100 * args.threshold:g} % at {result.drift_time:.2f} s; "
           f"alarm at {result.alarm_time:.2f} s (delay {result.delay:.2f} s)")
-    print(f"update (one window identified): {result.latency_ms:.3f} ms median, one call each")
+    print(f"update (one window identified, {result.engine} engine): "
+          f"{result.latency_ms:.3f} ms median, one call each")
     js = out / "wear_tracking.json"
     js.write_text(json.dumps({"rms_percent": result.rms, "drift_time_s": result.drift_time,
                               "alarm_time_s": result.alarm_time, "delay_s": result.delay,
-                              "latency_ms": result.latency_ms, "windows": len(result.t)},
+                              "latency_ms": result.latency_ms, "engine": result.engine,
+                              "windows": len(result.t)},
                              indent=2))
     print(f"wrote {png}, {js}")
     return 0
@@ -389,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     trk.add_argument("--watch", nargs="*", default=["k"],
                      help="parameters whose drift raises the alarm (default: k, the spring)")
     trk.add_argument("--seed", type=int, default=0)
+    trk.add_argument("--engine", choices=("auto", "onnx", "identifier"), default="auto",
+                     help="onnx: the exported encoder under onnxruntime (auto: when installed)")
     trk.add_argument("--out", default="out/track", help="folder for the PNG and JSON")
     trk.set_defaults(func=_track)
 

@@ -209,7 +209,7 @@ class PoleFamily:
 
 
 def excitation(kind: str, count: int, steps: int, dt: float,
-               rng: np.random.Generator) -> np.ndarray:
+               rng: np.random.Generator, *, first: int = 0) -> np.ndarray:
     """Input records ``u (count, steps)`` of one kind.
 
     - ``step``: unit step ``u_k = 1`` (the paper's excitation).
@@ -218,7 +218,11 @@ def excitation(kind: str, count: int, steps: int, dt: float,
     - ``multisine``: 4 random-phase sines between 0.2 and 10 Hz (below Nyquist), peak 1.
     - ``noise``: Gaussian noise low-pass filtered (first order, 5 Hz), peak 1.
     - ``mix``: each record of a kind drawn at random among the above, steps of random height
-      in [0.5, 2] and random start in the first quarter.
+      in [0.5, 2] and random start in the first quarter of the samples from ``first`` on.
+
+    ``first``: where the record proper begins (``records(warmup=...)``). Why: a step in the
+    first quarter of warmup + window has settled before a mid-motion window opens, and a flat
+    window identifies nothing.
     """
     if kind not in EXCITATIONS:
         raise ValueError(f"kind must be one of {EXCITATIONS}; got {kind!r}")
@@ -259,7 +263,7 @@ def excitation(kind: str, count: int, steps: int, dt: float,
             continue
         if sub == "step":
             height = rng.uniform(0.5, 2.0, size=(idx.size, 1))
-            start = rng.integers(0, max(steps // 4, 1), size=(idx.size, 1))
+            start = first + rng.integers(0, max((steps - first) // 4, 1), size=(idx.size, 1))
             u[idx] = height * (np.arange(steps)[None, :] >= start)
         else:
             u[idx] = excitation(sub, idx.size, steps, dt, rng)
@@ -337,7 +341,7 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
         raise ValueError(f"warmup must be a non-negative integer; got {warmup!r}")
     rng = np.random.default_rng(seed)
     systems = family.sample(count, rng)
-    u = [excitation(excitation_kind, count, steps_r + warmup, dt_r, rng)
+    u = [excitation(excitation_kind, count, steps_r + warmup, dt_r, rng, first=warmup)
          for steps_r, dt_r in grids]
     if np.ndim(noise) == 0:
         level = np.full(count, float(noise))

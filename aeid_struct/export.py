@@ -1,5 +1,5 @@
-"""Deployment: an identifier as one TorchScript file that needs neither this library nor Python's
-training code to identify a record.
+"""Deployment: an identifier as one TorchScript or ONNX file that needs neither this library nor
+Python's training code to identify a record.
 
 :func:`to_torchscript` traces the whole identification of one record -- the normalisation of
 Eq. 15, the encoder, the structure's constraint maps and assembly, the exact de-normalisation --
@@ -20,14 +20,28 @@ module, against 0.37 ms for ``Identifier.identify`` (which also validates the re
 an ``Estimate``); largest relative difference of ``A, c`` over 50 noisy leg records 2e-7.
 PyTorch 2.13 marks ``torch.jit`` deprecated in favour of ``torch.export``; it still loads and
 runs, and the format is the one libtorch reads.
+
+:func:`to_onnx` writes the same computation as an ONNX graph (opset 17) with the record format and
+the CasADi inverse map in its metadata; :class:`OnnxIdentifier` runs it with onnxruntime and numpy
+alone (CasADi only for the physical parameters). Both need the optional ``onnx`` extra
+(``pip install "aeid-struct[onnx]"``: ``onnx``, ``onnxruntime``). Why the TorchScript-based ONNX
+exporter (``dynamo=False``) and not ``torch.export``: the structures validate their elements with
+data-dependent branches (``if bad.any(): raise``) that ``torch.export`` refuses to trace; tracing
+records the branch taken for valid elements, which is the deployed behaviour.
+Measured (``leg-stable-window``, one thread, median of 2000 calls, ``aeid-struct bench-online``):
+see ``pretrained/README.md``.
 """
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 
+import numpy as np
 import torch
+
+ONNX_FORMAT = "aeid-struct-onnx-1"
 
 
 class _OneRecord(torch.nn.Module):
@@ -43,6 +57,28 @@ class _OneRecord(torch.nn.Module):
         return sys.A[0], sys.b[0], sys.c[0], sys.d[0], elements[0]
 
 
+def _exportable(ident) -> None:
+    from .identify import Identifier
+    from .structures import Physical
+
+    if not isinstance(ident, Identifier):
+        raise ValueError(f"ident must be an Identifier; got {type(ident).__name__}")
+    if ident.records != 1:
+        raise ValueError(f"ident must read one record to be exported; it reads {ident.records}")
+    if isinstance(ident.structure, Physical):
+        raise ValueError("ident's structure is Physical: its CasADi map runs as a Python "
+                         "callback, which an exported graph cannot hold; export a canonical "
+                         "identifier and the map's C code (symbolic.leg.generate_c) instead")
+
+
+def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
+    """A record to trace with: any finite record of the right length takes the same path."""
+    g = torch.Generator().manual_seed(0)
+    y = torch.cumsum(torch.rand(ident.steps, generator=g), 0)
+    u = 0.5 + torch.rand(ident.steps, generator=g)
+    return y, u
+
+
 def to_torchscript(ident, path) -> Path:
     """Save ``ident`` as a frozen TorchScript module at ``path`` (module docstring).
 
@@ -54,26 +90,145 @@ def to_torchscript(ident, path) -> Path:
         The path written. The module's ``forward(y, u)`` takes float32 ``(steps,)`` tensors
         (``u = torch.ones(steps)`` for a unit step) and returns ``(A, b, c, d, elements)``.
     """
-    from .identify import Identifier
-    from .structures import Physical
-
-    if not isinstance(ident, Identifier):
-        raise ValueError(f"ident must be an Identifier; got {type(ident).__name__}")
-    if ident.records != 1:
-        raise ValueError(f"ident must read one record to be exported; it reads {ident.records}")
-    if isinstance(ident.structure, Physical):
-        raise ValueError("ident's structure is Physical: its CasADi map runs as a Python "
-                         "callback, which TorchScript cannot hold; export a canonical "
-                         "identifier and the map's C code (symbolic.leg.generate_c) instead")
+    _exportable(ident)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     module = _OneRecord(ident).eval()
-    g = torch.Generator().manual_seed(0)
-    y = torch.cumsum(torch.rand(ident.steps, generator=g), 0)
-    u = 0.5 + torch.rand(ident.steps, generator=g)
+    y, u = _example(ident)
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")       # tracer notes on Python scalars of the config
         traced = torch.jit.trace(module, (y, u), check_trace=False)
         frozen = torch.jit.freeze(traced)
     torch.jit.save(frozen, str(path))
     return path
+
+
+def onnx_bytes(ident) -> bytes:
+    """The ONNX model (bytes) of ``ident``'s identification of one record, with the record format
+    and the inverse map in its metadata (``to_onnx``)."""
+    import io
+
+    import onnx
+
+    _exportable(ident)
+    module = _OneRecord(ident).eval()
+    buffer = io.BytesIO()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")       # tracer notes, and the TorchScript deprecation
+        torch.onnx.export(module, _example(ident), buffer, input_names=["y", "u"],
+                          output_names=["A", "b", "c", "d", "elements"], opset_version=17,
+                          dynamo=False)
+    model = onnx.load_from_string(buffer.getvalue())
+    inverse = ident._physical_source()
+    header = {
+        "format": ONNX_FORMAT, "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
+        "initial": ident.initial, "elements": list(ident.structure.element_names),
+        "inverse": None if inverse is None or isinstance(inverse, tuple)
+        else inverse.serialize(),
+        "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
+        "structure": ident.structure.config(),
+        "ccf": type(ident.structure).__name__ == "CCF",
+    }
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "aeid", json.dumps(header)
+    return model.SerializeToString()
+
+
+def to_onnx(ident, path) -> Path:
+    """Save ``ident`` as an ONNX model at ``path`` (module docstring).
+
+    Args:
+        ident: an ``Identifier`` of one record with a torch-assembled structure.
+        path: the file to write (conventionally ``.onnx``).
+
+    Returns:
+        The path written. Inputs ``y, u``: float32 ``(steps,)``; outputs ``A (n, n), b (n,),
+        c (n,), d ()`` and ``elements (q,)``. :class:`OnnxIdentifier` reads it.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(onnx_bytes(ident))
+    return path
+
+
+class OnnxIdentifier:
+    """Identification from an exported ONNX file (``to_onnx``) with onnxruntime and numpy.
+
+    Args:
+        model: the ``.onnx`` path, or the model's bytes (``onnx_bytes``).
+        threads: onnxruntime's intra-op threads (1: the one-core latency of online use).
+
+    Attributes:
+        steps, dt, inputs, initial: the record format the identifier was trained on.
+        element_names: the structure's elements, in the order of the ``elements`` output.
+    """
+
+    def __init__(self, model, threads: int = 1) -> None:
+        import onnxruntime as ort
+
+        if not (isinstance(threads, int) and threads >= 1):
+            raise ValueError(f"threads must be a positive integer; got {threads!r}")
+        raw = model if isinstance(model, bytes) else Path(model).read_bytes()
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        self.session = ort.InferenceSession(raw, options, providers=["CPUExecutionProvider"])
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if "aeid" not in meta:
+            raise ValueError("model is not an aeid-struct export: its metadata has no 'aeid' "
+                             "entry (write it with aeid_struct.export.to_onnx)")
+        header = json.loads(meta["aeid"])
+        if header.get("format") != ONNX_FORMAT:
+            raise ValueError(f"model has format {header.get('format')!r}; this reader reads "
+                             f"{ONNX_FORMAT!r}")
+        self.steps, self.dt = int(header["steps"]), float(header["dt"])
+        self.inputs, self.initial = bool(header["inputs"]), header["initial"]
+        self.element_names = tuple(header["elements"])
+        self.records = 1
+        self._physical_elements = header.get("physical_elements")
+        self._ccf = bool(header.get("ccf", True))
+        self._inverse = None
+        if header.get("inverse"):
+            import casadi
+
+            self._inverse = casadi.Function.deserialize(header["inverse"])
+
+    def __repr__(self) -> str:
+        return (f"OnnxIdentifier(steps={self.steps}, dt={self.dt}, inputs={self.inputs}, "
+                f"elements={self.element_names})")
+
+    def __call__(self, y, u=None) -> dict[str, np.ndarray]:
+        """Identify one record: ``y, u (steps,)`` (u = None: a unit step) -> float64
+        ``A (n, n), b (n,), c (n,), d ()`` and ``elements (q,)``, the numbers of
+        ``Identifier.identify`` to float32 precision."""
+        y = np.asarray(y, dtype=np.float32)
+        u = np.ones(self.steps, dtype=np.float32) if u is None else np.asarray(u, np.float32)
+        for name, v in (("y", y), ("u", u)):
+            if v.shape != (self.steps,):
+                raise ValueError(f"{name} must have shape ({self.steps},) for this identifier; "
+                                 f"got {v.shape}")
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} must be finite")
+        if not np.any(y):
+            raise ValueError("y must not be all zero (max|y| normalises the record, Eq. 15)")
+        out = self.session.run(None, {"y": y, "u": u})
+        return dict(zip(("A", "b", "c", "d", "elements"),
+                        (np.asarray(o, dtype=np.float64) for o in out), strict=True))
+
+    def physical(self, model: dict) -> dict[str, float]:
+        """Physical parameters of a model returned by ``__call__`` (through the stored inverse
+        map, or elements that are physical parameters); empty when the export has none."""
+        if self._physical_elements:
+            return {k: float(model["elements"][self.element_names.index(k)])
+                    for k in self._physical_elements}
+        if self._inverse is None:
+            return {}
+        A, b, c, d = (np.asarray(model[k], dtype=np.float64) for k in "Abcd")
+        if not self._ccf:
+            # the inverse reads a bottom-row CCF: convert another realisation (an MCF) first
+            from .identify import _through_ccf
+
+            out = _through_ccf(A[None], b[None], c[None], d.reshape(1), self._inverse)
+            return {k: float(v[0]) for k, v in out.items()}
+        out = self._inverse(A=A, B=b[:, None], C=c[None, :], D=float(d))
+        return {k: float(out[k]) for k in self._inverse.name_out()}

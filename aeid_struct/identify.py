@@ -472,8 +472,9 @@ class Identifier:
         """
         return self._forward(y, u)[0]
 
-    def _forward(self, y, u) -> tuple[System, torch.Tensor]:
-        """``(System, elements (batch, q))`` of the records, both in measured units."""
+    def _forward(self, y, u, *, raw: bool = False):
+        """``(System, elements (batch, q))`` of the records, both in measured units; with
+        ``raw``, also the encoder's standardised outputs ``(batch, p)``."""
         ys, us = (tuple(y), tuple(u)) if self.records > 1 else ((y,), (u,))
         y_bar = torch.stack([r.abs().amax(dim=1) for r in ys], 1)     # (batch, R)
         u_bar = torch.stack([r.abs().amax(dim=1) for r in us], 1)
@@ -488,8 +489,8 @@ class Identifier:
         if self.scale == "feature":
             mean, spread = (f.to(gain.dtype) for f in self._features)
             features = (torch.log(gain) - mean) / spread
-        raw = self.encoder(x[0] if self.records == 1 else x, features)
-        theta = self.theta_mean.to(raw.dtype) + self.theta_scale.to(raw.dtype) * raw
+        z = self.encoder(x[0] if self.records == 1 else x, features)
+        theta = self.theta_mean.to(z.dtype) + self.theta_scale.to(z.dtype) * z
         elements = self.structure.elements(theta)
         sys = self.structure.assemble(elements)
         if self.scale == "denormalise":
@@ -499,7 +500,7 @@ class Identifier:
                          sys.d * gain.to(sys.d.dtype))
             mask = self._output_mask.to(elements.dtype)
             elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
-        return sys, elements
+        return (sys, elements, z) if raw else (sys, elements)
 
     def _fast(self):
         """The batch-1 path: a ``_Batch1`` (numpy encoder + traced structure), or None.
@@ -703,10 +704,6 @@ class Identifier:
         if refine:
             from .refine import refine as _refine
 
-            if self.initial == "fitted":
-                raise ValueError("refine=True is not available for an identifier of records that "
-                                 "start mid-motion (initial='fitted'): the refinement fits "
-                                 "records from rest")
             if refine == "auto":
                 return self._refine_flagged(est, _refine)
             est = _refine(est, est.y, est.u, self.dt, structure=self.structure)

@@ -17,11 +17,19 @@ is the median of the first ``baseline`` window estimates (not of the smoothed va
 are still settling from the first estimate then); the alarm is raised once
 ``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive windows for any
 parameter, and stays raised (a change alarm, not a level indicator) until :meth:`Tracker.reset`.
+
+Engine. ``Tracker(engine="onnx")`` exports the identifier once to ONNX (``export.onnx_bytes``)
+and identifies each window with onnxruntime on one thread, then maps the model to physical
+parameters with the identifier's CasADi inverse; ``engine="identifier"`` calls
+``Identifier.identify`` (numpy encoder, a full ``Estimate``); ``"auto"`` (default) takes onnx
+when onnxruntime is installed. Same numbers to float32 precision; the update times of both
+are in ``pretrained/README.md``.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -107,16 +115,25 @@ class Tracker:
         identifier: an ``Identifier`` whose estimates have physical parameters (a physical
             structure, or a canonical one with a CasADi inverse), trained on windows that start
             mid-motion (``initial="fitted"``) and, for arbitrary inputs, reading ``u``.
+            An ``export.OnnxIdentifier`` works too (then the engine is that file).
         config: a :class:`TrackerConfig`.
+        engine: ``"auto"``, ``"onnx"`` or ``"identifier"`` (module docstring).
     """
 
-    def __init__(self, identifier, config: TrackerConfig = TrackerConfig()) -> None:  # noqa: B008
+    def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
+                 *, engine: str = "auto") -> None:
+        from .export import OnnxIdentifier
+        from .identify import Identifier
+
         if not isinstance(config, TrackerConfig):
             raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
-        for attr in ("identify", "steps", "dt", "initial", "records"):
-            if not hasattr(identifier, attr):
-                raise ValueError(f"identifier must be an Identifier; got "
-                                 f"{type(identifier).__name__}")
+        if not isinstance(identifier, OnnxIdentifier):
+            for attr in ("identify", "steps", "dt", "initial", "records"):
+                if not hasattr(identifier, attr):
+                    raise ValueError(f"identifier must be an Identifier or an OnnxIdentifier; "
+                                     f"got {type(identifier).__name__}")
+        if engine not in ("auto", "onnx", "identifier"):
+            raise ValueError(f"engine must be 'auto', 'onnx' or 'identifier'; got {engine!r}")
         if identifier.records != 1:
             raise ValueError("identifier must read one record per window; got one of "
                              f"{identifier.records} records")
@@ -126,6 +143,14 @@ class Tracker:
                              "records from rest")
         self.identifier, self.config = identifier, config
         self.steps, self.dt = identifier.steps, identifier.dt
+        self.runner = identifier if isinstance(identifier, OnnxIdentifier) else None
+        if self.runner is None and engine != "identifier":
+            if isinstance(identifier, Identifier):
+                self.runner = _onnx_runner(identifier, required=engine == "onnx")
+            elif engine == "onnx":
+                raise ValueError("engine='onnx' needs an Identifier to export; got "
+                                 f"{type(identifier).__name__}")
+        self.engine = "identifier" if self.runner is None else "onnx"
         self.reset()
 
     def reset(self) -> None:
@@ -164,10 +189,22 @@ class Tracker:
                     updates.append(self._identify())
         return updates
 
+    def _physical(self) -> tuple[dict, float]:
+        """The physical parameters of the current window and the wall time it took."""
+        s = self._s
+        if self.runner is not None:
+            t0 = time.perf_counter()
+            out = self.runner.physical(self.runner(s.y, s.u))
+            return out, time.perf_counter() - t0
+        est = self.identifier.identify(s.y, s.u)
+        t0 = time.perf_counter()
+        out = est.physical
+        return out, est.seconds + time.perf_counter() - t0
+
     def _identify(self) -> Update:
         s, cfg = self._s, self.config
-        est = self.identifier.identify(s.y, s.u)
-        values = {k: float(v) for k, v in est.physical.items()
+        physical, seconds = self._physical()
+        values = {k: float(v) for k, v in physical.items()
                   if not cfg.parameters or k in cfg.parameters}
         if not values:
             raise ValueError("identifier must give physical parameters (a physical structure, or "
@@ -188,7 +225,27 @@ class Tracker:
             s.over = s.over + 1 if any(abs(v) > cfg.threshold for v in watched) else 0
             s.alarm = s.alarm or s.over >= cfg.patience
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
-                      est.seconds)
+                      seconds)
+
+
+def _onnx_runner(identifier, required: bool):
+    """An ``OnnxIdentifier`` of ``identifier`` (None where onnxruntime is missing and not
+    ``required``, or the identifier cannot be exported: a Physical structure)."""
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        if required:
+            raise ValueError("engine='onnx' needs onnxruntime: pip install "
+                             "\"aeid-struct[onnx]\"") from None
+        return None
+    from .export import OnnxIdentifier, onnx_bytes
+
+    try:
+        return OnnxIdentifier(onnx_bytes(identifier))
+    except ValueError:
+        if required:
+            raise
+        return None
 
 
 def wearing_leg(k, d, m, u, dt: float) -> np.ndarray:
@@ -241,7 +298,9 @@ class WearResult:
         drift_time: when the true k first left its start value by more than the tracker's
             threshold, s; alarm_time: when the alarm was first raised (nan if never).
         rms: name -> RMS relative error (%) of the smoothed estimate after the baseline windows.
-        latency_ms: median wall time of one window identification.
+        latency_ms: median wall time of one tracker update (one window identified, smoothed
+            and checked), as ``Tracker.push`` takes it.
+        engine: the tracker's engine (``"onnx"`` or ``"identifier"``).
     """
 
     t: np.ndarray
@@ -253,6 +312,7 @@ class WearResult:
     alarm_time: float
     rms: dict
     latency_ms: float
+    engine: str = "identifier"
 
     @property
     def delay(self) -> float:
@@ -261,7 +321,8 @@ class WearResult:
 
 
 def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed: int = 0,
-               config: TrackerConfig = TrackerConfig()) -> WearResult:  # noqa: B008
+               config: TrackerConfig = TrackerConfig(),  # noqa: B008
+               engine: str = "auto") -> WearResult:
     """A running leg that wears, tracked window by window.
 
     Scenario: the translational subsystem driven by a random binary force (levels +-1 held
@@ -290,7 +351,7 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
                     np.concatenate([m[0] * pad, m]), u, dt)[before:]
     u = u[before:]
     y = y + noise * np.abs(y).max() * rng.normal(size=N)
-    tracker = Tracker(identifier, config)
+    tracker = Tracker(identifier, config, engine=engine)
     updates, times = [], []
     for i in range(0, N, config.hop):
         t0 = _time.perf_counter()
@@ -315,4 +376,4 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
     rms = {p: float(100 * np.sqrt(np.mean((smooth[p][after] / true[p][after] - 1) ** 2)))
            for p in true}
     return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
-                      1e3 * float(np.median(times)))
+                      1e3 * float(np.median(times)), tracker.engine)

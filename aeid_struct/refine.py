@@ -303,7 +303,7 @@ def _augmented(A, b, dt: float):
     return casadi.vertcat(top, bottom)
 
 
-def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int):
+def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int, free: bool = False):
     """The decoder's exact FOH response (Eq. 10-13) as a CasADi expression, ``x_0 = 0``.
 
     ``x_{k+1} = Phi x_k + gamma1 u_k + gamma2 (u_{k+1} - u_k)``, ``y_k = c^T x_k + d u_k``, with
@@ -317,10 +317,13 @@ def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int):
     dt : float > 0
     squarings : int >= 0
         Squarings of the matrix exponential (see :func:`expm`).
+    free : bool
+        Also return the free-response basis ``O (steps, n)``, row ``k`` = ``c^T Phi^k``: the
+        response from an initial state ``x_0`` is ``y + O x_0``.
 
     Returns
     -------
-    y : (steps, 1), CasADi.
+    y : (steps, 1), CasADi (and ``O`` with ``free``).
     """
     dt = _check_dt(dt)
     A, b, c, d, u = (v if isinstance(v, (casadi.SX, casadi.MX, casadi.DM))
@@ -343,12 +346,15 @@ def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int):
     Dd = d + c.T @ gamma2
     steps = u.shape[0]
     xi = -gamma2 * u[0]
-    y = []
+    y, rows, o = [], [], c.T
     for k in range(steps):
         y.append(c.T @ xi + Dd * u[k])
+        if free:
+            rows.append(o)
+            o = o @ Phi
         if k + 1 < steps:
             xi = Phi @ xi + Bd * u[k]
-    return casadi.vertcat(*y)
+    return (casadi.vertcat(*y), casadi.vertcat(*rows)) if free else casadi.vertcat(*y)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -466,7 +472,7 @@ def _assembly(structure: Structure, key: str) -> _Assembly:
 
 
 def _build(structure: Structure, steps: int, dt: float, squarings: int,
-           config: RefineConfig) -> _Problem:
+           config: RefineConfig, initial: str = "rest") -> _Problem:
     names = structure.element_names
     fixed = structure.fixed_values
     free = [nm for nm in names if nm not in fixed]
@@ -483,7 +489,18 @@ def _build(structure: Structure, steps: int, dt: float, squarings: int,
             j += 1
     A, b, c, d = structure.casadi_system(casadi.vertcat(*cols))
     # y and u come scaled by w = 2 / (y_bar sqrt(m + 1)), so that r = y - y_hat (linearity).
-    r = y - casadi_simulate(A, b, c, d, u, dt, squarings=squarings)
+    if initial == "fitted":
+        # Variable projection: the record starts mid-motion, and the initial state that fits
+        # best is linear least squares for every z (decoder.initial_state). Projecting it out
+        # keeps the NLP in the structure's elements alone, with the exact Jacobian of the
+        # projected residual (Golub & Pereyra).
+        y_forced, O = casadi_simulate(A, b, c, d, u, dt, squarings=squarings, free=True)
+        e = y - y_forced
+        G = O.T @ O
+        ridge = 1e-12 * casadi.trace(G) + 1e-300      # keeps the solve defined as O -> 0
+        r = e - O @ casadi.solve(G + ridge * casadi.SX.eye(structure.n), O.T @ e)
+    else:
+        r = y - casadi_simulate(A, b, c, d, u, dt, squarings=squarings)
     f = casadi.sumsqr(r)
     p = casadi.vertcat(scale, y, u)
     # The Gauss-Newton Hessian 2 (J^T J + mu I), see the module docstring.
@@ -538,9 +555,9 @@ def _build(structure: Structure, steps: int, dt: float, squarings: int,
 
 
 def _problem(structure, key: str, steps: int, dt: float, squarings: int,
-             config: RefineConfig) -> _Problem:
-    return _PROBLEMS.get((key, steps, dt, squarings, config),
-                         lambda: _build(structure, steps, dt, squarings, config))
+             config: RefineConfig, initial: str = "rest") -> _Problem:
+    return _PROBLEMS.get((key, steps, dt, squarings, config, initial),
+                         lambda: _build(structure, steps, dt, squarings, config, initial))
 
 
 def _structure_key(structure: Structure) -> str:
@@ -582,7 +599,8 @@ def _start_vector(structure: Structure, x0) -> np.ndarray:
 
 
 def refine_elements(structure: Structure, x0, y, u, dt: float,
-                    config: RefineConfig = RefineConfig()) -> RefineResult:  # noqa: B008
+                    config: RefineConfig = RefineConfig(),  # noqa: B008
+                    initial: str = "rest") -> RefineResult:
     """Refine one record from any start vector of elements (see the module docstring).
 
     Parameters
@@ -599,6 +617,9 @@ def refine_elements(structure: Structure, x0, y, u, dt: float,
         The input (linear between samples); None means a unit step.
     dt : float > 0
     config : RefineConfig
+    initial : "rest" or "fitted"
+        ``"fitted"``: the record may start mid-motion; its initial state is fitted by least
+        squares for every candidate (projected out of the NLP).
 
     Returns
     -------
@@ -609,12 +630,14 @@ def refine_elements(structure: Structure, x0, y, u, dt: float,
         raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):
         raise ValueError(f"config must be a RefineConfig; got {type(config).__name__}")
+    if initial not in ("rest", "fitted"):
+        raise ValueError(f"initial must be 'rest' or 'fitted'; got {initial!r}")
     dt = _check_dt(dt)
     y = _record("y", y)
     u = np.ones_like(y) if u is None else _record("u", u, y.shape[0])
     key = _structure_key(structure)
     x = _start_vector(structure, x0)
-    return _refine_one(structure, key, x, y, u, dt, config, start)
+    return _refine_one(structure, key, x, y, u, dt, config, start, initial)
 
 
 #: sqpmethod's status for a step below ``min_step_size`` (``RefineConfig.step_tol``): converged.
@@ -630,7 +653,8 @@ def _solve(problem: _Problem, z, p, lbz, ubz):
             bool(stats.get("success")) or status == _SMALL_STEP)
 
 
-def _refine_one(structure, key, x, y, u, dt, config, start) -> RefineResult:
+def _refine_one(structure, key, x, y, u, dt, config, start,
+                initial: str = "rest") -> RefineResult:
     y_bar = float(np.abs(y).max())
     if y_bar == 0.0:
         raise ValueError("y must not be all zero: the normalisation y_tilde = 2 y / max|y| - 1 "
@@ -654,7 +678,7 @@ def _refine_one(structure, key, x, y, u, dt, config, start) -> RefineResult:
     steps, dt_ = y.shape[0], np.array([dt])
 
     squarings = start_squarings = _squarings(_NORM_MARGIN * asm.system(x, dt_)[4][0])
-    problem = _problem(structure, key, steps, dt, squarings, config)
+    problem = _problem(structure, key, steps, dt, squarings, config, initial)
     z0 = x_free / scale
     loss_start = float(problem.loss(z0, p)[0][0])
     z, iterations, status, converged = z0, 0, "", False
@@ -677,7 +701,7 @@ def _refine_one(structure, key, x, y, u, dt, config, start) -> RefineResult:
             break
         # The iterates left the exponential's accurate range: rebuild and go on from here.
         squarings = _squarings(_NORM_MARGIN * norm)
-        problem = _problem(structure, key, steps, dt, squarings, config)
+        problem = _problem(structure, key, steps, dt, squarings, config, initial)
     else:
         loss = problem.loss(z, p)[0][0]  # with enough squarings at z now
         status, converged = f"{status}; squarings still too few after re-solves", False
@@ -718,8 +742,9 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure | None =
     estimate : Estimate
         The start; its ``elements`` must hold every element of ``structure``.
     y : (steps,) or (batch, steps)
-        Measured output(s) from rest, ``batch`` as the estimate's (a single record for an
-        unbatched estimate); not all zero.
+        Measured output(s), ``batch`` as the estimate's (a single record for an unbatched
+        estimate); not all zero. From rest, or mid-motion for an estimate with
+        ``initial="fitted"`` (its initial state is fitted for every candidate model).
     u : like ``y``, ``(steps,)`` for every record, or None (unit step)
     dt : float > 0
     structure : Structure, optional
@@ -770,8 +795,9 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure | None =
     X0 = np.stack([np.asarray(estimate.elements[nm], dtype=np.float64).reshape(count)
                    for nm in names], axis=1)
     key = _structure_key(structure)
+    initial = getattr(estimate, "initial", "rest")
     results = [_refine_one(structure, key, X0[i].copy(), Y[i], U[i], dt, config,
-                           time.perf_counter()) for i in range(count)]
+                           time.perf_counter(), initial) for i in range(count)]
     asm = _assembly(structure, key)
     parts = [asm.system(r.elements, np.array([dt])) for r in results]
     n = structure.n

@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data import EXCITATIONS, records
+from .data import EXCITATIONS, Records, records
 from .decoder import (
     _free_fit,
     _loss,
@@ -90,6 +90,15 @@ class TrainConfig:
             fixed set -- measured on the stable leg's mid-motion windows with mixed excitation,
             8,000 fixed records gave a training loss of 0.018 against 0.062 held out -- and the
             exact simulator makes new records cheap.
+        supervised: weight of a parameter-space term added to Eq. 14: the mean squared error
+            between the encoder's standardised outputs and the true systems' standardised raw
+            parameters (``Structure.theta_of``; the simulator knows them). It decays linearly
+            to 0 over the run, so the run ends on the paper's unsupervised loss alone, and the
+            held-out loss that picks the weights is Eq. 14 only. 0 (default): the paper's
+            training. Why: with arbitrary inputs the output-error loss of Eq. 14 is far from
+            convex in the parameters (a resonance matched at the wrong frequency is a local
+            minimum) and the encoder settles in such minima; the parameter term steers it into
+            the right basin first (measured in ``pretrained/README.md``).
         checkpoint: file to checkpoint to and resume from (None = no checkpoints).
         progress: print a progress line (to stderr).
         threads: torch threads (None = leave torch's setting).
@@ -111,6 +120,7 @@ class TrainConfig:
     warmup: int = 0
     initial: str = "rest"
     fresh: bool = False
+    supervised: float = 0.0
     checkpoint: str | None = None
     progress: bool = True
     threads: int | None = None
@@ -146,6 +156,9 @@ class TrainConfig:
         for name in ("lr", "clip"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive; got {getattr(self, name)!r}")
+        if not (isinstance(self.supervised, (int, float)) and math.isfinite(self.supervised)
+                and self.supervised >= 0):
+            raise ValueError(f"supervised must be a finite weight >= 0; got {self.supervised!r}")
         if self.gamma is not None and not self.gamma >= 0:
             raise ValueError(f"gamma must be >= 0 or None; got {self.gamma!r}")
         lo, hi = (self.noise, self.noise) if np.ndim(self.noise) == 0 else tuple(self.noise)
@@ -182,7 +195,8 @@ class TrainConfig:
         return float(self.noise[0]), float(self.noise[1])
 
 
-def _batch_loss(ident: Identifier, y, u, yinf, gamma: float) -> torch.Tensor:
+def _batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
+                weight: float = 0.0) -> torch.Tensor:
     """Eq. 14 on Eq. 15-normalised records, averaged over the batch (and the records).
 
     ``y_tilde - y_hat_tilde = 2 (y - y_hat) / y_bar`` (the shift of Eq. 15 cancels), so the
@@ -194,9 +208,11 @@ def _batch_loss(ident: Identifier, y, u, yinf, gamma: float) -> torch.Tensor:
             ``R`` of them ``(batch, steps_r)`` for several records.
         u: ``(batch, steps)`` inputs (a list like ``y``).
         yinf: ``(batch,)`` true stationary values (Eq. 4); ``(batch, R)`` for several records.
+        z: ``(batch, p)`` the true systems' standardised raw parameters, weighted by ``weight``
+            in a mean-squared term against the encoder's outputs (``TrainConfig.supervised``).
     """
     R = ident.records
-    sys = ident.system(y, u)
+    sys, _, raw = ident._forward(y, u, raw=True)
     ys, us = (y, u) if R > 1 else ((y,), (u,))
     total = 0.0
     for r in range(R):
@@ -210,7 +226,10 @@ def _batch_loss(ident: Identifier, y, u, yinf, gamma: float) -> torch.Tensor:
         yinf_hat = _stationary_value(A, b, c, d) * scale if gamma > 0 else None
         total = total + _loss(y_hat * scale[:, None], ys[r] * scale[:, None], yinf_hat,
                               yinf_r * scale, gamma)
-    return total / R
+    total = total / R
+    if weight > 0:
+        total = total + weight * torch.mean((raw - z.to(raw.dtype)) ** 2)
+    return total
 
 
 def _add_noise(y: torch.Tensor, y_bar: torch.Tensor, lo: float, hi: float,
@@ -227,6 +246,15 @@ def _add_noise(y: torch.Tensor, y_bar: torch.Tensor, lo: float, hi: float,
     return y + (level * y_bar)[:, None] * torch.randn(y.shape, generator=generator)
 
 
+def _theta(structure: Structure, systems, gain: np.ndarray | None) -> np.ndarray:
+    """Raw parameters ``(N, p)`` of the true systems as the encoder describes them: for
+    ``scale="denormalise"`` the system from ``u / u_bar`` to ``y / y_bar`` (``gain (N,)``)."""
+    c, d = systems.c, systems.d
+    if gain is not None:
+        c, d = c / gain[:, None], d / gain
+    return np.asarray(structure.theta_of(systems.A, systems.b, c, d), dtype=np.float64)
+
+
 def _raw_statistics(structure: Structure, systems, gain: np.ndarray | None):
     """Centre and spread of the raw parameters of the family's systems (output standardisation).
 
@@ -237,10 +265,7 @@ def _raw_statistics(structure: Structure, systems, gain: np.ndarray | None):
     gradients reached 2e10 and one training seed never learned (measured in notebook 03 before
     this change). The median and IQR ignore such a tail.
     """
-    c, d = systems.c, systems.d
-    if gain is not None:
-        c, d = c / gain[:, None], d / gain
-    theta = np.asarray(structure.theta_of(systems.A, systems.b, c, d), dtype=np.float64)
+    theta = _theta(structure, systems, gain)
     centre = np.median(theta, axis=0)
     q75, q25 = np.percentile(theta, [75, 25], axis=0)
     scale = (q75 - q25) / 1.349
@@ -330,16 +355,24 @@ def train(structure: Structure, family, config: TrainConfig, *,
         stationary_value(*(getattr(rec.systems.record(r), f) for f in "Abcd"))
         for r in range(R)], 1), dtype=dtype)                                  # (count, R)
     scale_all = torch.tensor(y_bar, dtype=dtype)
+
+    def targets(systems, gain: np.ndarray) -> torch.Tensor:
+        """Standardised true raw parameters ``(N, p)`` (``TrainConfig.supervised``)."""
+        theta = _theta(structure, systems, gain[:, 0] if scale_mode == "denormalise" else None)
+        return torch.tensor((theta - mean) / spread, dtype=dtype)
+
+    z_all = targets(rec.systems, gain) if config.supervised > 0 else None
     noise_lo, noise_hi = config.noise_range
     gamma = config.stationary_weight
 
     def batch(idx: torch.Tensor, ys: list[torch.Tensor]):
-        """``(y, u, yinf)`` of the records ``idx`` as the loss takes them (tensors for one
+        """``(y, u, yinf, z)`` of the records ``idx`` as the loss takes them (tensors for one
         record, lists for several); ``ys`` are their outputs, already taken (and noisy)."""
         u = [v[idx] for v in u_all]
+        z = None if z_all is None else z_all[idx]
         if R == 1:
-            return ys[0], u[0], yinf_all[idx, 0]
-        return ys, u, yinf_all[idx]
+            return ys[0], u[0], yinf_all[idx, 0], z
+        return ys, u, yinf_all[idx], z
 
     params = list(ident.encoder.parameters())
     opt = torch.optim.Adam(params, lr=config.lr)
@@ -370,7 +403,8 @@ def train(structure: Structure, family, config: TrainConfig, *,
                     level = (noise_lo + noise_hi) / 2
                     ys = [y + (level * scale_all[idx, r])[:, None] * torch.randn(
                         y.shape, generator=held_noise_gen) for r, y in enumerate(ys)]
-                total += float(_batch_loss(ident, *batch(idx, ys), gamma)) * len(idx)
+                y_, u_, yinf_, _ = batch(idx, ys)
+                total += float(_batch_loss(ident, y_, u_, yinf_, gamma)) * len(idx)
         ident.encoder.train()
         return total / len(held_t)
 
@@ -385,7 +419,12 @@ def train(structure: Structure, family, config: TrainConfig, *,
         if config.seconds is not None and elapsed >= config.seconds:
             break
         if config.fresh and epoch > 0:
-            _redraw(family, config, epoch, train_idx, u_all, y_all, yinf_all, scale_all)
+            new = _redraw(family, config, epoch, train_idx, u_all, y_all, yinf_all, scale_all)
+            if z_all is not None:
+                new_u = new.u if R > 1 else (new.u,)
+                u_new = np.stack([np.max(np.abs(u), axis=1) for u in new_u], 1)
+                z_all[torch.as_tensor(train_idx)] = targets(
+                    new.systems, scale_all[torch.as_tensor(train_idx)].double().numpy() / u_new)
         perm = train_t[torch.randperm(len(train_t), generator=generator)]
         running, skipped, norms = 0.0, 0, []
         for j in range(steps_per_epoch):
@@ -396,7 +435,9 @@ def train(structure: Structure, family, config: TrainConfig, *,
             for group in opt.param_groups:
                 group["lr"] = lr
             idx = perm[j * config.batch: (j + 1) * config.batch]
-            loss = _batch_loss(ident, *noisy(idx), gamma)
+            y_, u_, yinf_, z_ = noisy(idx)
+            loss = _batch_loss(ident, y_, u_, yinf_, gamma, z_,
+                               config.supervised * max(0.0, 1.0 - progress))
             opt.zero_grad(set_to_none=True)
             value = float(loss.detach())
             if not math.isfinite(value):
@@ -477,10 +518,10 @@ def _training_range(ident: Identifier, rec, held: np.ndarray, noise: float,
 
 
 def _redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_all,
-            yinf_all, scale_all) -> None:
+            yinf_all, scale_all) -> Records:
     """New training records for ``epoch`` (``TrainConfig.fresh``): the rows ``rows`` of the
     record tensors are replaced in place by records drawn with a seed of their own, so that a
-    resumed run draws the same ones."""
+    resumed run draws the same ones. Returns the new records."""
     rec = records(family, len(rows), steps=config.steps, dt=config.dt,
                   excitation_kind=config.excitation, seed=config.seed + 7919 * epoch,
                   warmup=config.warmup)
@@ -494,6 +535,7 @@ def _redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_
         s = rec.systems.record(r)
         yinf_all[index, r] = torch.as_tensor(stationary_value(s.A, s.b, s.c, s.d),
                                              dtype=yinf_all.dtype)
+    return rec
 
 
 def _c_free(structure: Structure) -> bool:

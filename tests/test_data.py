@@ -139,7 +139,7 @@ def test_joint_leg_records_are_both_subsystems_on_their_own_grids():
 def test_warmup_records_start_mid_motion_with_their_true_state():
     # Oracle: python-control's forced_response from the recorded initial state over the window.
     fam = LegFamily(subsystem="stable")
-    rec = records(fam, 3, steps=100, dt=0.01, excitation_kind="mix", seed=5, warmup=150)
+    rec = records(fam, 3, steps=100, dt=0.01, excitation_kind="prbs", seed=5, warmup=150)
     assert rec.x0.shape == (3, 2) and np.all(np.abs(rec.x0).max(axis=1) > 0)
     t = np.arange(100) * 0.01
     for i in range(3):
@@ -148,5 +148,18 @@ def test_warmup_records_start_mid_motion_with_their_true_state():
         np.testing.assert_allclose(rec.y_clean[i], ref, rtol=1e-8, atol=1e-10 * abs(ref).max())
     assert rec.take([1]).x0.shape == (1, 2)
     assert records(fam, 2, steps=50, dt=0.01).x0 is None
+
+
+def test_mixed_windows_step_inside_the_window():
+    # A step drawn in the first quarter of warmup + window would have settled before the window
+    # opens (a constant input, a flat record). Every mixed window must see its input change.
+    fam = LegFamily(subsystem="stable")
+    rec = records(fam, 400, steps=300, dt=0.01, excitation_kind="mix", seed=3, warmup=200)
+    # constant only where the step falls on the window's first sample (1 in 75 step records)
+    assert np.mean(np.ptp(rec.u, axis=1) == 0) < 0.02
+    steps = np.ptp(rec.u, axis=1)[np.all(np.diff(rec.u, axis=1)[:, 75:] == 0, axis=1)]
+    assert len(steps) > 50     # the step records: each steps in the window's first quarter
+    u0 = excitation("mix", 400, 500, 0.01, np.random.default_rng(3))
+    assert np.mean(np.ptp(u0[:, 200:], axis=1) == 0) > 0.15   # without first=: flat windows
     with pytest.raises(ValueError, match=r"warmup must be a non-negative integer; got -1"):
         records(fam, 2, steps=50, dt=0.01, warmup=-1)

@@ -81,3 +81,86 @@ def test_export_refuses_what_torchscript_cannot_hold(tmp_path):
         to_torchscript(ident, tmp_path / "x.pt")
     with pytest.raises(ValueError, match=r"ident must be an Identifier"):
         to_torchscript("leg-stable", tmp_path / "x.pt")
+
+
+# -- ONNX ---------------------------------------------------------------------------------------
+onnxruntime = pytest.importorskip("onnxruntime")
+
+
+@pytest.mark.parametrize("structure, inputs", [
+    (ae.CCF(2, descartes=True), False),
+    (ae.CCF(2).fixed(a1=0.0), True),
+    (ae.MCF(real=1, pairs=1), True),
+])
+def test_onnx_export_identifies_like_the_identifier(tmp_path, structure, inputs):
+    from aeid_struct.export import OnnxIdentifier, to_onnx
+
+    ident = _identifier(structure, inputs)
+    runner = OnnxIdentifier(to_onnx(ident, tmp_path / "ident.onnx"))
+    assert (runner.steps, runner.dt, runner.inputs) == (60, 0.05, inputs)
+    assert runner.element_names == structure.element_names
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        y = np.cumsum(rng.uniform(0.1, 1.0, 60)) * rng.uniform(0.5, 5)
+        u = rng.uniform(0.5, 1.5, 60) if inputs else None
+        est = ident.identify(y, u)
+        got = runner(y, u)
+        for k in "Abcd":
+            want = np.asarray(getattr(est, k))
+            np.testing.assert_allclose(got[k], want, rtol=2e-6, atol=2e-6 * np.abs(want).max())
+        np.testing.assert_allclose(got["elements"],
+                                   [est.elements[k] for k in structure.element_names],
+                                   rtol=2e-6, atol=1e-6)
+
+
+def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
+    from aeid_struct.export import OnnxIdentifier, to_onnx
+
+    ident = ae.load_pretrained("leg-stable-window")
+    path = to_onnx(ident, tmp_path / "leg.onnx")
+    rec = ae.data.records(ae.LegFamily(subsystem="stable"), 5, steps=300, dt=0.01,
+                          excitation_kind="prbs", seed=4, warmup=200, noise=0.0)
+    np.save(tmp_path / "y.npy", rec.y[0].astype(np.float32))
+    np.save(tmp_path / "u.npy", rec.u[0].astype(np.float32))
+    script = (
+        "import sys\n"
+        "for m in ('aeid_struct', 'casadi', 'symbolic', 'torch'): sys.modules[m] = None\n"
+        "import numpy as np, onnxruntime as ort\n"
+        f"s = ort.InferenceSession({str(path)!r}, providers=['CPUExecutionProvider'])\n"
+        f"y, u = np.load({str(tmp_path / 'y.npy')!r}), np.load({str(tmp_path / 'u.npy')!r})\n"
+        "A, b, c, d, el = s.run(None, {'y': y, 'u': u})\n"
+        "print(' '.join(repr(float(v)) for v in el))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True, cwd=tmp_path).stdout.split()
+    est = ident.identify(rec.y[0], rec.u[0])
+    for name, value in zip(ident.structure.element_names, out, strict=True):
+        assert float(value) == pytest.approx(est.elements[name], rel=1e-5, abs=1e-6)
+    runner = OnnxIdentifier(path)
+    phys = runner.physical(runner(rec.y[0], rec.u[0]))
+    for name in ("k", "d", "m"):
+        assert phys[name] == pytest.approx(est.physical[name], rel=1e-5)
+    # and it identifies the leg (noise-free window under a random binary force)
+    assert phys["k"] == pytest.approx(rec.systems.params["k"][0], rel=0.03)
+
+
+def test_onnx_reader_checks_its_input(tmp_path):
+    import onnx
+
+    from aeid_struct.export import OnnxIdentifier, onnx_bytes
+
+    ident = _identifier(ae.CCF(2), True)
+    runner = OnnxIdentifier(onnx_bytes(ident))
+    with pytest.raises(ValueError, match=r"y must have shape \(60,\) for this identifier"):
+        runner(np.ones(59), np.ones(59))
+    with pytest.raises(ValueError, match=r"u must be finite"):
+        runner(np.ones(60), np.full(60, np.nan))
+    with pytest.raises(ValueError, match=r"y must not be all zero"):
+        runner(np.zeros(60), np.ones(60))
+    assert runner.physical(runner(np.arange(1.0, 61.0), np.ones(60))) == {}
+    model = onnx.load_from_string(onnx_bytes(ident))
+    del model.metadata_props[:]
+    with pytest.raises(ValueError, match=r"model is not an aeid-struct export"):
+        OnnxIdentifier(model.SerializeToString())
+    with pytest.raises(ValueError, match=r"threads must be a positive integer"):
+        OnnxIdentifier(onnx_bytes(ident), threads=0)

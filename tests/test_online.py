@@ -174,3 +174,27 @@ def test_shipped_window_identifier_tracks_a_wearing_leg():
     # comes while k falls (after the wear starts at 15 s, within 10 s of the 5 % crossing).
     assert result.rms["k"] < 5.0
     assert 15.0 < result.alarm_time < result.drift_time + 10.0
+
+
+def test_onnx_and_identifier_engines_give_the_same_updates():
+    pytest.importorskip("onnxruntime")
+    from aeid_struct.data import records
+
+    ident = ae.load_pretrained("leg-stable-window")
+    rec = records(ae.LegFamily(subsystem="stable"), 1, steps=600, dt=0.01,
+                  excitation_kind="prbs", seed=8, warmup=200, noise=0.01)
+    cfg = TrackerConfig(hop=100, baseline=1)
+    a = Tracker(ident, cfg, engine="onnx")
+    b = Tracker(ident, cfg, engine="identifier")
+    assert (a.engine, b.engine) == ("onnx", "identifier")
+    ua, ub = a.push(rec.u[0], rec.y[0]), b.push(rec.u[0], rec.y[0])
+    assert len(ua) == len(ub) == 4
+    for x, y in zip(ua, ub, strict=True):
+        for k in ("k", "d", "m"):
+            assert x.estimate[k] == pytest.approx(y.estimate[k], rel=2e-5)
+            assert x.smoothed[k] == pytest.approx(y.smoothed[k], rel=2e-5)
+    with pytest.raises(ValueError, match=r"engine must be 'auto', 'onnx' or 'identifier'"):
+        Tracker(ident, cfg, engine="gpu")
+    with pytest.raises(ValueError, match=r"engine='onnx' needs an Identifier to export"):
+        Tracker(_Stub(), cfg, engine="onnx")
+    assert Tracker(_Stub(), cfg).engine == "identifier"

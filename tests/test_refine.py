@@ -461,3 +461,69 @@ def test_refine_errors():
         refine(est, y, None, 0.05, structure=ae.MCF(real=0, pairs=1))
     with pytest.raises(ValueError, match="structure must be a Structure; got str"):
         refine(est, y, None, 0.05, structure="CCF(2)")
+
+
+# -- records that start mid-motion (initial="fitted") --------------------------------------------
+def test_free_response_basis_is_python_controls_response_from_an_initial_state():
+    import control
+
+    rng = np.random.default_rng(21)
+    A, b, c, d = modal_system(3, rng, stable=False, feedthrough=True)
+    steps, dt = 80, 0.02
+    sA, sb, sc = casadi.SX.sym("A", 3, 3), casadi.SX.sym("b", 3), casadi.SX.sym("c", 3)
+    sd, su = casadi.SX.sym("d"), casadi.SX.sym("u", steps)
+    norm = max(np.abs(A).sum(0).max() * dt, np.abs(b).sum() * dt, 1.0)
+    y, O = R.casadi_simulate(sA, sb, sc, sd, su, dt, squarings=R._squarings(norm), free=True)
+    f = casadi.Function("sim", [sA, sb, sc, sd, su], [y, O])
+    u = np.sin(np.arange(steps) * 0.3)
+    x0 = rng.normal(size=3)
+    got_y, got_O = (np.array(v) for v in f(A, b, c, d, u))
+    sys = control.ss(A, b[:, None], c[None], d)
+    t = np.arange(steps) * dt
+    ref = control.forced_response(sys, t, u, X0=x0).outputs
+    assert rel_max_error(got_y.ravel() + got_O @ x0, ref) <= 1e-10
+
+
+@pytest.mark.parametrize("kind", ["prbs", "multisine", "mix"])
+def test_refinement_of_a_mid_motion_window_recovers_the_system_and_its_state(kind):
+    from aeid_struct.data import records
+    from aeid_struct.decoder import initial_state
+
+    structure = ae.CCF(2, descartes=True)
+    rec = records(ae.LegFamily(subsystem="stable"), 3, steps=300, dt=0.01,
+                  excitation_kind=kind, seed=4, warmup=150)
+    for i in range(3):
+        A, b, c = rec.systems.A[i], rec.systems.b[i], rec.systems.c[i]
+        x_true = structure.elements_of(A, b, c).numpy()
+        start = x_true * np.array([1.25, 0.7, 1.2, 1.0]) + np.array([0, 0, 0, 0.05])
+        res = refine_elements(structure, start, rec.y[i], rec.u[i], 0.01, initial="fitted")
+        assert res.success and res.loss <= 1e-20 < res.loss_start
+        assert np.abs(res.elements - x_true).max() <= 1e-8 * np.abs(x_true).max()
+        # and the state the decoder fits to the refined model is the window's true state
+        sys = structure.assemble(torch.tensor(res.elements)[None])
+        x0 = initial_state(sys.A.numpy(), sys.b.numpy(), sys.c.numpy(), sys.d.numpy(),
+                           rec.u[i][None], rec.y[i][None], 0.01)[0]
+        np.testing.assert_allclose(x0, rec.x0[i], rtol=1e-7, atol=1e-12)
+        if np.abs(rec.x0[i]).max() > 1e-3 * np.abs(rec.y[i]).max():
+            # from rest, the same start cannot explain the window's free response
+            rest = refine_elements(structure, start, rec.y[i], rec.u[i], 0.01)
+            assert rest.loss > 1e3 * max(res.loss, 1e-25)
+    with pytest.raises(ValueError, match=r"initial must be 'rest' or 'fitted'; got 'zero'"):
+        refine_elements(structure, start, rec.y[0], rec.u[0], 0.01, initial="zero")
+
+
+def test_identify_refines_windows_of_a_running_leg():
+    from aeid_struct.data import records
+
+    ident = ae.load_pretrained("leg-stable-window")
+    rec = records(ae.LegFamily(subsystem="stable"), 4, steps=300, dt=0.01,
+                  excitation_kind="mix", seed=9, warmup=200)
+    enc = ident.identify(rec.y, rec.u)
+    est = ident.identify(rec.y, rec.u, refine=True)
+    assert est.refined and np.all(est.info["loss"] <= est.info["loss_start"])
+    for p in ("k", "d", "m"):
+        truth = rec.systems.params[p]
+        assert np.abs(est.physical[p] / truth - 1).max() < 1e-7
+        assert np.abs(enc.physical[p] / truth - 1).max() > 1e-3     # the encoder alone is not
+    np.testing.assert_allclose(est.x0, rec.x0, rtol=1e-6, atol=1e-9)
+    assert np.all(est.fit > 99.9999)
