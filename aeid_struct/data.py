@@ -20,7 +20,7 @@ import numpy as np
 
 from .decoder import simulate, states
 
-EXCITATIONS = ("step", "ramp", "prbs", "multisine", "noise", "mix")
+EXCITATIONS = ("step", "ramp", "prbs", "multisine", "noise", "steps", "mix")
 
 
 @dataclass(frozen=True)
@@ -217,8 +217,10 @@ def excitation(kind: str, count: int, steps: int, dt: float,
     - ``prbs``: random +-1 levels held for 3-12 samples (a pseudo-random binary sequence).
     - ``multisine``: 4 random-phase sines between 0.2 and 10 Hz (below Nyquist), peak 1.
     - ``noise``: Gaussian noise low-pass filtered (first order, 5 Hz), peak 1.
-    - ``mix``: each record of a kind drawn at random among the above, steps of random height
-      in [0.5, 2] and random start in the first quarter of the samples from ``first`` on.
+    - ``steps``: a step of random height in [0.5, 2] at a random sample in the first quarter of
+      the samples from ``first`` on (zero before it).
+    - ``mix``: each record of a kind drawn at random among ``steps``, ``prbs``, ``multisine``
+      and ``noise``.
 
     ``first``: where the record proper begins (``records(warmup=...)``). Why: a step in the
     first quarter of warmup + window has settled before a mid-motion window opens, and a flat
@@ -247,6 +249,10 @@ def excitation(kind: str, count: int, steps: int, dt: float,
         phase = rng.uniform(0, 2 * np.pi, size=(count, 4, 1))
         u = np.sin(2 * np.pi * f * t[None, None, :] + phase).sum(axis=1)
         return u / np.max(np.abs(u), axis=1, keepdims=True)
+    if kind == "steps":
+        height = rng.uniform(0.5, 2.0, size=(count, 1))
+        start = first + rng.integers(0, max((steps - first) // 4, 1), size=(count, 1))
+        return height * (np.arange(steps)[None, :] >= start)
     if kind == "noise":
         from scipy.signal import lfilter
 
@@ -261,12 +267,8 @@ def excitation(kind: str, count: int, steps: int, dt: float,
         idx = np.flatnonzero(pick == j)
         if idx.size == 0:
             continue
-        if sub == "step":
-            height = rng.uniform(0.5, 2.0, size=(idx.size, 1))
-            start = first + rng.integers(0, max((steps - first) // 4, 1), size=(idx.size, 1))
-            u[idx] = height * (np.arange(steps)[None, :] >= start)
-        else:
-            u[idx] = excitation(sub, idx.size, steps, dt, rng)
+        u[idx] = excitation("steps" if sub == "step" else sub, idx.size, steps, dt, rng,
+                            first=first)
     return u
 
 

@@ -50,10 +50,14 @@ from .structures import Structure, System
 
 FORMAT = "aeid-struct/identifier/1"
 SCALE_MODES = ("denormalise", "feature")
-#: Margins of ``Estimate.outside``: a fraction of each element's training span, on each side,
-#: and fit points (NRMSE %) below the held-out 1st percentile.
+#: Margins of ``Estimate.outside`` for identifiers with an uncalibrated training range (files
+#: from before the calibration): a fraction of each element's training span, on each side, and
+#: fit points (NRMSE %) below the held-out 1st percentile.
 RANGE_MARGIN = 0.05
 FIT_MARGIN = 5.0
+#: The calibrated rule's false-flag budget per criterion (excess and fit) on held-out records
+#: inside the training range: each threshold is that quantile of its statistic there.
+FLAG_FALSE_RATE = 0.015
 #: How the decoder treats a record's initial state: from rest (the paper), or fitted by least
 #: squares (records that start mid-motion; ``decoder.initial_state``).
 INITIAL_STATES = ("rest", "fitted")
@@ -135,31 +139,38 @@ class Estimate:
 
     @cached_property
     def outside(self):
-        """Whether the estimate lies outside the identifier's training range: some free element,
-        or physical parameter, beyond its range over the training family by more than its
-        margin. A bool, or ``(batch,)``; None when the identifier carries no training range.
+        """Whether the estimate lies outside the identifier's training range. A bool, or
+        ``(batch,)``; None when the identifier carries no training range.
 
-        The margin of each quantity is ``max(RANGE_MARGIN * span, 3 * err)``: ``err`` is the
-        90th percentile of the identifier's own error on held-out records of its family at its
-        largest training noise, measured at the end of training. So a quantity the records
-        determine poorly (k and m of the leg's unstable subsystem) needs a large departure to
-        flag, and none flags on estimation noise alone. Quantities the family holds constant
-        (the leg's c1 = 0) are not compared.
-
-        And the decoded response: a fit (``fit``, NRMSE %) more than ``FIT_MARGIN`` points below
-        the 1st percentile of the identifier's held-out fits at its largest training noise
-        flags too -- a record noisier than any the identifier was trained on, or one whose
-        system the encoder cannot reach and saturates on.
+        Calibrated rule (identifiers trained by this version, and the shipped ones): flagged when
+        ``excess`` (how far some free element or physical parameter lies beyond its range over
+        the training family, in units of the identifier's 90th-percentile held-out error on it)
+        exceeds a threshold, or when the fit (``fit``, NRMSE %) falls below one. Both thresholds
+        are quantiles of the same statistics on the identifier's held-out records at its largest
+        training noise, set at the end of training so that each flags ``FLAG_FALSE_RATE`` of
+        them: the false-flag rate inside the range is known by construction (at most twice
+        that, less on cleaner records). Quantities the family holds constant (the leg's c1 = 0)
+        are not compared.
 
         Why both: an encoder that extrapolates decodes a record from beyond the range well (its
         residual says nothing) while its parameters land outside the range; one that saturates
         keeps the parameters inside and misfits. Physical parameters (through an inverse map)
         are compared too: the bounding box of the elements is much larger than the image of the
-        parameter box.
+        parameter box. Why errors as the unit: a quantity the records determine poorly (k and m
+        of the leg's unstable subsystem) needs a large departure to flag.
+
+        Older files carry no thresholds; for them the margin of each quantity is
+        ``max(RANGE_MARGIN * span, 3 * err)`` and the fit flags ``FIT_MARGIN`` points below
+        the held-out 1st percentile.
         """
         rng = self.training_range
         if not rng:
             return None
+        if "excess" in rng:
+            excess = np.asarray(self.excess)
+            flags = (excess > rng["excess"]) | ~np.isfinite(excess) \
+                | (np.asarray(self.fit) < rng["fit"])
+            return flags if self.batched else bool(flags)
         values = {**self.elements, **(self.physical or {})}
         flags = np.zeros(np.shape(np.asarray(next(iter(self.elements.values())))), dtype=bool)
         if "fit" in rng:
@@ -172,6 +183,19 @@ class Estimate:
                 value = np.asarray(values[name], dtype=np.float64)
                 flags |= (value < lo - pad) | (value > hi + pad) | ~np.isfinite(value)
         return flags if self.batched else bool(flags)
+
+    @cached_property
+    def excess(self):
+        """How far the estimate lies beyond the identifier's training range, in units of its
+        own held-out error: ``max_q max(lo_q - v_q, v_q - hi_q, 0) / err_q`` over the free
+        elements and physical parameters ``q`` (``err_q`` the 90th-percentile held-out error);
+        0 inside the range, inf for a non-finite value. A float or ``(batch,)``; None without a
+        training range."""
+        rng = self.training_range
+        if not rng:
+            return None
+        out = _excess({**self.elements, **(self.physical or {})}, rng)
+        return out if self.batched else float(out)
 
     @cached_property
     def x0(self):
@@ -260,6 +284,21 @@ class Estimate:
         if not self.batched:
             return one(self.A, self.b, self.c, self.d)
         return [one(*m) for m in zip(self.A, self.b, self.c, self.d, strict=True)]
+
+
+def _excess(values: dict, rng: dict) -> np.ndarray:
+    """``Estimate.excess`` of element and parameter ``values`` (name -> array) against a
+    training range (``training._training_range``)."""
+    shape = np.shape(np.asarray(next(iter(values.values()))))
+    out = np.zeros(shape)
+    for group in ("elements", "physical"):
+        for name, (lo, hi, err) in rng.get(group, {}).items():
+            if name not in values or not hi - lo > 1e-8 * max(abs(lo), abs(hi), 1e-300):
+                continue          # held constant by the family (the leg's c1 = 0)
+            v = np.asarray(values[name], dtype=np.float64)
+            beyond = np.maximum(np.maximum(lo - v, v - hi), 0.0) / max(err, 1e-300)
+            out = np.maximum(out, np.where(np.isfinite(v), beyond, np.inf))
+    return out
 
 
 def _apply_inverse(inverse, A: np.ndarray, b: np.ndarray, c: np.ndarray,
@@ -910,7 +949,7 @@ class _Batch1:
 
 
 PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-noisy", "leg-unstable-noisy",
-              "leg-stable-window")
+              "leg-stable-window", "leg-stable-any", "leg-unstable-any")
 
 
 def load_pretrained(name: str) -> Identifier:
@@ -918,7 +957,11 @@ def load_pretrained(name: str) -> Identifier:
     ``"leg-unstable"``, and their noise-trained variants ``"leg-stable-noisy"``,
     ``"leg-unstable-noisy"`` for measured (noisy) records; ``"leg-stable-window"`` reads the
     input too and identifies windows of a running leg under a random binary force (records
-    that start mid-motion; the tracker's identifier, ``aeid-struct track``)."""
+    that start mid-motion; the tracker's identifier, ``aeid-struct track``);
+    ``"leg-stable-any"`` (windows mid-motion) and ``"leg-unstable-any"`` (records from rest)
+    read any reasonably exciting input: steps of random height and timing, binary sequences,
+    multisines, filtered noise (their encoder alone is a start for ``refine=True``; accuracy
+    in ``pretrained/README.md``)."""
     from importlib.resources import files
 
     root = files("aeid_struct.pretrained")

@@ -58,7 +58,7 @@ from .decoder import (
     stationary_value,
 )
 from .encoder import Encoder, EncoderConfig
-from .identify import INITIAL_STATES, Identifier
+from .identify import FLAG_FALSE_RATE, INITIAL_STATES, Identifier, _excess
 from .structures import Physical, Structure
 
 
@@ -489,12 +489,34 @@ def train(structure: Structure, family, config: TrainConfig, *,
     return ident
 
 
+def recalibrate(ident: Identifier, family) -> Identifier:
+    """Recompute ``ident``'s training range and flag thresholds (``Estimate.outside``) as
+    ``train()`` does at its end, for a file trained before them: the run's records and held-out
+    split are re-created from the settings it recorded (``meta["train"]["config"]``) and
+    ``family``, which must be the family it was trained on. The weights are untouched; returns
+    ``ident`` with ``meta["training_range"]`` replaced."""
+    cfg = ident.meta.get("train", {}).get("config")
+    if not cfg:
+        raise ValueError("ident must carry its training settings (meta['train']['config'])")
+    if ident.records != 1:
+        raise ValueError("recalibrate covers identifiers of one record")
+    rec = records(family, cfg["count"], steps=cfg["steps"], dt=cfg["dt"],
+                  excitation_kind=cfg["excitation"], seed=cfg["seed"],
+                  warmup=cfg.get("warmup", 0))
+    holdout = int(cfg["count"] * cfg["holdout"])
+    held = np.random.default_rng(cfg["seed"] + 1).permutation(cfg["count"])[:holdout]
+    ident.meta["training_range"] = _training_range(ident, rec, held, max(cfg["noise"]),
+                                                   cfg["seed"] + 4)
+    return ident
+
+
 def _training_range(ident: Identifier, rec, held: np.ndarray, noise: float,
                     seed: int) -> dict:
     """What ``Estimate.outside`` compares with: per free element and physical parameter, its
     ``[lo, hi]`` over the training family and the identifier's 90th-percentile absolute error on
-    the held-out records at the largest training noise (one record per system); and ``fit``, the
-    1st percentile of the NRMSE fit (%) on those records."""
+    the held-out records at the largest training noise (one record per system); and the two
+    flag thresholds calibrated on those records: ``excess`` (its ``1 - FLAG_FALSE_RATE``
+    quantile) and ``fit`` (NRMSE %, its ``FLAG_FALSE_RATE`` quantile)."""
     systems = rec.systems
     X = ident.structure.elements_of(systems.A, systems.b, systems.c, systems.d).numpy()
     rng = np.random.default_rng(seed)
@@ -507,13 +529,17 @@ def _training_range(ident: Identifier, rec, held: np.ndarray, noise: float,
             err = np.abs(np.asarray(est.elements[name]) - X[held, i])
             out["elements"][name] = [float(X[:, i].min()), float(X[:, i].max()),
                                      float(np.nanpercentile(err, 90))]
-    out["fit"] = float(np.nanpercentile(est.fit, 1))
     for name, value in (est.physical or {}).items():
         if name in systems.params:
             truth = systems.params[name]
             err = np.abs(np.asarray(value) - truth[held])
             out["physical"][name] = [float(truth.min()), float(truth.max()),
                                      float(np.nanpercentile(err, 90))]
+    # The flag thresholds (Estimate.outside): the quantiles of excess and fit on these
+    # in-range records that flag FLAG_FALSE_RATE of them each.
+    excess = _excess({**est.elements, **(est.physical or {})}, out)
+    out["excess"] = float(np.nanquantile(excess, 1.0 - FLAG_FALSE_RATE))
+    out["fit"] = float(np.nanquantile(est.fit, FLAG_FALSE_RATE))
     return out
 
 

@@ -314,3 +314,14 @@ def test_physical_of_a_modal_estimate_goes_through_its_transfer_function():
         assert est.physical["m"][i] == pytest.approx(m, rel=1e-8)
         assert est.physical["k"][i] == pytest.approx(a0 * m, rel=1e-8)
         assert est.physical["d"][i] == pytest.approx(a1 * m, rel=1e-8)
+
+
+def test_excess_is_the_distance_beyond_the_range_in_error_units():
+    from aeid_struct.identify import _excess
+
+    rng = {"elements": {"a0": [1.0, 4.0, 0.5], "c1": [0.0, 0.0, 0.1]},
+           "physical": {"k": [20.0, 25.0, 2.0]}}
+    values = {"a0": np.array([2.0, 5.0, 0.0, np.nan, 2.0]),
+              "c1": np.array([9.0, 9.0, 9.0, 9.0, 9.0]),        # constant in the family: skipped
+              "k": np.array([22.0, 22.0, 22.0, 22.0, 31.0])}
+    np.testing.assert_array_equal(_excess(values, rng), [0.0, 2.0, 2.0, np.inf, 3.0])

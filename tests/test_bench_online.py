@@ -1,0 +1,55 @@
+"""The online benchmark: its scenario construction against closed forms, and the command in its
+quick form (the full run's numbers are in pretrained/README.md)."""
+
+import json
+
+import numpy as np
+import pytest
+
+import aeid_struct as ae
+from aeid_struct.bench_online import _outside_family, bench_excitation, format_tables
+
+RANGES = {"k": (19.0, 27.0), "d": (1.5, 5.5), "m": (0.5, 1.5)}
+
+
+@pytest.mark.parametrize("f", [0.1, 0.3])
+def test_outside_legs_lie_f_beyond_one_bound_and_inside_otherwise(f):
+    params = _outside_family(RANGES, "d", f, 200, np.random.default_rng(0))
+    d = params["d"]
+    assert np.all(np.isclose(d, 5.5 * (1 + f)) | np.isclose(d, 1.5 * (1 - f)))
+    assert 0.3 < np.mean(d > 5.5) < 0.7                      # both sides
+    for p in ("k", "m"):
+        lo, hi = RANGES[p]
+        assert np.all((params[p] >= lo) & (params[p] <= hi))
+
+
+def test_excitation_rows_refine_to_the_truth_on_clean_records():
+    ident = ae.load_pretrained("leg-unstable-any")
+    rows = bench_excitation(ident, ae.LegFamily(subsystem="unstable"), kinds=("multisine",),
+                            noises=(0.0,), count=4)
+    (row,) = rows
+    assert row["kind"] == "multisine" and row["count"] == 4
+    assert row["refined"]["k"] < 1e-6 and row["refined"]["m"] < 1e-6
+    assert row["refined"]["step_error"] < 1e-10 and row["refined"]["failures"] == 0.0
+    assert row["encoder"]["step_error"] > row["refined"]["step_error"]
+    assert "| multisine | 0 % |" in format_tables({"excitation": {"u": rows}})
+
+
+@pytest.mark.slow
+def test_bench_online_quick_runs_and_writes_the_targets(tmp_path, capsys):
+    from aeid_struct.cli import main
+
+    out = tmp_path / "b.json"
+    assert main(["bench-online", "--quick", "--quiet", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    for heading in ("### Tracker", "### Latency", "### Arbitrary excitation: leg-stable-any",
+                    "### Arbitrary excitation: leg-unstable-any",
+                    "### Out-of-range flags: leg-stable-window", "Measured: update"):
+        assert heading in text
+    result = json.loads(out.read_text())
+    t = result["targets"]
+    assert 0 < t["update_ms_median"] < 50 and 0 < t["k_rms_percent_mean"] < 20
+    assert 0.0 <= t["false_flags_max"] <= 1.0
+    assert {r["engine"] for r in result["tracker"]} == {"onnx", "identifier"}
+    assert {"Identifier.identify", "TorchScript file", "ONNX file (onnxruntime)"} \
+        <= set(result["latency"])
