@@ -306,6 +306,12 @@ def bench_online(*, quick: bool = False, seconds: float = 120.0, noise: float = 
         result["flags"][name] = bench_flags(load_pretrained(name), ranges,
                                             count=30 if quick else 300,
                                             noises=(0.01,) if quick else (0.0, 0.01))
+    if not quick:   # the step-response identifier for measured records, for comparison
+        say("flags: leg-stable-noisy ...")
+        result["flags"]["leg-stable-noisy"] = bench_flags(
+            load_pretrained("leg-stable-noisy"), {"k": (20.0, 25.0), "d": (2.0, 5.0),
+                                                  "m": (0.5, 1.5)},
+            count=300, noises=(0.0, 0.01, 0.05))
     result["targets"] = _targets(result)
     return result
 
