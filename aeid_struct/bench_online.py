@@ -214,56 +214,58 @@ def bench_flags(ident, ranges: dict, *, noises=(0.0, 0.01), beyond=(0.1, 0.2, 0.
     return rows
 
 
+def _joined(values: dict, fmt: str, names=("k", "d", "m")) -> str:
+    """``"a / b / c"`` of the named values present, each formatted by ``fmt``."""
+    return " / ".join(format(values[p], fmt) for p in names if p in values)
+
+
+def _heading(title: str, columns: str, align: str) -> list[str]:
+    return [f"### {title}", "", columns, align]
+
+
 def format_tables(result: dict) -> str:
     """Markdown tables of a ``bench_online`` result."""
     out = []
     if "tracker" in result:
-        out += ["### Tracker (wear scenario, one update = one window identified)", "",
-                "| engine | seed | k / d / m RMS % | true 5 % crossing | alarm | update ms |",
-                "|---|---:|---|---:|---:|---:|"]
+        out += _heading("Tracker (wear scenario, one update = one window identified)",
+                        "| engine | seed | k / d / m RMS % | true 5 % crossing | alarm | "
+                        "update ms |", "|---|---:|---|---:|---:|---:|")
         for r in result["tracker"]:
-            out.append(f"| {r['engine']} | {r['seed']} | "
-                       + " / ".join(f"{r['rms'][p]:.2f}" for p in ("k", "d", "m"))
+            out.append(f"| {r['engine']} | {r['seed']} | {_joined(r['rms'], '.2f')}"
                        + f" | {r['drift_time']:.1f} s | {r['alarm_time']:.1f} s"
                        + (" (false)" if r["false_alarm"] else "")
                        + f" | {r['latency_ms']:.3f} |")
         out.append("")
     if "latency" in result:
-        out += ["### Latency of one record, one thread", "", "| path | median ms | p95 ms |",
-                "|---|---:|---:|"]
+        out += _heading("Latency of one record, one thread", "| path | median ms | p95 ms |",
+                        "|---|---:|---:|")
         for name, t in result["latency"].items():
             out.append(f"| {name} | {t['median_ms']:.3f} | {t['p95_ms']:.3f} |")
         out.append("")
     for key, rows in result.get("excitation", {}).items():
-        out += [f"### Arbitrary excitation: {key}", "",
-                "| input | noise | encoder k / d / m median % | step err | fail | "
-                "+ refine k / d / m median % | step err | fail | refine ms |",
-                "|---|---:|---|---:|---:|---|---:|---:|---:|"]
+        out += _heading(f"Arbitrary excitation: {key}",
+                        "| input | noise | encoder k / d / m median % | step err | fail | "
+                        "+ refine k / d / m median % | step err | fail | refine ms |",
+                        "|---|---:|---|---:|---:|---|---:|---:|---:|")
         for r in rows:
             e = r["encoder"]
-            names = [p for p in ("k", "d", "m") if p in e]
-            line = (f"| {r['kind']} | {100 * r['noise']:g} % | "
-                    + " / ".join(f"{e[p]:.2f}" for p in names)
-                    + f" | {e['step_error']:.1e} | {100 * e['failures']:.0f} % |")
+            line = (f"| {r['kind']} | {100 * r['noise']:g} % | {_joined(e, '.2f')}"
+                    f" | {e['step_error']:.1e} | {100 * e['failures']:.0f} % |")
             if "refined" in r:
                 f = r["refined"]
-                line += (" " + " / ".join(f"{f[p]:.3f}" for p in names)
-                         + f" | {f['step_error']:.1e} | {100 * f['failures']:.0f} % | "
-                         f"{r['refine_ms']:.1f} |")
+                line += (f" {_joined(f, '.3f')} | {f['step_error']:.1e} | "
+                         f"{100 * f['failures']:.0f} % | {r['refine_ms']:.1f} |")
             out.append(line)
         out.append("")
     for key, rows in result.get("flags", {}).items():
-        out += [f"### Out-of-range flags: {key}", "",
-                "| noise | legs | flagged | mean % before (k / d / m, those the record "
-                "holds) | after refine='auto' |",
-                "|---:|---|---:|---|---|"]
+        out += _heading(f"Out-of-range flags: {key}",
+                        "| noise | legs | flagged | mean % before (k / d / m, those the record "
+                        "holds) | after refine='auto' |", "|---:|---|---:|---|---|")
         for r in rows:
             where = "inside" if r["beyond"] == 0 else f"{100 * r['beyond']:.0f} % beyond"
             line = f"| {100 * r['noise']:g} % | {where} | {100 * r['flagged']:.1f} % |"
             if "before" in r:
-                names = [p for p in ("k", "d", "m") if p in r["before"]]
-                line += (" " + " / ".join(f"{r['before'][p]:.2f}" for p in names)
-                         + " | " + " / ".join(f"{r['after'][p]:.2f}" for p in names) + " |")
+                line += f" {_joined(r['before'], '.2f')} | {_joined(r['after'], '.2f')} |"
             out.append(line)
         out.append("")
     return "\n".join(out)

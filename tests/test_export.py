@@ -15,6 +15,14 @@ from aeid_struct.identify import Identifier
 from symbolic import leg
 
 
+def _run_without(blocked, body: str, cwd) -> list[str]:
+    """Run ``body`` in a fresh interpreter where the modules ``blocked`` cannot be imported;
+    its printed words."""
+    script = f"import sys\nfor m in {tuple(blocked)!r}: sys.modules[m] = None\n" + body
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          check=True, cwd=cwd).stdout.split()
+
+
 def _identifier(structure, inputs):
     torch.manual_seed(0)
     enc = Encoder(EncoderConfig(steps=60, outputs=structure.p, inputs=inputs, width=4, pool=2,
@@ -23,11 +31,12 @@ def _identifier(structure, inputs):
                       theta_scale=torch.full((structure.p,), 0.3))
 
 
-@pytest.mark.parametrize("structure, inputs", [
-    (ae.CCF(2, descartes=True), False),
-    (ae.CCF(2).fixed(a1=0.0), True),
-    (ae.MCF(real=1, pairs=1), True),
-])
+#: Structures the exports cover: plain and Descartes CCF, fixed elements, MCF; with and without u.
+EXPORTABLE = [(ae.CCF(2, descartes=True), False), (ae.CCF(2).fixed(a1=0.0), True),
+              (ae.MCF(real=1, pairs=1), True)]
+
+
+@pytest.mark.parametrize("structure, inputs", EXPORTABLE)
 def test_exported_module_identifies_like_the_identifier(tmp_path, structure, inputs):
     ident = _identifier(structure, inputs)
     path = to_torchscript(ident, tmp_path / "ident.pt")
@@ -51,18 +60,12 @@ def test_exported_file_needs_neither_aeid_struct_nor_casadi(tmp_path):
     s = ae.LegFamily(subsystem="stable").systems(24.23, 2.24, 1.01)
     y = ae.simulate(s.A[0], s.b[0], s.c[0], 0.0, np.ones(300), 0.01)
     np.save(tmp_path / "y.npy", y.astype(np.float32))
-    script = (
-        "import sys\n"
-        "sys.modules['aeid_struct'] = None; sys.modules['casadi'] = None; "
-        "sys.modules['symbolic'] = None\n"
+    out = _run_without(("aeid_struct", "casadi", "symbolic"), (
         "import numpy as np, torch\n"
         f"m = torch.jit.load({str(path)!r})\n"
         f"y = torch.from_numpy(np.load({str(tmp_path / 'y.npy')!r}))\n"
         "A, b, c, d, el = m(y, torch.ones(300))\n"
-        "print(' '.join(repr(float(v)) for v in el))\n"
-    )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         check=True, cwd=tmp_path).stdout.split()
+        "print(' '.join(repr(float(v)) for v in el))\n"), tmp_path)
     est = ident.identify(y)
     a0, a1, c0 = (float(v) for v in out[:3])
     assert a0 == pytest.approx(est.elements["a0"], rel=1e-5)
@@ -83,15 +86,8 @@ def test_export_refuses_what_torchscript_cannot_hold(tmp_path):
         to_torchscript("leg-stable", tmp_path / "x.pt")
 
 
-# -- ONNX ---------------------------------------------------------------------------------------
-onnxruntime = pytest.importorskip("onnxruntime")
-
-
-@pytest.mark.parametrize("structure, inputs", [
-    (ae.CCF(2, descartes=True), False),
-    (ae.CCF(2).fixed(a1=0.0), True),
-    (ae.MCF(real=1, pairs=1), True),
-])
+# -- ONNX (the optional extra; the dev extra installs it) -----------------------------------------
+@pytest.mark.parametrize("structure, inputs", EXPORTABLE)
 def test_onnx_export_identifies_like_the_identifier(tmp_path, structure, inputs):
     from aeid_struct.export import OnnxIdentifier, to_onnx
 
@@ -122,17 +118,12 @@ def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
                           excitation_kind="prbs", seed=4, warmup=200, noise=0.0)
     np.save(tmp_path / "y.npy", rec.y[0].astype(np.float32))
     np.save(tmp_path / "u.npy", rec.u[0].astype(np.float32))
-    script = (
-        "import sys\n"
-        "for m in ('aeid_struct', 'casadi', 'symbolic', 'torch'): sys.modules[m] = None\n"
+    out = _run_without(("aeid_struct", "casadi", "symbolic", "torch"), (
         "import numpy as np, onnxruntime as ort\n"
         f"s = ort.InferenceSession({str(path)!r}, providers=['CPUExecutionProvider'])\n"
         f"y, u = np.load({str(tmp_path / 'y.npy')!r}), np.load({str(tmp_path / 'u.npy')!r})\n"
         "A, b, c, d, el = s.run(None, {'y': y, 'u': u})\n"
-        "print(' '.join(repr(float(v)) for v in el))\n"
-    )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         check=True, cwd=tmp_path).stdout.split()
+        "print(' '.join(repr(float(v)) for v in el))\n"), tmp_path)
     est = ident.identify(rec.y[0], rec.u[0])
     for name, value in zip(ident.structure.element_names, out, strict=True):
         assert float(value) == pytest.approx(est.elements[name], rel=1e-5, abs=1e-6)
