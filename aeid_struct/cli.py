@@ -236,7 +236,8 @@ def _track(args: argparse.Namespace) -> int:
     try:
         ident = (Identifier.load(args.model) if Path(args.model).exists()
                  else load_pretrained(args.model))
-        config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, threshold=args.threshold,
+        config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, median=args.median,
+                               threshold=args.threshold,
                                baseline=args.baseline, patience=args.patience,
                                watch=tuple(args.watch))
         result = wear_study(ident, seconds=args.seconds, noise=args.noise, seed=args.seed,
@@ -411,6 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
     trk.add_argument("--noise", type=float, default=0.01, help="measurement noise, of max|y|")
     trk.add_argument("--hop", type=int, default=50, help="samples between identifications")
     trk.add_argument("--smoothing", type=float, default=0.2, help="moving-average weight")
+    trk.add_argument("--median", type=int, default=1,
+                     help="window estimates in the running median before the moving average")
     trk.add_argument("--threshold", type=float, default=0.05, help="relative drift that alarms")
     trk.add_argument("--baseline", type=int, default=10, help="windows in the reference")
     trk.add_argument("--patience", type=int, default=3, help="windows over the threshold")

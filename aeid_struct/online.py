@@ -11,8 +11,12 @@ decoder fits the window's initial state by linear least squares (``decoder.initi
 that the encoder only has to output the structure's parameters. The tracker never needs the
 state itself (its estimates' ``x0`` is there when asked for).
 
-Smoothing and alarm. Each parameter ``p`` is smoothed by an exponential moving average,
-``s_j = s_{j-1} + alpha (p_j - s_{j-1})`` (``alpha = TrackerConfig.smoothing``). The reference
+Smoothing and alarm. Each parameter ``p`` is first taken as the running median of its last
+``TrackerConfig.median`` window estimates, ``q_j = median(p_{j-M+1}, .., p_j)`` (M = 1: the
+estimate itself), then smoothed by an exponential moving average,
+``s_j = s_{j-1} + alpha (q_j - s_{j-1})`` (``alpha = TrackerConfig.smoothing``). Why the median:
+the window estimates have heavy tails (a stretch of weakly exciting input puts several windows
+off together), which an average passes on and a median does not. The reference
 is the median of the first ``baseline`` window estimates (not of the smoothed values, which
 are still settling from the first estimate then); the alarm is raised once
 ``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive windows for any
@@ -42,6 +46,8 @@ class TrackerConfig:
     Attributes:
         hop: samples between two identifications (window starts), >= 1.
         smoothing: the moving-average weight ``alpha`` in (0, 1] (1 = no smoothing).
+        median: window estimates in the running median taken before the moving average
+            (1 = none).
         threshold: relative drift of a smoothed parameter from its reference that alarms.
         baseline: windows whose estimates' median is the reference.
         patience: consecutive windows over the threshold before the alarm is raised.
@@ -51,6 +57,7 @@ class TrackerConfig:
 
     hop: int = 50
     smoothing: float = 0.2
+    median: int = 1
     threshold: float = 0.05
     baseline: int = 10
     patience: int = 3
@@ -58,7 +65,7 @@ class TrackerConfig:
     watch: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        for name in ("hop", "baseline", "patience"):
+        for name in ("hop", "median", "baseline", "patience"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
@@ -210,15 +217,19 @@ class Tracker:
             raise ValueError("identifier must give physical parameters (a physical structure, or "
                              "an inverse map); its estimates have none"
                              + (f" named {cfg.parameters}" if cfg.parameters else ""))
-        for k, v in values.items():
+        s.history.append(dict(values))
+        recent = s.history[-cfg.median:]
+        for k in values:
+            v = float(np.median([h[k] for h in recent])) if cfg.median > 1 else values[k]
             prev = s.smoothed.get(k)
             s.smoothed[k] = v if prev is None or not math.isfinite(prev) \
                 else prev + cfg.smoothing * (v - prev)
-        s.history.append(dict(values))
         drift = {k: math.nan for k in values}
         if s.reference is None and len(s.history) >= cfg.baseline:
             s.reference = {k: float(np.median([h[k] for h in s.history[: cfg.baseline]]))
                            for k in values}
+        if s.reference is not None and len(s.history) > cfg.median:
+            del s.history[: -cfg.median]       # a stream may run for days: keep what is used
         if s.reference is not None:
             drift = {k: s.smoothed[k] / s.reference[k] - 1.0 for k in values}
             watched = [v for k, v in drift.items() if not cfg.watch or k in cfg.watch]

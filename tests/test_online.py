@@ -198,3 +198,52 @@ def test_onnx_and_identifier_engines_give_the_same_updates():
     with pytest.raises(ValueError, match=r"engine='onnx' needs an Identifier to export"):
         Tracker(_Stub(), cfg, engine="onnx")
     assert Tracker(_Stub(), cfg).engine == "identifier"
+
+
+@pytest.mark.slow
+def test_shipped_window_identifier_follows_a_step_change_in_k():
+    # The spring breaks in: k jumps 25 -> 20 N/m at t = 20 s under a random binary force,
+    # 1 % noise. Stated: before the step the smoothed k is within 3 % of 25 and no alarm; from
+    # 12 s after it (one window length plus three smoothing time constants) within 5 % of 20 and
+    # 2 % on average; the alarm within 5 s of the step.
+    ident = ae.load_pretrained("leg-stable-window")
+    rng = np.random.default_rng(11)
+    dt, N = 0.01, 4000
+    t = np.arange(N) * dt
+    u = np.repeat(rng.choice([-1.0, 1.0], size=N // 5 + 1), 5)[:N]
+    k = np.where(t < 20.0, 25.0, 20.0)
+    y = wearing_leg(k, np.full(N, 3.0), np.full(N, 1.0), u, dt)
+    y = y + 0.01 * np.abs(y).max() * rng.normal(size=N)
+    tracker = Tracker(ident, TrackerConfig(hop=50, watch=("k",)))
+    updates = tracker.push(u, y)
+    ts = np.array([up.t for up in updates])
+    smooth = np.array([up.smoothed["k"] for up in updates])
+    alarm = np.array([up.alarm for up in updates])
+    before, after = ts < 20.0, ts > 32.0
+    assert np.abs(smooth[before & (ts > 8.0)] / 25.0 - 1).max() < 0.03
+    assert not alarm[before].any()
+    assert np.abs(smooth[after] / 20.0 - 1).max() < 0.05
+    assert np.abs(smooth[after] / 20.0 - 1).mean() < 0.02
+    assert 20.0 < ts[np.argmax(alarm)] < 25.0
+
+
+def test_running_median_before_the_moving_average_and_bounded_memory():
+    stub = _Stub()
+    cfg = TrackerConfig(hop=20, smoothing=0.5, median=3, baseline=2, parameters=("k",))
+    tracker = Tracker(stub, cfg)
+    k = np.repeat([25.0, 25.0, 40.0, 25.0, 20.0, 20.0, 20.0], 20)   # one outlier window
+    raw = [up.estimate["k"] for up in tracker.push(np.ones_like(k), k)]
+    assert raw == [25.0, 25.0, 40.0, 25.0, 20.0, 20.0, 20.0]
+    smoothed, s = [], None
+    for j in range(len(raw)):
+        q = float(np.median(raw[max(0, j - 2): j + 1]))
+        s = q if s is None else s + 0.5 * (q - s)
+        smoothed.append(s)
+    assert [up.smoothed["k"] for up in tracker.push(np.ones(0), np.ones(0))] == []
+    tracker.reset()
+    got = [up.smoothed["k"] for up in tracker.push(np.ones_like(k), k)]
+    assert got == pytest.approx(smoothed)
+    assert max(got) == 25.0                       # the outlier never reaches the average
+    assert len(tracker._s.history) == 3           # only the median's windows are kept
+    with pytest.raises(ValueError, match=r"median must be a positive integer; got 0"):
+        TrackerConfig(median=0)
