@@ -411,8 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
     trk.add_argument("--seconds", type=float, default=120.0, help="length of the scenario")
     trk.add_argument("--noise", type=float, default=0.01, help="measurement noise, of max|y|")
     trk.add_argument("--hop", type=int, default=50, help="samples between identifications")
-    trk.add_argument("--smoothing", type=float, default=0.2, help="moving-average weight")
-    trk.add_argument("--median", type=int, default=1,
+    trk.add_argument("--smoothing", type=float, default=0.3, help="moving-average weight")
+    trk.add_argument("--median", type=int, default=9,
                      help="window estimates in the running median before the moving average")
     trk.add_argument("--threshold", type=float, default=0.05, help="relative drift that alarms")
     trk.add_argument("--baseline", type=int, default=10, help="windows in the reference")

@@ -56,8 +56,8 @@ class TrackerConfig:
     """
 
     hop: int = 50
-    smoothing: float = 0.2
-    median: int = 1
+    smoothing: float = 0.3
+    median: int = 9
     threshold: float = 0.05
     baseline: int = 10
     patience: int = 3

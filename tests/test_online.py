@@ -46,8 +46,8 @@ def test_windows_come_every_hop_in_stream_order_whatever_the_chunking():
 
 def test_smoothing_reference_and_alarm_follow_their_definitions():
     stub = _Stub()
-    cfg = TrackerConfig(hop=20, smoothing=0.5, threshold=0.1, baseline=2, patience=2,
-                        parameters=("k",))
+    cfg = TrackerConfig(hop=20, smoothing=0.5, median=1, threshold=0.1, baseline=2,
+                        patience=2, parameters=("k",))
     tracker = Tracker(stub, cfg)
     # k = 25 for 4 windows, then it drops to 20 (a 20 % fall)
     k = np.concatenate([np.full(80, 25.0), np.full(120, 20.0)])
