@@ -11,7 +11,7 @@ measured side by side in one run.
 - **Arbitrary excitation** (:func:`bench_excitation`): per input kind (steps of random height and
   timing, PRBS, multisines, filtered noise) and noise level, the encoder alone and the encoder +
   refinement (variable projection of the initial state for windows): median k, d, m errors,
-  Table I step error, failures and refinement time.
+  Table I step error, failures and milliseconds per record (``scorecard.score``).
 - **Flags** (:func:`bench_flags`): the share of estimates ``Estimate.outside`` flags for legs
   inside the identifier's training range (false flags) and for legs with one parameter 10, 20,
   30 % beyond its range (``hi (1 + f)`` or ``lo (1 - f)``), and the mean k, d, m errors before and
@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
-from .data import LegFamily, excitation, records
-from .metrics import step_error
+from .data import LegFamily, Systems, records
 
 KINDS = ("steps", "prbs", "multisine", "noise")
 
@@ -111,45 +111,30 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
                    "p95_ms": 1e3 * float(np.percentile(t, 95))} for name, t in times.items()}
 
 
-def _step_errors(est, systems, steps: int, dt: float) -> np.ndarray:
-    from .decoder import simulate
-
-    u = np.ones((len(systems), steps))
-    y_true = simulate(systems.A, systems.b, systems.c, systems.d, u, dt)
-    y_hat = simulate(np.asarray(est.A), np.asarray(est.b), np.asarray(est.c),
-                     np.asarray(est.d), u, dt)
-    return step_error(y_true, y_hat)
-
-
 def bench_excitation(ident, family, *, kinds=KINDS, noises=(0.0, 0.01, 0.05), count: int = 100,
                      seed: int = 1000, refine: bool = True) -> list[dict]:
-    """One row per input kind and noise level (module docstring). Records have the identifier's
-    format; windows start mid-motion when the identifier was trained on such (its ``warmup``)."""
+    """One row per input kind and noise level (module docstring), scored by
+    ``scorecard.score``: per stage (``encoder``, and ``refined`` with ``refine``) the median
+    k, d, m errors (%) over all records, the median step error, the share of failures (invalid
+    parameters or step error > 0.05) and the milliseconds per record. Records have the
+    identifier's format; windows start mid-motion when it was trained on such (its
+    ``warmup``)."""
+    from .scorecard import score
+
     warmup = int(ident.meta.get("train", {}).get("config", {}).get("warmup", 0))
     rows = []
     for i, kind in enumerate(kinds):
         for j, noise in enumerate(noises):
             rec = records(family, count, steps=ident.steps, dt=ident.dt, excitation_kind=kind,
                           noise=noise, seed=seed + 10 * i + j, warmup=warmup)
-            truth = rec.systems.params
             row = {"kind": kind, "noise": noise, "count": count}
-            t0 = time.perf_counter()
-            est = ident.identify(rec.y, rec.u)
-            row["encoder_ms"] = 1e3 * (time.perf_counter() - t0) / count
-            stages = [("encoder", est)]
-            if refine:
-                ref = ident.identify(rec.y, rec.u, refine=True)
-                row["refine_ms"] = 1e3 * float(np.median(ref.info["seconds"]))
-                row["refine_success"] = float(np.mean(ref.info["success"]))
-                stages.append(("refined", ref))
-            for name, e in stages:
-                errs = _percent(e.physical, truth)
-                step = _step_errors(e, rec.systems, ident.steps, ident.dt)
-                valid = np.all([np.isfinite(v) & (np.asarray(e.physical[p]) > 0)
-                                for p, v in errs.items()], axis=0)
-                row[name] = {**{p: float(np.median(v)) for p, v in errs.items()},
-                             "step_error": float(np.median(step)),
-                             "failures": float(np.mean(~valid | (step > 0.05)))}
+            for name, polish in (("encoder", False), ("refined", True))[: 1 + refine]:
+                sc = score(ident, rec, name=name, refine=polish)
+                r = sc.per_record
+                row[name] = {**{p: float(np.median(r[p])) for p in sc.parameters},
+                             "step_error": float(np.median(r["step"])),
+                             "failures": float(np.mean(~r["valid"] | (r["step"] > 0.05))),
+                             "ms": 1e3 * sc.seconds / count}
             rows.append(row)
     return rows
 
@@ -165,6 +150,17 @@ def _outside_family(ranges: dict, name: str, f: float, count: int,
     return params
 
 
+@dataclass(frozen=True)
+class _Given:
+    """A family of given systems, so that ``data.records`` simulates them like any family."""
+
+    systems: Systems
+    records: int = 1
+
+    def sample(self, count: int, rng: np.random.Generator) -> Systems:
+        return self.systems
+
+
 def bench_flags(ident, ranges: dict, *, noises=(0.0, 0.01), beyond=(0.1, 0.2, 0.3),
                 count: int = 300, seed: int = 2000, refine: bool = True,
                 subsystem: str = "stable", sides: dict | None = None) -> list[dict]:
@@ -174,11 +170,8 @@ def bench_flags(ident, ranges: dict, *, noises=(0.0, 0.01), beyond=(0.1, 0.2, 0.
     ``sides``: the parameters pushed out and on which side (name -> ``"above"``, ``"below"`` or
     None for either); default every parameter, either side. For the unstable subsystem only
     k above and m below keep a leg (``L = l0 - m g / k > 0``), and d is not in its record."""
-    from .decoder import simulate
-
     cfg = ident.meta.get("train", {}).get("config", {})
     kind, warmup = cfg.get("excitation", "step"), int(cfg.get("warmup", 0))
-    dt, steps = ident.dt, ident.steps
     fam = LegFamily(subsystem=subsystem, ranges=ranges)
     sides = sides or {p: None for p in ranges}
     rows = []
@@ -195,13 +188,11 @@ def bench_flags(ident, ranges: dict, *, noises=(0.0, 0.01), beyond=(0.1, 0.2, 0.
                     part = _outside_family(ranges, name, f, int(rows_.sum()), rng, sides[name])
                     for p in ranges:
                         params[p][rows_] = part[p]
-            systems = fam.systems(params["k"], params["d"], params["m"])
             # the identifier's own kind of record: its excitation, mid-motion after warmup
-            u = excitation(kind, count, steps + warmup, dt, rng, first=warmup)
-            y_all = simulate(systems.A, systems.b, systems.c, systems.d, u, dt)
-            y_clean, u = y_all[:, warmup:], u[:, warmup:]
-            y = y_clean + noise * np.abs(y_clean).max(axis=1, keepdims=True) * \
-                rng.normal(size=y_clean.shape)
+            rec = records(_Given(fam.systems(params["k"], params["d"], params["m"])), count,
+                          steps=ident.steps, dt=ident.dt, excitation_kind=kind, noise=noise,
+                          seed=seed + 100 * i + j, warmup=warmup)
+            y, u = rec.y, rec.u
             est = ident.identify(y, u)
             row = {"noise": noise, "beyond": f, "count": count,
                    "flagged": float(np.mean(est.outside))}
@@ -245,7 +236,7 @@ def format_tables(result: dict) -> str:
     for key, rows in result.get("excitation", {}).items():
         out += _heading(f"Arbitrary excitation: {key}",
                         "| input | noise | encoder k / d / m median % | step err | fail | "
-                        "+ refine k / d / m median % | step err | fail | refine ms |",
+                        "+ refine k / d / m median % | step err | fail | ms / record |",
                         "|---|---:|---|---:|---:|---|---:|---:|---:|")
         for r in rows:
             e = r["encoder"]
@@ -254,7 +245,7 @@ def format_tables(result: dict) -> str:
             if "refined" in r:
                 f = r["refined"]
                 line += (f" {_joined(f, '.3f')} | {f['step_error']:.1e} | "
-                         f"{100 * f['failures']:.0f} % | {r['refine_ms']:.1f} |")
+                         f"{100 * f['failures']:.0f} % | {f['ms']:.1f} |")
             out.append(line)
         out.append("")
     for key, rows in result.get("flags", {}).items():

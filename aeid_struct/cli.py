@@ -334,6 +334,9 @@ def _row_dict(row) -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    # light (numpy only): the tracker's defaults are the CLI's
+    from .online import TrackerConfig
+
     parser = argparse.ArgumentParser(
         prog="aeid-struct",
         description="Structured, amortized identification of continuous-time LTI systems.",
@@ -410,13 +413,15 @@ def build_parser() -> argparse.ArgumentParser:
                           "shipped name)")
     trk.add_argument("--seconds", type=float, default=120.0, help="length of the scenario")
     trk.add_argument("--noise", type=float, default=0.01, help="measurement noise, of max|y|")
-    trk.add_argument("--hop", type=int, default=50, help="samples between identifications")
-    trk.add_argument("--smoothing", type=float, default=0.3, help="moving-average weight")
-    trk.add_argument("--median", type=int, default=9,
-                     help="window estimates in the running median before the moving average")
-    trk.add_argument("--threshold", type=float, default=0.05, help="relative drift that alarms")
-    trk.add_argument("--baseline", type=int, default=10, help="windows in the reference")
-    trk.add_argument("--patience", type=int, default=3, help="windows over the threshold")
+    tracker = TrackerConfig()          # the tracker's own defaults, not copies of them
+    for name, kind, text in (
+            ("hop", int, "samples between identifications"),
+            ("smoothing", float, "moving-average weight"),
+            ("median", int, "window estimates in the running median before the moving average"),
+            ("threshold", float, "relative drift that alarms"),
+            ("baseline", int, "windows in the reference"),
+            ("patience", int, "windows over the threshold")):
+        trk.add_argument(f"--{name}", type=kind, default=getattr(tracker, name), help=text)
     trk.add_argument("--watch", nargs="*", default=["k"],
                      help="parameters whose drift raises the alarm (default: k, the spring)")
     trk.add_argument("--seed", type=int, default=0)

@@ -110,6 +110,8 @@ def onnx_bytes(ident) -> bytes:
 
     import onnx
 
+    from .structures import CCF
+
     _exportable(ident)
     module = _OneRecord(ident).eval()
     buffer = io.BytesIO()
@@ -127,7 +129,7 @@ def onnx_bytes(ident) -> bytes:
         else inverse.serialize(),
         "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
         "structure": ident.structure.config(),
-        "ccf": type(ident.structure).__name__ == "CCF",
+        "ccf": isinstance(ident.structure, CCF),
     }
     entry = model.metadata_props.add()
     entry.key, entry.value = "aeid", json.dumps(header)
@@ -187,17 +189,11 @@ class OnnxIdentifier:
         self.records = 1
         self._physical_elements = header.get("physical_elements")
         self._ccf = bool(header.get("ccf", True))
-        self._inverse = self._numeric = None
+        self._inverse = None
         if header.get("inverse"):
             import casadi
 
-            from .refine import _Numeric
-
             self._inverse = casadi.Function.deserialize(header["inverse"])
-            if list(self._inverse.name_in()) == ["A", "B", "C", "D"]:
-                # ~10 us a call through the Function's buffer against ~100 us through its
-                # Python call (DM conversions): a fifth of a tracker update
-                self._numeric = _Numeric(self._inverse)
 
     def __repr__(self) -> str:
         return (f"OnnxIdentifier(steps={self.steps}, dt={self.dt}, inputs={self.inputs}, "
@@ -229,15 +225,9 @@ class OnnxIdentifier:
                     for k in self._physical_elements}
         if self._inverse is None:
             return {}
-        A, b, c, d = (np.asarray(model[k], dtype=np.float64) for k in "Abcd")
-        if not self._ccf:
-            # the inverse reads a bottom-row CCF: convert another realisation (an MCF) first
-            from .identify import _through_ccf
+        from .identify import _inverse_of_models
 
-            out = _through_ccf(A[None], b[None], c[None], d.reshape(1), self._inverse)
-            return {k: float(v[0]) for k, v in out.items()}
-        if self._numeric is not None:
-            out = self._numeric(np.ascontiguousarray(A.T).ravel(), b, c, d.reshape(1))
-            return {k: float(v[0]) for k, v in zip(self._inverse.name_out(), out, strict=True)}
-        out = self._inverse(A=A, B=b[:, None], C=c[None, :], D=float(d))
-        return {k: float(out[k]) for k in self._inverse.name_out()}
+        A, b, c, d = (np.asarray(model[k], dtype=np.float64) for k in "Abcd")
+        out = _inverse_of_models(self._inverse, A[None], b[None], c[None], d.reshape(1),
+                                 self._ccf)
+        return {k: float(v[0]) for k, v in out.items()}

@@ -150,7 +150,7 @@ def test_arbitrary_input_identifiers_recover_known_legs(kind, name, subsystem, w
 
 def test_window_identifier_flags_on_both_sides_of_its_range():
     # Stated: at most 10 % false flags inside the range and at least 80 % flagged 30 % beyond
-    # it (measured on 300 windows each: 1.7-2.3 % and 94-95 %, pretrained/README.md).
+    # it (measured on 300 windows each: 2.7-3.7 % and 98.3-98.7 %, pretrained/README.md).
     from aeid_struct.bench_online import bench_flags
 
     ident = ae.load_pretrained("leg-stable-window")

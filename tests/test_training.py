@@ -255,6 +255,15 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
     est = ident.identify(np.stack([inside, far]))
     assert est.outside.tolist() == [False, True]
     assert ident.identify(inside).outside is False
+    # a file from before the calibration (no thresholds): no verdict until recalibrated, and
+    # recalibrate re-creates the run's records and split, so it gives the same range exactly
+    calibrated = ident.meta["training_range"]
+    ident.meta["training_range"] = {k: v for k, v in calibrated.items() if k != "excess"}
+    assert ident.identify(inside).outside is None
+    from aeid_struct.training import recalibrate
+
+    assert recalibrate(ident, FAMILY).meta["training_range"] == calibrated
+    assert ident.identify(np.stack([inside, far])).outside.tolist() == [False, True]
     ident.meta.pop("training_range")
     assert ident.identify(inside).outside is None        # unknown range: no verdict
 
