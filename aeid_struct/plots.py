@@ -111,7 +111,7 @@ def _limits(values, *, step: float, margin: float, span: float) -> tuple[float, 
         step, margin, span: in the axis' unit, all > 0.
 
     Returns:
-        ``(low, high)``; around 0 when no value is finite.
+        ``(low, high)``; the margin around 0, rounded out, when no value is finite.
     """
     for name, v in (("step", step), ("margin", margin), ("span", span)):
         if not (isinstance(v, (int, float)) and v > 0):
