@@ -260,13 +260,13 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
             if save:
                 idents[subsystem].save(out / f"leg-{subsystem}.aeid")
     evals = [evaluate(idents[s], s, count=validation) for s in ("stable", "unstable")]
-    budget = f"{epochs} epochs" if epochs is not None else f"{seconds / 2:g} s"
     done = " / ".join(str(len(idents[s].meta.get("history", {}).get("holdout_loss", [])))
                       for s in ("stable", "unstable"))
+    budget = (f"{epochs} epochs each" if epochs is not None
+              else f"{seconds / 2:g} s budget each ({done} epochs)")
     figure3(idents, out / "fig3_leg_scenario.png",
             source="shipped identifiers leg-stable, leg-unstable" if pretrained else
-            f"identifiers trained in this run: {budget} budget each ({done} epochs), "
-            f"seed {seed}")
+            f"identifiers trained in this run: {budget}, seed {seed}")
     result = {
         "records": {k: {"dt": v[0], "steps": v[1]} for k, v in RECORDS.items()},
         "frequency_grid_rad_s": [float(FREQUENCIES[0]), float(FREQUENCIES[-1]),

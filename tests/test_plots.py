@@ -259,6 +259,37 @@ def test_study_figure3_titles_the_scenario_and_the_shipped_identifiers(tmp_path)
     assert fig.axes[5].get_ylim() == (-225.0, -135.0)
 
 
+@pytest.mark.parametrize("pretrained", [True, False])
+def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, monkeypatch,
+                                                                    pretrained):
+    from aeid_struct import study
+    from aeid_struct.identify import load_pretrained
+
+    titles = []
+    real = plots.fig3
+    monkeypatch.setattr(plots, "fig3", lambda rows, path=None, **kw:
+                        titles.append(kw["title"]) or real(rows, path, **kw))
+
+    def trained(subsystem, **kw):
+        # the run's own training is not what is tested here: a shipped identifier whose
+        # history says it trained 7 (stable) or 9 (unstable) epochs stands in for it
+        ident = load_pretrained(f"leg-{subsystem}")
+        ident.meta["history"] = {"holdout_loss": [1.0] * (7 if subsystem == "stable" else 9)}
+        return ident
+
+    monkeypatch.setattr(study, "train_leg", trained)
+    monkeypatch.setattr(study, "evaluate", lambda ident, s, count: study.Evaluation(
+        s, {}, {}, {}, math.nan, math.nan))
+    study.run(pretrained=pretrained, seconds=60.0, seed=3, out=tmp_path, validation=5,
+              progress=False, save=False)
+    assert (tmp_path / "fig3_leg_scenario.png").stat().st_size > 10_000
+    (title,) = titles
+    assert title.startswith("Robot leg, paper scenario k = 24.23 N/m")
+    assert title.endswith("shipped identifiers leg-stable, leg-unstable" if pretrained else
+                          "identifiers trained in this run: 30 s budget each (7 / 9 epochs), "
+                          "seed 3")
+
+
 def test_fig4_labels_and_title(tmp_path):
     fig = plots.fig4(np.array([100, 1000]), {"stable": np.array([1e-2, 1e-3])},
                      path=tmp_path / "fig4.png", paper={"stable": 1.5e-2},
