@@ -247,7 +247,11 @@ def _track(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     png = out / "wear_tracking.png"
-    wear(result, png)
+    source = (f"identifier file {args.model}" if Path(args.model).exists()
+              else f"shipped identifier {args.model}")
+    wear(result, png, config=config,
+         title=f"Wear scenario, {args.seconds:g} s, {100 * args.noise:g} % noise, seed "
+               f"{args.seed}: {source}, {result.engine} engine")
     print(f"{ident!r}")
     print(f"wear scenario: {args.seconds:g} s, k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, m 1 kg, "
           f"{100 * args.noise:g} % noise, one window of {ident.steps} samples every {args.hop}")

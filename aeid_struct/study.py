@@ -195,9 +195,11 @@ def table(evals: list[Evaluation]) -> str:
     return "\n".join(lines)
 
 
-def figure3(idents: dict, path) -> None:
-    """Paper Fig. 3 for the scenario: step and Bode, true vs identified, both subsystems."""
-    from .plots import Comparison, fig3
+def figure3(idents: dict, path, source: str = "identifiers given") -> None:
+    """Paper Fig. 3 for the scenario: step and Bode, true vs identified, both subsystems;
+    ``source`` says where the identifiers came from (trained in this run, or shipped) and goes
+    into the figure's title with the scenario."""
+    from .plots import LEG_SIGNALS, Comparison, fig3
 
     comparisons = []
     for subsystem, ident in idents.items():
@@ -207,9 +209,13 @@ def figure3(idents: dict, path) -> None:
         true = (s.A[0], s.b[0], s.c[0], float(s.d[0]))
         y = simulate(*true, np.ones(steps), dt)
         est = ident.identify(y)
-        comparisons.append(Comparison(f"{subsystem} subsystem (scenario)", true,
-                                      (est.A, est.b, est.c, est.d), dt, steps))
-    fig3(comparisons, path)
+        kind = "translational" if subsystem == "stable" else "rotational"
+        comparisons.append(Comparison(f"{subsystem} subsystem ({kind})", true,
+                                      (est.A, est.b, est.c, est.d), dt, steps,
+                                      **LEG_SIGNALS[subsystem]))
+    fig3(comparisons, path,
+         title=f"Robot leg, paper scenario k = {SCENARIO['k']} N/m, d = {SCENARIO['d']} N s/m, "
+               f"m = {SCENARIO['m']} kg, noise-free step records\n{source}")
 
 
 def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
@@ -227,7 +233,9 @@ def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
                         .overall["step"])
         errors[subsystem] = np.array(errs)
     fig4(np.asarray(sizes), errors, path,
-         paper={k: v["step"][1] for k, v in PAPER.items()})
+         paper={k: v["step"][1] for k, v in PAPER.items()},
+         title=f"Robot leg, identifiers trained in this run: {seconds_each:g} s per size, "
+               f"seed {seed}, {validation} validation systems")
     return errors
 
 
@@ -252,7 +260,13 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
             if save:
                 idents[subsystem].save(out / f"leg-{subsystem}.aeid")
     evals = [evaluate(idents[s], s, count=validation) for s in ("stable", "unstable")]
-    figure3(idents, out / "fig3_leg_scenario.png")
+    done = " / ".join(str(len(idents[s].meta.get("history", {}).get("holdout_loss", [])))
+                      for s in ("stable", "unstable"))
+    budget = (f"{epochs} epochs each" if epochs is not None
+              else f"{seconds / 2:g} s budget each ({done} epochs)")
+    figure3(idents, out / "fig3_leg_scenario.png",
+            source="shipped identifiers leg-stable, leg-unstable" if pretrained else
+            f"identifiers trained in this run: {budget}, seed {seed}")
     result = {
         "records": {k: {"dt": v[0], "steps": v[1]} for k, v in RECORDS.items()},
         "frequency_grid_rad_s": [float(FREQUENCIES[0]), float(FREQUENCIES[-1]),

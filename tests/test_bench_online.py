@@ -2,6 +2,7 @@
 quick form (the full run's numbers are in pretrained/README.md)."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -53,3 +54,22 @@ def test_bench_online_quick_runs_and_writes_the_targets(tmp_path, capsys):
     assert {r["engine"] for r in result["tracker"]} == {"onnx", "identifier"}
     assert {"Identifier.identify", "TorchScript file", "ONNX file (onnxruntime)"} \
         <= set(result["latency"])
+
+
+def test_tables_keep_every_parameter_in_its_place_and_define_their_columns():
+    from aeid_struct.bench_online import LEGENDS
+
+    stage = {"step_error": 1e-3, "failures": 0.05, "ms": 2.0}
+    rows = [{"kind": "prbs", "noise": 0.01, "count": 20,
+             "encoder": {"k": 4.0, "m": 11.0, **stage},
+             "refined": {"k": math.nan, "m": 0.5, **stage}}]
+    flags = [{"noise": 0.0, "beyond": 0.3, "count": 20, "flagged": 0.9,
+              "before": {"k": 1.0, "d": 2.0, "m": 3.0}, "after": {"k": 0.1, "m": 0.3}}]
+    text = format_tables({"excitation": {"leg-unstable-any": rows}, "flags": {"w": flags}})
+    # the rotational leg has no d: "4.00 / - / 11.00", never "4.00 / 11.00" (read as k and d)
+    assert "| prbs | 1 % | 4.00 / - / 11.00 |" in text
+    assert "| n/a / - / 0.500 |" in text
+    assert "| 1.00 / 2.00 / 3.00 | 0.10 / - / 0.30 |" in text
+    assert "nan" not in text.lower()
+    assert LEGENDS["excitation"] in text and LEGENDS["flags"] in text
+    assert "'-': the subsystem does not contain the parameter" in LEGENDS["excitation"]
