@@ -974,6 +974,18 @@ def build_parser() -> argparse.ArgumentParser:
 _PLOTTING = ("demo", "leg", "track", "bench", "bench-online")
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse an output path of the wrong kind before any work: --out of demo, leg and track is
+    a folder, a --json file is not one."""
+    if args.command in ("demo", "leg", "track") and Path(args.out).exists() \
+            and not Path(args.out).is_dir():
+        raise _InputError(f"{args.command}: --out {args.out!r} is a file; expected a folder for "
+                          "the figures and JSON")
+    if getattr(args, "json", None) and Path(args.json).is_dir():
+        raise _InputError(f"{args.command}: --json {args.json!r} is a folder; expected the JSON "
+                          "file to write")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command; returns the exit status (0, or ``EXIT_OUTSIDE``). A usage or input
     error is printed as one line on stderr and raises ``UsageExit`` (status ``EXIT_INPUT``)."""
@@ -981,6 +993,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         args.argv = argv
+        _check_outputs(args)
         if args.command in _PLOTTING:
             import matplotlib
 
