@@ -4,26 +4,61 @@ A trained encoder maps a measured input/output record to a state-space model in 
 user chose (controllable or modal canonical form, partly known, or physical parameters) in one
 forward pass; an optional CasADi NLP polishes the estimate. Implements and extends Nagel & Huber,
 "Autoencoder-Inspired Identification of LTI Systems".
+
+The public names are imported on first use (PEP 562 ``__getattr__``): ``import aeid_struct``
+costs nothing, so that ``aeid-struct --help`` (and any tool that imports one light submodule)
+does not pay for torch and CasADi; ``ae.Identifier`` or ``from aeid_struct import Identifier``
+imports the submodule that defines it, and ``ae.decoder`` (any submodule by name) imports that
+submodule, as the eager package did for the modules it loaded.
 """
 
-from .data import LegFamily as LegFamily
-from .data import PoleFamily as PoleFamily
-from .decoder import discretise as discretise
-from .decoder import initial_state as initial_state
-from .decoder import simulate as simulate
-from .decoder import stationary_value as stationary_value
-from .encoder import EncoderConfig as EncoderConfig
-from .identify import Estimate as Estimate
-from .identify import Identifier as Identifier
-from .identify import load_pretrained as load_pretrained
-from .refine import RefineConfig as RefineConfig
-from .structures import CCF as CCF
-from .structures import MCF as MCF
-from .structures import Physical as Physical
-from .structures import Structure as Structure
-from .structures import System as System
-from .training import TrainConfig as TrainConfig
-from .training import train as train
+from __future__ import annotations
+
+from importlib import import_module
+from importlib.util import find_spec
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
+    from .data import LegFamily as LegFamily
+    from .data import PoleFamily as PoleFamily
+    from .decoder import discretise as discretise
+    from .decoder import initial_state as initial_state
+    from .decoder import simulate as simulate
+    from .decoder import stationary_value as stationary_value
+    from .encoder import EncoderConfig as EncoderConfig
+    from .identify import Estimate as Estimate
+    from .identify import Identifier as Identifier
+    from .identify import load_pretrained as load_pretrained
+    from .refine import RefineConfig as RefineConfig
+    from .structures import CCF as CCF
+    from .structures import MCF as MCF
+    from .structures import Physical as Physical
+    from .structures import Structure as Structure
+    from .structures import System as System
+    from .training import TrainConfig as TrainConfig
+    from .training import train as train
+
+#: public name -> the submodule that defines it
+_SOURCES = {
+    "LegFamily": "data",
+    "PoleFamily": "data",
+    "discretise": "decoder",
+    "initial_state": "decoder",
+    "simulate": "decoder",
+    "stationary_value": "decoder",
+    "EncoderConfig": "encoder",
+    "Estimate": "identify",
+    "Identifier": "identify",
+    "load_pretrained": "identify",
+    "RefineConfig": "refine",
+    "CCF": "structures",
+    "MCF": "structures",
+    "Physical": "structures",
+    "Structure": "structures",
+    "System": "structures",
+    "TrainConfig": "training",
+    "train": "training",
+}
 
 __all__ = [
     "CCF",
@@ -46,3 +81,20 @@ __all__ = [
     "train",
 ]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """Import a public name's submodule on first access and cache the name here; a submodule's
+    own name imports it (importing sets it as an attribute, so this runs once per name)."""
+    source = _SOURCES.get(name)
+    if source is not None:
+        value = getattr(import_module(f".{source}", __name__), name)
+        globals()[name] = value          # later accesses skip __getattr__
+        return value
+    if not name.startswith("__") and find_spec(f"{__name__}.{name}") is not None:
+        return import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
