@@ -968,7 +968,8 @@ def _load_weights(encoder: Encoder, tensors: dict, source: str) -> None:
     if unknown:
         raise ValueError(f"{source}: unknown weights {unknown} (not in the encoder the header "
                          "describes)")
-    for key, tensor in tensors.items():
+    for key in (*expected, "theta_mean", "theta_scale"):      # the encoder's layer order
+        tensor = tensors[key]
         if key in expected and tuple(tensor.shape) != expected[key]:
             raise ValueError(f"{source}: weight {key!r} has shape {tuple(tensor.shape)}; the "
                              f"header's 'encoder' needs {expected[key]}")
