@@ -238,7 +238,7 @@ class OnnxIdentifier:
 
         if not (isinstance(threads, int) and threads >= 1):
             raise ValueError(f"threads must be a positive integer; got {threads!r}")
-        _maps.check_maps(maps)
+        _maps.check_maps(maps, trust)
         raw, source = _model_bytes(model)
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads

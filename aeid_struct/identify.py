@@ -857,7 +857,7 @@ class Identifier:
         if not isinstance(header, dict) or header.get("format") not in (FORMAT, FORMAT_1):
             raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file: "
                              f"its header format is not {FORMAT!r}")
-        _maps.check_maps(maps)
+        _maps.check_maps(maps, trust)
         source = f"identifier file {str(path)!r}"
         if header["format"] == FORMAT_1:
             source += f" (format {FORMAT_1!r}, which stored CasADi maps as code)"
@@ -946,6 +946,20 @@ def _check_header(header: dict, source: str) -> None:
             got = header[key]
             text = repr(got) if len(repr(got)) <= 80 else f"{repr(got)[:60]}..."
             raise ValueError(f"{source}: header entry {key!r} must be {expected}; got {text}")
+    rng = header.get("meta", {}).get("training_range")
+    if rng:   # read by Estimate.outside: {"elements"/"physical": {name: [lo, hi, err]}, ...}
+        ok = isinstance(rng, dict) and set(rng) <= {"elements", "physical", "fit", "excess"}
+        for group in ("elements", "physical"):
+            part = rng.get(group, {}) if ok else None
+            ok = ok and isinstance(part, dict) and all(
+                isinstance(v, list) and len(v) == 3 and _numbers(v) for v in part.values())
+        ok = ok and all(_numbers(rng[k]) and not isinstance(rng[k], list)
+                        for k in ("fit", "excess") if k in rng)
+        if not ok:
+            text = repr(rng) if len(repr(rng)) <= 80 else f"{repr(rng)[:60]}..."
+            raise ValueError(f"{source}: 'meta' entry 'training_range' must be "
+                             "{'elements': {name: [lo, hi, err]}, 'physical': {...}, 'fit': "
+                             f"number, 'excess': number}}; got {text}")
     fields = {f.name for f in dataclasses.fields(_Config)}
     unknown = sorted(set(header["encoder"]) - fields)
     if unknown:

@@ -146,8 +146,11 @@ def resolve(ref: dict, what: str = "map") -> casadi.Function:
         raise ValueError(f"{what}: {name} refuses its constants {args}: {err}") from None
 
 
-def check_maps(maps) -> dict:
-    """Validate a ``maps=`` argument: None or a dict name -> casadi.Function (returns a dict)."""
+def check_maps(maps, trust: bool = False) -> dict:
+    """Validate the ``maps=`` and ``trust=`` arguments of a reader: None or a dict name ->
+    casadi.Function (returned as a dict), and True or False."""
+    if not isinstance(trust, bool):
+        raise ValueError(f"trust must be True or False; got {_short(trust)}")
     if maps is None:
         return {}
     if not isinstance(maps, dict) or not all(
@@ -198,7 +201,7 @@ def from_entry(entry, what: str = "map", *, maps=None, trust: bool = False) -> c
         For a user map or serialised text without ``maps``/``trust`` (naming both ways out), a
         SHA-256 mismatch, and every malformed entry (:func:`resolve`).
     """
-    maps = check_maps(maps)
+    maps = check_maps(maps, trust)
     if isinstance(entry, str):
         if not trust:
             raise ValueError(

@@ -711,6 +711,9 @@ class Structure(abc.ABC):
             For an unknown type, unknown or missing entries, values of the wrong type, and map
             entries that cannot be resolved (``aeid_struct.maps.from_entry``).
         """
+        from .maps import check_maps
+
+        check_maps(maps, trust)
         if not isinstance(config, dict) or not isinstance(config.get("type"), str):
             raise ValueError(f"config must be a dict with a 'type' entry; got {config!r}")
         kind = config["type"]

@@ -99,13 +99,14 @@ def msd_inverse() -> casadi.Function:
                            list("ABCD"), ["k", "d", "m"])
 
 
-def ccf_identifier(inverse=None) -> Identifier:
+def ccf_identifier(inverse=None, initial="rest") -> Identifier:
     torch.manual_seed(0)
     enc = Encoder(EncoderConfig(steps=60, outputs=4, width=4, dense=(8,))).eval()
     return Identifier(enc, ae.CCF(2, descartes=True), dt=0.05,
                       theta_mean=torch.tensor([3.0, 1.0, 1.0, 0.0]),
                       theta_scale=torch.full((4,), 0.1),
-                      inverse=leg.stable_inverse() if inverse is None else inverse)
+                      inverse=leg.stable_inverse() if inverse is None else inverse,
+                      initial=initial)
 
 
 def physical_identifier(function, inverse) -> Identifier:
@@ -476,6 +477,11 @@ CORRUPT = {
     "encoder width as text": (_set("encoder", "width", value="4"),
                               r"'encoder' is not a valid encoder configuration: width must be a "
                               r"positive integer"),
+    "training range garbage": (_set("meta", "training_range", value={"elements": [1, 2]}),
+                               r"'meta' entry 'training_range' must be \{'elements': "),
+    "training range bound as text": (_set("meta", "training_range",
+                                          value={"physical": {"k": ["20", 25, 0.1]}}),
+                                     r"'meta' entry 'training_range' must be"),
     "encoder other width": (_set("encoder", "width", value=5),
                             r"weight 'encoder\.main\.0\.weight' has shape \(4, 1, 5\); the "
                             r"header's 'encoder' needs \(5, 1, 5\)"),
@@ -539,6 +545,26 @@ def test_corrupted_physical_config(tmp_path):
         bad = rewrite(src, tmp_path / f"{name}.aeid", edit)
         with pytest.raises(ValueError, match=names(bad) + ": .*" + match):
             Identifier.load(bad)
+
+
+def test_reader_options_are_checked(tmp_path):
+    path = ccf_identifier().save(tmp_path / "ok.aeid")
+    with pytest.raises(ValueError, match=r"trust must be True or False; got 1"):
+        Identifier.load(path, trust=1)
+    with pytest.raises(ValueError, match=r"trust must be True or False; got 'yes'"):
+        ae.Structure.from_config(ae.CCF(2).config(), trust="yes")
+    with pytest.raises(ValueError, match=r"maps must be a dict name -> casadi.Function"):
+        ae.Structure.from_config(ae.CCF(2).config(), maps=[msd_map()])
+
+
+def test_tracker_onnx_engine_passes_its_own_user_inverse():
+    from aeid_struct.online import Tracker
+
+    # the in-memory export of an identifier with a user inverse: the tracker hands the
+    # identifier's own Function to the reader, which therefore needs neither file code nor trust
+    ident = ccf_identifier(inverse=msd_inverse(), initial="fitted")
+    tracker = Tracker(ident, engine="onnx")
+    assert tracker.engine == "onnx" and tracker.runner._inverse is ident.inverse
 
 
 # -- exports --------------------------------------------------------------------------------------
