@@ -91,7 +91,9 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
         try:
             from .export import OnnxIdentifier, onnx_bytes
 
-            runner = OnnxIdentifier(onnx_bytes(ident))
+            inverse = ident.inverse    # the caller's own map, passed again (aeid_struct.maps)
+            runner = OnnxIdentifier(onnx_bytes(ident), maps=None if inverse is None
+                                    else {inverse.name(): inverse})
             paths["ONNX file (onnxruntime)"] = lambda i: runner(ys[i], us[i])
             paths["ONNX file + physical"] = lambda i: runner.physical(runner(ys[i], us[i]))
         except ImportError:

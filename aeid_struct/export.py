@@ -22,12 +22,14 @@ PyTorch 2.13 marks ``torch.jit`` deprecated in favour of ``torch.export``; it st
 runs, and the format is the one libtorch reads.
 
 :func:`to_onnx` writes the same computation as an ONNX graph (opset 17) with the record format and
-the CasADi inverse map in its metadata; :class:`OnnxIdentifier` runs it with onnxruntime and numpy
-alone (CasADi only for the physical parameters). Both need the optional ``onnx`` extra
-(``pip install "aeid-struct[onnx]"``: ``onnx``, ``onnxruntime``). Why the TorchScript-based ONNX
-exporter (``dynamo=False``) and not ``torch.export``: the structures validate their elements with
-data-dependent branches (``if bad.any(): raise``) that ``torch.export`` refuses to trace; tracing
-records the branch taken for valid elements, which is the deployed behaviour.
+the CasADi inverse map in its metadata -- as a reference to a named map (``aeid_struct.maps``),
+never as a serialised Function, which could run code when read; :class:`OnnxIdentifier` runs it
+with onnxruntime and numpy alone (CasADi only for the physical parameters). Both need the
+optional ``onnx`` extra (``pip install "aeid-struct[onnx]"``: ``onnx``, ``onnxruntime``). Why the
+TorchScript-based ONNX exporter (``dynamo=False``) and not ``torch.export``: the structures
+validate their elements with data-dependent branches (``if bad.any(): raise``) that
+``torch.export`` refuses to trace; tracing records the branch taken for valid elements, which is
+the deployed behaviour.
 Measured (``leg-stable-window``, one thread, median of 2000 calls, ``aeid-struct bench-online``):
 see ``pretrained/README.md``.
 """
@@ -41,7 +43,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ONNX_FORMAT = "aeid-struct-onnx-1"
+#: The metadata format written: the inverse map as a reference (``aeid_struct.maps``).
+ONNX_FORMAT = "aeid-struct-onnx-2"
+#: The format before named maps (the inverse serialised inline): read with ``trust=True``.
+ONNX_FORMAT_1 = "aeid-struct-onnx-1"
 
 
 class _OneRecord(torch.nn.Module):
@@ -79,6 +84,17 @@ def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
     return y, u
 
 
+def _file_to_write(path) -> Path:
+    """``path`` as a Path to a file that can be written (its folder created), or a ValueError."""
+    if not isinstance(path, (str, Path)) or not str(path):
+        raise ValueError(f"path must be a file name (str or Path); got {path!r}")
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"path must be a file to write; {str(path)!r} is a directory")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 def to_torchscript(ident, path) -> Path:
     """Save ``ident`` as a frozen TorchScript module at ``path`` (module docstring).
 
@@ -91,8 +107,7 @@ def to_torchscript(ident, path) -> Path:
         (``u = torch.ones(steps)`` for a unit step) and returns ``(A, b, c, d, elements)``.
     """
     _exportable(ident)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = _file_to_write(path)
     module = _OneRecord(ident).eval()
     y, u = _example(ident)
     with warnings.catch_warnings(), torch.no_grad():
@@ -105,11 +120,13 @@ def to_torchscript(ident, path) -> Path:
 
 def onnx_bytes(ident) -> bytes:
     """The ONNX model (bytes) of ``ident``'s identification of one record, with the record format
-    and the inverse map in its metadata (``to_onnx``)."""
+    and the inverse map (a reference, ``aeid_struct.maps.to_entry``) in its metadata
+    (``to_onnx``)."""
     import io
 
     import onnx
 
+    from . import maps
     from .structures import CCF
 
     _exportable(ident)
@@ -126,7 +143,7 @@ def onnx_bytes(ident) -> bytes:
         "format": ONNX_FORMAT, "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
         "initial": ident.initial, "elements": list(ident.structure.element_names),
         "inverse": None if inverse is None or isinstance(inverse, tuple)
-        else inverse.serialize(),
+        else maps.to_entry(inverse),
         "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
         "structure": ident.structure.config(),
         "ccf": isinstance(ident.structure, CCF),
@@ -147,10 +164,53 @@ def to_onnx(ident, path) -> Path:
         The path written. Inputs ``y, u``: float32 ``(steps,)``; outputs ``A (n, n), b (n,),
         c (n,), d ()`` and ``elements (q,)``. :class:`OnnxIdentifier` reads it.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = _file_to_write(path)
     path.write_bytes(onnx_bytes(ident))
     return path
+
+
+def _model_bytes(model) -> tuple[bytes, str]:
+    """The bytes of an ONNX ``model`` (bytes or a file path) and how errors name it."""
+    if isinstance(model, (bytes, bytearray)):
+        return bytes(model), "model"
+    if not isinstance(model, (str, Path)):
+        raise ValueError(f"model must be the path of an .onnx file or its bytes; got "
+                         f"{type(model).__name__}")
+    path = Path(model)
+    if not path.is_file():
+        raise ValueError(f"model must be an existing .onnx file or its bytes; got "
+                         f"{str(path)!r}" + (" (a directory)" if path.is_dir() else ""))
+    return path.read_bytes(), f"model file {str(path)!r}"
+
+
+def _check_onnx_header(header: dict, source: str) -> None:
+    """Entries and JSON types of the ``aeid`` metadata (one ValueError naming ``source``)."""
+    def integer(v) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+
+    def number(v) -> bool:
+        return (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                and v > 0)
+
+    checks = {
+        "steps": (integer, "a positive integer"),
+        "dt": (number, "a positive finite number"),
+        "inputs": (lambda v: isinstance(v, bool), "true or false"),
+        "initial": (lambda v: v in ("rest", "fitted"), "'rest' or 'fitted'"),
+        "elements": (lambda v: isinstance(v, list) and all(isinstance(e, str) for e in v),
+                     "a list of names"),
+    }
+    for key, (ok, expected) in checks.items():
+        if key not in header:
+            raise ValueError(f"{source}: its 'aeid' metadata is missing {key!r}")
+        if not ok(header[key]):
+            raise ValueError(f"{source}: 'aeid' metadata entry {key!r} must be {expected}; "
+                             f"got {header[key]!r}")
+    physical = header.get("physical_elements")
+    if physical is not None and not (isinstance(physical, list) and all(
+            p in header["elements"] for p in physical)):
+        raise ValueError(f"{source}: 'aeid' metadata entry 'physical_elements' must list "
+                         f"elements of {header['elements']}; got {physical!r}")
 
 
 class OnnxIdentifier:
@@ -159,30 +219,53 @@ class OnnxIdentifier:
     Args:
         model: the ``.onnx`` path, or the model's bytes (``onnx_bytes``).
         threads: onnxruntime's intra-op threads (1: the one-core latency of online use).
+        maps: name -> casadi.Function: a user inverse map the metadata names (not a named map
+            of ``aeid_struct.maps``), passed again; it must have the SHA-256 recorded.
+        trust: deserialise a user inverse map, or the inverse of an export in the format before
+            named maps (``ONNX_FORMAT_1``), from the metadata. A serialised CasADi Function can
+            run shell commands when it is read: only for files you trust.
 
     Attributes:
         steps, dt, inputs, initial: the record format the identifier was trained on.
         element_names: the structure's elements, in the order of the ``elements`` output.
     """
 
-    def __init__(self, model, threads: int = 1) -> None:
+    def __init__(self, model, threads: int = 1, *, maps: dict | None = None,
+                 trust: bool = False) -> None:
         import onnxruntime as ort
+
+        from . import maps as _maps
 
         if not (isinstance(threads, int) and threads >= 1):
             raise ValueError(f"threads must be a positive integer; got {threads!r}")
-        raw = model if isinstance(model, bytes) else Path(model).read_bytes()
+        _maps.check_maps(maps, trust)
+        raw, source = _model_bytes(model)
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(raw, options, providers=["CPUExecutionProvider"])
+        try:
+            self.session = ort.InferenceSession(raw, options,
+                                                providers=["CPUExecutionProvider"])
+        except Exception as err:  # onnxruntime raises its own error types
+            text = str(err).strip().splitlines()
+            raise ValueError(f"{source} is not an ONNX model onnxruntime can load: "
+                             f"{text[0] if text else type(err).__name__}") from None
         meta = self.session.get_modelmeta().custom_metadata_map
         if "aeid" not in meta:
-            raise ValueError("model is not an aeid-struct export: its metadata has no 'aeid' "
-                             "entry (write it with aeid_struct.export.to_onnx)")
-        header = json.loads(meta["aeid"])
-        if header.get("format") != ONNX_FORMAT:
-            raise ValueError(f"model has format {header.get('format')!r}; this reader reads "
-                             f"{ONNX_FORMAT!r}")
+            raise ValueError(f"{source} is not an aeid-struct export: its metadata has no "
+                             "'aeid' entry (write it with aeid_struct.export.to_onnx)")
+        try:
+            header = json.loads(meta["aeid"])
+        except ValueError:
+            header = None
+        if not isinstance(header, dict):
+            raise ValueError(f"{source}: its 'aeid' metadata is not a JSON object")
+        if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_1):
+            raise ValueError(f"{source} has format {header.get('format')!r}; this reader reads "
+                             f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_1!r})")
+        if header["format"] == ONNX_FORMAT_1:
+            source += f" (format {ONNX_FORMAT_1!r}, which stored its inverse map as code)"
+        _check_onnx_header(header, source)
         self.steps, self.dt = int(header["steps"]), float(header["dt"])
         self.inputs, self.initial = bool(header["inputs"]), header["initial"]
         self.element_names = tuple(header["elements"])
@@ -191,9 +274,11 @@ class OnnxIdentifier:
         self._ccf = bool(header.get("ccf", True))
         self._inverse = None
         if header.get("inverse"):
-            import casadi
-
-            self._inverse = casadi.Function.deserialize(header["inverse"])
+            try:
+                self._inverse = _maps.from_entry(header["inverse"], "'inverse'", maps=maps,
+                                                 trust=trust)
+            except ValueError as err:
+                raise ValueError(f"{source}: {err}") from None
 
     def __repr__(self) -> str:
         return (f"OnnxIdentifier(steps={self.steps}, dt={self.dt}, inputs={self.inputs}, "

@@ -28,8 +28,11 @@ The raw encoder output is mapped affinely, ``theta = theta_mean + theta_scale * 
 statistics of the training family's raw parameters, so that the network works in O(1) units
 whatever the physical magnitudes; the structure then imposes its constraints.
 
-Files (``.aeid``) are safetensors: tensors plus a JSON header. Loading parses JSON and raw
-tensors only -- no pickle, so a model file never executes code.
+Files (``.aeid``) are safetensors: tensors plus a JSON header. A model file holds data, never
+code: loading parses JSON and raw tensors only (no pickle), and CasADi maps are stored as
+references to named factories (``aeid_struct.maps``), never as serialised Functions, which can
+run shell commands when read. A user's own map is passed again at load time
+(``Identifier.load(path, maps={name: f})``) or read from the file only behind ``trust=True``.
 """
 
 from __future__ import annotations
@@ -48,7 +51,11 @@ import torch
 from .encoder import Encoder, EncoderConfig
 from .structures import Structure, System
 
-FORMAT = "aeid-struct/identifier/1"
+#: The file format written: maps are references (``aeid_struct.maps``), never code.
+FORMAT = "aeid-struct/identifier/2"
+#: The format before named maps (CasADi Functions serialised inline): read with ``trust=True``
+#: where it holds a Function.
+FORMAT_1 = "aeid-struct/identifier/1"
 SCALE_MODES = ("denormalise", "feature")
 #: The calibrated rule's false-flag budget per criterion (excess and fit) on held-out records
 #: inside the training range: each threshold is that quantile of its statistic there.
@@ -782,7 +789,12 @@ class Identifier:
 
     # -- files ---------------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        """The JSON header: everything but the weights."""
+        """The JSON header: everything but the weights. Data only: the inverse map (and a
+        Physical structure's maps) as references to named factories (``aeid_struct.maps``), a
+        user's own map as its name and SHA-256 (with its serialisation, read only under
+        ``trust=True``)."""
+        from . import maps
+
         return {
             "format": FORMAT,
             "encoder": self.encoder.config.to_dict(),
@@ -792,7 +804,7 @@ class Identifier:
             "initial": self.initial,
             "feature_mean": self.feature_mean,
             "feature_scale": self.feature_scale,
-            "inverse": None if self.inverse is None else self.inverse.serialize(),
+            "inverse": None if self.inverse is None else maps.to_entry(self.inverse),
             "meta": self.meta,
         }
 
@@ -801,6 +813,8 @@ class Identifier:
         from safetensors.torch import save_file
 
         path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"path must be a file to write; {str(path)!r} is a directory")
         path.parent.mkdir(parents=True, exist_ok=True)
         tensors = {f"encoder.{k}": v.detach().contiguous()
                    for k, v in self.encoder.state_dict().items()}
@@ -810,9 +824,25 @@ class Identifier:
         return path
 
     @classmethod
-    def load(cls, path) -> Identifier:
-        """Read an identifier written by ``save``. Parses JSON and raw tensors only."""
+    def load(cls, path, *, maps: dict | None = None, trust: bool = False) -> Identifier:
+        """Read an identifier written by ``save``. Parses JSON and raw tensors only.
+
+        Args:
+            path: the ``.aeid`` file.
+            maps: name -> casadi.Function: the user maps the file names (a ``Physical``
+                structure's map or an inverse that is not a named map of ``aeid_struct.maps``),
+                passed again; each must have the SHA-256 the file recorded.
+            trust: deserialise the user maps, and the CasADi Functions of files in the format
+                before named maps (``FORMAT_1``), from the file itself. A serialised CasADi
+                Function can run shell commands when it is read: only for files you trust.
+
+        Raises:
+            ValueError: naming the file and what is wrong: not an identifier file, a corrupted
+                header or weights, or a map the file cannot name without ``maps``/``trust``.
+        """
         from safetensors import safe_open
+
+        from . import maps as _maps
 
         path = Path(path)
         if not path.is_file():
@@ -824,33 +854,147 @@ class Identifier:
         except Exception as err:  # safetensors raises its own error types
             raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file "
                              f"(safetensors + JSON header): {err}") from None
-        if not isinstance(header, dict) or header.get("format") != FORMAT:
+        if not isinstance(header, dict) or header.get("format") not in (FORMAT, FORMAT_1):
             raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file: "
                              f"its header format is not {FORMAT!r}")
-        return cls._from_parts(header, tensors)
+        _maps.check_maps(maps, trust)
+        source = f"identifier file {str(path)!r}"
+        if header["format"] == FORMAT_1:
+            source += f" (format {FORMAT_1!r}, which stored CasADi maps as code)"
+        return cls._from_parts(header, tensors, source=source, maps=maps, trust=trust)
 
     @classmethod
-    def _from_parts(cls, header: dict, tensors: dict) -> Identifier:
-        import casadi
+    def _from_parts(cls, header: dict, tensors: dict, *, source: str = "header",
+                    maps: dict | None = None, trust: bool = False) -> Identifier:
+        """The identifier of a parsed header and its tensors; one ValueError naming ``source``
+        and what is wrong for anything malformed."""
+        from . import maps as _maps
 
-        encoder = Encoder(EncoderConfig.from_dict(header["encoder"]))
-        state = {k[len("encoder."):]: v for k, v in tensors.items() if k.startswith("encoder.")}
-        encoder.load_state_dict(state)
-        encoder.eval()
-        inverse = header.get("inverse")
-        return cls(
-            encoder,
-            Structure.from_config(header["structure"]),
-            dt=tuple(header["dt"]) if isinstance(header["dt"], list) else header["dt"],
-            theta_mean=tensors["theta_mean"],
-            theta_scale=tensors["theta_scale"],
-            scale=header["scale"],
-            initial=header.get("initial", "rest"),
-            feature_mean=header["feature_mean"],
-            feature_scale=header["feature_scale"],
-            inverse=None if inverse is None else casadi.Function.deserialize(inverse),
-            meta=header.get("meta", {}),
-        )
+        _check_header(header, source)
+        try:
+            config = EncoderConfig.from_dict(header["encoder"])
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{source}: 'encoder' is not a valid encoder configuration: "
+                             f"{err}") from None
+        try:
+            encoder = Encoder(config)
+        except ValueError as err:
+            raise ValueError(f"{source}: 'encoder': {err}") from None
+        _load_weights(encoder, tensors, source)
+        try:
+            structure = Structure.from_config(header["structure"], maps=maps, trust=trust)
+            inverse = header.get("inverse")
+            if inverse is not None:
+                inverse = _maps.from_entry(inverse, "'inverse'", maps=maps, trust=trust)
+            dt = header["dt"]
+            ident = cls(
+                encoder, structure,
+                dt=tuple(dt) if isinstance(dt, list) else dt,
+                theta_mean=tensors["theta_mean"],
+                theta_scale=tensors["theta_scale"],
+                scale=header["scale"],
+                initial=header.get("initial", "rest"),
+                feature_mean=header["feature_mean"],
+                feature_scale=header["feature_scale"],
+                inverse=inverse,
+                meta=header.get("meta", {}),
+            )
+        except ValueError as err:
+            raise ValueError(f"{source}: {err}") from None
+        return ident
+
+
+#: Header entries: required ones, and optional ones with the JSON types they may have.
+_HEADER_REQUIRED = ("format", "encoder", "structure", "dt", "scale", "feature_mean",
+                    "feature_scale")
+_HEADER_OPTIONAL = ("initial", "inverse", "meta")
+
+
+def _numbers(value, finite: bool = True) -> bool:
+    """A JSON number, or a non-empty list of them (finite when ``finite``)."""
+    values = value if isinstance(value, list) and value else [value]
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool)
+               and (not finite or math.isfinite(v)) for v in values)
+
+
+def _check_header(header: dict, source: str) -> None:
+    """Entries and JSON types of an identifier header (one ValueError naming ``source``)."""
+    from .encoder import EncoderConfig as _Config
+
+    unknown = sorted(set(header) - set(_HEADER_REQUIRED) - set(_HEADER_OPTIONAL))
+    if unknown:
+        raise ValueError(f"{source}: the header has unknown entries {unknown}; an identifier "
+                         f"header has {', '.join(_HEADER_REQUIRED + _HEADER_OPTIONAL)}")
+    missing = [k for k in _HEADER_REQUIRED if k not in header]
+    if missing:
+        raise ValueError(f"{source}: the header is missing {', '.join(map(repr, missing))}")
+    checks = {
+        "encoder": (isinstance(header["encoder"], dict), "a dict"),
+        "structure": (isinstance(header["structure"], dict), "a dict"),
+        "dt": (_numbers(header["dt"]), "a finite number or a list of them"),
+        "scale": (isinstance(header["scale"], str), "a string"),
+        "initial": (isinstance(header.get("initial", "rest"), str), "a string"),
+        "feature_mean": (_numbers(header["feature_mean"]), "a finite number or a list of them"),
+        "feature_scale": (_numbers(header["feature_scale"]),
+                          "a finite number or a list of them"),
+        "meta": (isinstance(header.get("meta", {}), dict), "a dict"),
+        "inverse": (header.get("inverse") is None
+                    or isinstance(header["inverse"], (dict, str)), "a map reference or null"),
+    }
+    for key, (ok, expected) in checks.items():
+        if not ok:
+            got = header[key]
+            text = repr(got) if len(repr(got)) <= 80 else f"{repr(got)[:60]}..."
+            raise ValueError(f"{source}: header entry {key!r} must be {expected}; got {text}")
+    rng = header.get("meta", {}).get("training_range")
+    if rng:   # read by Estimate.outside: {"elements"/"physical": {name: [lo, hi, err]}, ...}
+        ok = isinstance(rng, dict) and set(rng) <= {"elements", "physical", "fit", "excess"}
+        for group in ("elements", "physical"):
+            part = rng.get(group, {}) if ok else None
+            ok = ok and isinstance(part, dict) and all(
+                isinstance(v, list) and len(v) == 3 and _numbers(v) for v in part.values())
+        ok = ok and all(_numbers(rng[k]) and not isinstance(rng[k], list)
+                        for k in ("fit", "excess") if k in rng)
+        if not ok:
+            text = repr(rng) if len(repr(rng)) <= 80 else f"{repr(rng)[:60]}..."
+            raise ValueError(f"{source}: 'meta' entry 'training_range' must be "
+                             "{'elements': {name: [lo, hi, err]}, 'physical': {...}, 'fit': "
+                             f"number, 'excess': number}}; got {text}")
+    fields = {f.name for f in dataclasses.fields(_Config)}
+    unknown = sorted(set(header["encoder"]) - fields)
+    if unknown:
+        raise ValueError(f"{source}: 'encoder' has unknown entries {unknown}; an encoder "
+                         f"configuration has {', '.join(sorted(fields))}")
+    if not isinstance(header["encoder"].get("inputs", False), bool):
+        raise ValueError(f"{source}: 'encoder' entry 'inputs' must be true or false; got "
+                         f"{header['encoder']['inputs']!r}")
+
+
+def _load_weights(encoder: Encoder, tensors: dict, source: str) -> None:
+    """Check the file's tensors against the encoder the header describes (names, shapes,
+    finite floats) and load them; one ValueError naming ``source`` and the tensor."""
+    expected = {f"encoder.{k}": tuple(v.shape) for k, v in encoder.state_dict().items()}
+    missing = [k for k in (*expected, "theta_mean", "theta_scale") if k not in tensors]
+    if missing:
+        raise ValueError(f"{source}: weights {missing} are missing (the header's 'encoder' "
+                         "describes them)")
+    unknown = sorted(set(tensors) - set(expected) - {"theta_mean", "theta_scale"})
+    if unknown:
+        raise ValueError(f"{source}: unknown weights {unknown} (not in the encoder the header "
+                         "describes)")
+    for key in (*expected, "theta_mean", "theta_scale"):      # the encoder's layer order
+        tensor = tensors[key]
+        if key in expected and tuple(tensor.shape) != expected[key]:
+            raise ValueError(f"{source}: weight {key!r} has shape {tuple(tensor.shape)}; the "
+                             f"header's 'encoder' needs {expected[key]}")
+        if not tensor.is_floating_point() or not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"{source}: weight {key!r} must hold finite floating-point "
+                             f"numbers; got dtype {tensor.dtype}"
+                             + ("" if not tensor.is_floating_point() else " with non-finite "
+                                "values"))
+    encoder.load_state_dict({k[len("encoder."):]: v for k, v in tensors.items()
+                             if k.startswith("encoder.")})
+    encoder.eval()
 
 
 _NUMPY_ACTIVATIONS = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}

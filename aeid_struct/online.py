@@ -254,8 +254,10 @@ def _onnx_runner(identifier, required: bool):
         return None
     from .export import OnnxIdentifier, onnx_bytes
 
+    inverse = identifier.inverse       # the caller's own map, passed again (aeid_struct.maps)
     try:
-        return OnnxIdentifier(onnx_bytes(identifier))
+        return OnnxIdentifier(onnx_bytes(identifier),
+                              maps=None if inverse is None else {inverse.name(): inverse})
     except ValueError:
         if required:
             raise

@@ -679,28 +679,69 @@ class Structure(abc.ABC):
         """Constructor arguments as JSON-serialisable values."""
 
     def config(self) -> dict:
-        """A JSON-serialisable dict from which :meth:`from_config` rebuilds this structure."""
+        """A JSON-serialisable dict from which :meth:`from_config` rebuilds this structure.
+
+        It holds data only: a :class:`Physical` structure's CasADi maps are named
+        (``aeid_struct.maps``), never serialised as code, except a user's own map, which
+        :meth:`from_config` reads back only when the caller passes it again or trusts the
+        config.
+        """
         return {"type": type(self).__name__, **self._config(), "fixed": dict(self._fixed)}
 
     @staticmethod
-    def from_config(config: dict) -> Structure:
-        """The structure described by ``config`` (the output of :meth:`config`)."""
-        if not isinstance(config, dict) or "type" not in config:
+    def from_config(config: dict, *, maps: dict | None = None,
+                    trust: bool = False) -> Structure:
+        """The structure described by ``config`` (the output of :meth:`config`).
+
+        Parameters
+        ----------
+        config : dict
+            ``{"type": name, ...constructor arguments..., "fixed": {name: value}}``.
+        maps : dict name -> casadi.Function, optional
+            The user maps a :class:`Physical` config names (``{"map": name, "user": true,
+            ...}``), passed again; each must match the SHA-256 the config recorded.
+        trust : bool
+            Deserialise user maps, and the serialised Functions of configs written before
+            named maps, from the config itself. A serialised CasADi Function can run shell
+            commands when it is read: only for configs whose source you trust.
+
+        Raises
+        ------
+        ValueError
+            For an unknown type, unknown or missing entries, values of the wrong type, and map
+            entries that cannot be resolved (``aeid_struct.maps.from_entry``).
+        """
+        from .maps import check_maps
+
+        check_maps(maps, trust)
+        if not isinstance(config, dict) or not isinstance(config.get("type"), str):
             raise ValueError(f"config must be a dict with a 'type' entry; got {config!r}")
         kind = config["type"]
         if kind not in Structure._registry:
             raise ValueError(f"unknown structure type {kind!r}; valid types: "
                              f"{', '.join(Structure._registry)}")
+        fixed = config.get("fixed", {})
+        if not isinstance(fixed, dict) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in fixed.values()):
+            raise ValueError(f"invalid config for {kind}: 'fixed' must be a dict name -> "
+                             f"number; got {fixed!r}")
         args = {k: v for k, v in config.items() if k not in ("type", "fixed")}
         try:
-            structure = Structure._registry[kind]._from_config(args)
+            structure = Structure._registry[kind]._from_config(args, maps=maps, trust=trust)
         except (TypeError, KeyError) as e:
             raise ValueError(f"invalid config for {kind}: {e}") from None
-        return structure.fixed(**config.get("fixed", {}))
+        return structure.fixed(**fixed)
 
     @classmethod
-    def _from_config(cls, args: dict) -> Structure:
-        return cls(**args)
+    def _from_config(cls, args: dict, *, maps=None, trust: bool = False) -> Structure:
+        structure = cls(**args)
+        # JSON of the wrong type that the constructor would coerce ("descartes": "yes")
+        for key, value in structure._config().items():
+            if key in args and (args[key] != value
+                                or isinstance(args[key], bool) != isinstance(value, bool)):
+                raise ValueError(f"invalid config for {cls.__name__}: {key!r} must be a "
+                                 f"{type(value).__name__}; got {args[key]!r}")
+        return structure
 
     def _base_repr(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self._config().items())
@@ -1052,19 +1093,35 @@ class Physical(Structure):
         return {k: (m.lo, m.hi) for k, m in self._maps.items()}
 
     def _config(self) -> dict:
+        from . import maps
+
         return {
-            "function": self.function.serialize(),
+            "function": maps.to_entry(self.function),
             "bounds": {k: [lo, hi] for k, (lo, hi) in self.bounds.items()},
-            "inverse": None if self.inverse is None else self.inverse.serialize(),
+            "inverse": None if self.inverse is None else maps.to_entry(self.inverse),
         }
 
     @classmethod
-    def _from_config(cls, args: dict) -> Physical:
+    def _from_config(cls, args: dict, *, maps=None, trust: bool = False) -> Physical:
+        from . import maps as _maps
+
+        unknown = sorted(set(args) - {"function", "bounds", "inverse"})
+        if unknown or "function" not in args or "bounds" not in args:
+            raise ValueError(f"invalid config for Physical: it needs 'function' and 'bounds' "
+                             f"(and optionally 'inverse'); got entries {sorted(args)}")
+        bounds = args["bounds"]
+        if not isinstance(bounds, dict) or not all(
+                isinstance(v, (list, tuple)) and len(v) == 2
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+                for v in bounds.values()):
+            raise ValueError(f"invalid config for Physical: 'bounds' must be a dict name -> "
+                             f"[lo, hi] of numbers; got {bounds!r}")
         inverse = args.get("inverse")
         return cls(
-            casadi.Function.deserialize(args["function"]),
-            bounds={k: tuple(v) for k, v in args["bounds"].items()},
-            inverse=None if inverse is None else casadi.Function.deserialize(inverse),
+            _maps.from_entry(args["function"], "Physical 'function'", maps=maps, trust=trust),
+            bounds={k: tuple(v) for k, v in bounds.items()},
+            inverse=None if inverse is None else _maps.from_entry(
+                inverse, "Physical 'inverse'", maps=maps, trust=trust),
         )
 
     def _base_repr(self) -> str:

@@ -76,6 +76,11 @@ Choices
 * **Code generation.** ``generate_c`` writes the maps and inverses into one C file with
   ``casadi.CodeGenerator``; ``compile_c`` builds a shared library with the system C compiler and
   loads each function with ``casadi.external``.
+* **Named maps.** The six maps and inverses are decorated with ``symbolic.named.named``: each
+  Function they return remembers its factory and constants,
+  ``{"map": "symbolic.leg.stable_map", "args": {"l0": 0.8, "g": 9.81}}``, so that a model file
+  names the map instead of holding its code (``aeid_struct.maps`` resolves the name from its
+  allow-list).
 
 Run ``python -m symbolic.leg`` to print the derivation and check it (assertions at the end).
 """
@@ -89,6 +94,8 @@ import subprocess
 from typing import NamedTuple
 
 import casadi
+
+from .named import named
 
 # =============================================================================
 # Settings
@@ -454,6 +461,7 @@ def _subsystem_map(name: str, index: int, l0: float, g: float) -> casadi.Functio
     return casadi.Function(name, [k, d, m], [A, B, C, D], ["k", "d", "m"], ["A", "B", "C", "D"])
 
 
+@named("symbolic.leg.stable_map")
 def stable_map(l0: float = L0, g: float = G) -> casadi.Function:
     """``(k, d, m)`` -> CCF of the translational subsystem ``G1 = (1/m) / (s^2 + (d/m) s + k/m)``.
 
@@ -469,6 +477,7 @@ def stable_map(l0: float = L0, g: float = G) -> casadi.Function:
     return _subsystem_map("stable_map", 1, l0, g)
 
 
+@named("symbolic.leg.unstable_map")
 def unstable_map(l0: float = L0, g: float = G) -> casadi.Function:
     """``(k, d, m)`` -> CCF of the rotational subsystem ``G2 = (1/(m L^2)) / (s^2 - g/L)``.
 
@@ -485,6 +494,7 @@ def unstable_map(l0: float = L0, g: float = G) -> casadi.Function:
     return _subsystem_map("unstable_map", 2, l0, g)
 
 
+@named("symbolic.leg.joint_map")
 def joint_map(l0: float = L0, g: float = G) -> casadi.Function:
     """``(k, d, m)`` -> the CCFs of both subsystems: one parameter set, two records.
 
@@ -517,6 +527,7 @@ def _ccf_symbols(suffix: str = "") -> tuple[list[casadi.SX], list[str]]:
     return symbols, names
 
 
+@named("symbolic.leg.stable_inverse")
 def stable_inverse(l0: float = L0, g: float = G) -> casadi.Function:
     """CCF of ``G1`` -> ``(k, d, m)``: ``m = 1/c_0``, ``k = a_0 m``, ``d = a_1 m``.
 
@@ -538,6 +549,7 @@ def stable_inverse(l0: float = L0, g: float = G) -> casadi.Function:
     )
 
 
+@named("symbolic.leg.unstable_inverse")
 def unstable_inverse(l0: float = L0, g: float = G) -> casadi.Function:
     """CCF of ``G2`` -> ``(k, m)``: ``L = -g/a_0``, ``m = 1/(c_0 L^2)``, ``k = m g / (l0 - L)``.
 
@@ -558,6 +570,7 @@ def unstable_inverse(l0: float = L0, g: float = G) -> casadi.Function:
     return casadi.Function("unstable_inverse", [A, B, C, D], [k, m], names, ["k", "m"])
 
 
+@named("symbolic.leg.joint_inverse")
 def joint_inverse(l0: float = L0, g: float = G, *, unstable_noise: float = 1.0) -> casadi.Function:
     r"""Both subsystems' CCFs -> ``(k, d, m)``, combining what each says about ``k`` and ``m``.
 
