@@ -49,6 +49,10 @@ def as_array(name: str, value) -> np.ndarray:
 
     A complex array is refused, whatever its imaginary part: numpy's cast would drop it
     silently, and a model identified from half of the data looks like a good one."""
+    if value is None:
+        raise ValueError(f"{name} must be an array of real numbers; got None")
+    if hasattr(value, "detach") and hasattr(value, "cpu"):   # a torch tensor, grad or GPU
+        value = value.detach().cpu()
     try:
         arr = np.asarray(value)
     except (TypeError, ValueError, RuntimeError):

@@ -365,6 +365,7 @@ def _complex_cases():
         # a complex number among floats (object array): no silent cast either
         ("identify object y", lambda: ident.identify(np.array([1.0] * 59 + [1j], dtype=object)),
          r"y must be an array of real numbers; got ndarray of dtype object"),
+        ("identify complex tensor", lambda: ident.identify(torch.tensor(z)), "y " + real),
     ]
 
 
@@ -423,6 +424,13 @@ def test_a_batch_gives_each_record_what_it_gives_alone_whatever_the_magnitudes(m
 
 def test_a_batch_of_no_records_and_an_unrepresentable_scale_are_refused():
     ident, reads_u = _identifier(), _identifier(inputs=True)
+    with pytest.raises(ValueError, match=r"y must be an array of real numbers; got None"):
+        ident.identify(None)
+    with pytest.raises(ValueError, match=r"y must be an array of real numbers; got list"):
+        ident.identify([[1.0, 2.0], [3.0]])
+    # a tensor that requires grad is read, not refused with torch's RuntimeError
+    y = torch.tensor(_record(), requires_grad=True)
+    np.testing.assert_array_equal(ident.identify(y).A, ident.identify(_record()).A)
     with pytest.raises(ValueError, match=r"y must hold at least one record; got shape \(0, 60\)"):
         ident.identify(np.ones((0, 60)))
     with pytest.raises(ValueError, match=r"y must hold at least one record"):
@@ -518,6 +526,13 @@ def test_collect_checks_inputs_per_record_too_and_refines_only_the_good_records(
     assert est.refined and est.info["refined_rows"].tolist() == [True, False, False]
     np.testing.assert_allclose(est.A[0], [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-6, atol=1e-8)
     assert np.isnan(est.A[1:]).all()
+    # refine="auto" refines the flagged records that were identified (a fit threshold of 99 %
+    # flags the untrained identifier's estimate), never a record set aside
+    auto = _ranged(_identifier(), fit=99.0).identify(np.stack([_record(), np.zeros(60)]),
+                                                     errors="collect", refine="auto")
+    assert auto.info["refined_rows"].tolist() == [True, False]
+    assert auto.fit[0] > 99.9 and np.isnan(auto.A[1]).all()
+    assert auto.outside.tolist() == [False, True]   # refined: it fits now; set aside: flagged
 
 
 def test_collect_on_a_several_record_identifier():
