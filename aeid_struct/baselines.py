@@ -118,7 +118,8 @@ import scipy.linalg
 import scipy.optimize
 
 from .decoder import _check_dt
-from .identify import Estimate, _as_array, _require_finite
+from .identify import Estimate
+from .records import as_array, require_finite
 
 __all__ = [
     "Classical",
@@ -263,11 +264,11 @@ def _records(y, u) -> tuple[np.ndarray, np.ndarray]:
     """One record: ``y (steps,)`` and ``u (steps,)`` (a unit step when None), finite, not zero."""
     out = []
     for name, v in (("y", y), ("u", np.ones(np.shape(y)) if u is None else u)):
-        arr = _as_array(name, v)
+        arr = as_array(name, v)
         if arr.ndim != 1 or arr.shape[0] < 2:
             raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record; "
                              f"loop over a batch); got {arr.shape}")
-        _require_finite(name, arr)
+        require_finite(name, arr)
         if not np.any(arr):
             raise ValueError(f"{name} must not be all zero: a record from rest with zero "
                              "input or output reveals nothing")
@@ -878,7 +879,7 @@ def failure(estimate: Estimate, *, structure=None, truth_y=None, step_tol: float
     count = estimate.A.shape[0] if estimate.batched else 1
     truth = None
     if truth_y is not None:
-        truth = np.atleast_2d(np.asarray(truth_y, dtype=np.float64))
+        truth = np.atleast_2d(as_array("truth_y", truth_y))
         if truth.ndim != 2 or truth.shape[0] != count or not np.all(np.isfinite(truth)):
             raise ValueError(f"truth_y must be finite with shape (steps,) or ({count}, steps) "
                              f"for this estimate; got {np.shape(truth_y)}")
@@ -1012,12 +1013,12 @@ class Classical:
         """Identify each record of ``y (batch, steps)`` (or one ``(steps,)``) with ``u`` like
         ``y`` (None: unit steps); ``refine`` polishes each estimate (:mod:`aeid_struct.refine`)."""
         start = time.perf_counter()
-        Y = np.atleast_2d(_as_array("y", y))
+        Y = np.atleast_2d(as_array("y", y))
         if Y.ndim != 2 or Y.shape[1] != self.steps:
             raise ValueError(f"y must have shape ({self.steps},) or (batch, {self.steps}); "
                              f"got {np.shape(y)}")
         U = np.ones_like(Y) if u is None else np.broadcast_to(
-            np.atleast_2d(_as_array("u", u)), Y.shape)
+            np.atleast_2d(as_array("u", u)), Y.shape)
         parts = []
         for y_i, u_i in zip(Y, U, strict=True):
             est = self.method(y_i, u_i, self.dt)

@@ -43,6 +43,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .records import check_records, normalise
+
 #: The metadata format written: the inverse map as a reference (``aeid_struct.maps``).
 ONNX_FORMAT = "aeid-struct-onnx-2"
 #: The format before named maps (the inverse serialised inline): read with ``trust=True``.
@@ -147,6 +149,7 @@ def onnx_bytes(ident) -> bytes:
         "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
         "structure": ident.structure.config(),
         "ccf": isinstance(ident.structure, CCF),
+        "scale": ident.scale,
     }
     entry = model.metadata_props.add()
     entry.key, entry.value = "aeid", json.dumps(header)
@@ -272,6 +275,7 @@ class OnnxIdentifier:
         self.records = 1
         self._physical_elements = header.get("physical_elements")
         self._ccf = bool(header.get("ccf", True))
+        self._scale = header.get("scale")       # None: a file written before it was recorded
         self._inverse = None
         if header.get("inverse"):
             try:
@@ -285,34 +289,72 @@ class OnnxIdentifier:
                 f"elements={self.element_names})")
 
     def __call__(self, y, u=None) -> dict[str, np.ndarray]:
-        """Identify one record: ``y, u (steps,)`` (u = None: a unit step) -> float64
+        """Identify a record: ``y, u (steps,)`` (u = None: a unit step) -> float64
         ``A (n, n), b (n,), c (n,), d ()`` and ``elements (q,)``, the numbers of
-        ``Identifier.identify`` to float32 precision."""
-        y = np.asarray(y, dtype=np.float32)
-        u = np.ones(self.steps, dtype=np.float32) if u is None else np.asarray(u, np.float32)
-        for name, v in (("y", y), ("u", u)):
-            if v.shape != (self.steps,):
-                raise ValueError(f"{name} must have shape ({self.steps},) for this identifier; "
-                                 f"got {v.shape}")
-            if not np.all(np.isfinite(v)):
-                raise ValueError(f"{name} must be finite")
-        if not np.any(y):
-            raise ValueError("y must not be all zero (max|y| normalises the record, Eq. 15)")
-        out = self.session.run(None, {"y": y, "u": u})
-        return dict(zip(("A", "b", "c", "d", "elements"),
-                        (np.asarray(o, dtype=np.float64) for o in out), strict=True))
+        ``Identifier.identify`` to float32 precision; a batch ``y (batch, steps)`` (with ``u``
+        like it, or ``(steps,)`` for all) gives each with a leading batch axis.
 
-    def physical(self, model: dict) -> dict[str, float]:
+        The records are checked by ``records.check_records``, as ``Identifier.identify`` checks
+        them: the same inputs are refused with the same ValueError and message (a complex or
+        misshapen array, a batch of no records; per record, as a ``records.RecordError``:
+        non-finite samples, an all-zero ``y`` or ``u``, a varying ``u`` for an identifier that
+        does not read it). Eq. 15 runs per record in float64 before the graph's float32: the
+        graph receives ``y / max|y|`` and ``u / max|u|`` and the model is de-normalised in
+        float64, so a record of 1e40 or 1e-44 gives what the identifier gives. (For a
+        ``scale="feature"`` export, or a file written before the scale was recorded, the graph
+        reads ``max|y| / max|u|`` itself: it must lie within float32's normal range.)
+        """
+        checked = check_records(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
+        checked.raise_first()
+        _, u_unit, y_bar, u_bar = normalise(checked.y, checked.u)
+        y_unit = checked.y / y_bar[:, None]
+        gain = y_bar / u_bar
+        if self._scale == "denormalise":
+            y_in, u_in = y_unit, u_unit                   # the graph sees a gain of 1
+        else:
+            # The graph reads log(max|y| / max|u|): split the ratio between y and u so that
+            # each stays inside float32 whatever the record's own magnitude.
+            bad = ~((gain > 1e-37) & (gain < 1e37))
+            if bad.any():
+                r = int(np.argmax(bad))
+                raise ValueError(f"y and u must have a scale ratio max|y| / max|u| inside "
+                                 f"float32's range for this export (its graph reads it); got "
+                                 f"{gain[r]:.3g} at record {r}")
+            root = np.sqrt(gain)[:, None]
+            y_in, u_in = y_unit * root, u_unit / root
+        rows = []
+        for y_r, u_r in zip(y_in.astype(np.float32), u_in.astype(np.float32), strict=True):
+            rows.append([np.asarray(o, dtype=np.float64)
+                         for o in self.session.run(None, {"y": y_r, "u": u_r})])
+        A, b, c, d, el = (np.stack(t) for t in zip(*rows, strict=True))
+        if self._scale == "denormalise":
+            # Exact de-normalisation (linearity), in float64: c, d and the elements c_i, d
+            # scale with the output (Identifier._output_mask).
+            c, d = c * gain[:, None], d * gain
+            scaled = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
+                               for k in self.element_names])
+            el = np.where(scaled, el * gain[:, None], el)
+        out = dict(zip(("A", "b", "c", "d", "elements"), (A, b, c, d, el), strict=True))
+        return out if checked.batched else {k: v[0] for k, v in out.items()}
+
+    def physical(self, model: dict) -> dict:
         """Physical parameters of a model returned by ``__call__`` (through the stored inverse
-        map, or elements that are physical parameters); empty when the export has none."""
+        map, or elements that are physical parameters): floats, or ``(batch,)`` arrays for a
+        batched model; empty when the export has none."""
+        el = np.asarray(model["elements"], dtype=np.float64)
+        batched = el.ndim == 2
         if self._physical_elements:
-            return {k: float(model["elements"][self.element_names.index(k)])
-                    for k in self._physical_elements}
-        if self._inverse is None:
+            out = {k: el[..., self.element_names.index(k)] for k in self._physical_elements}
+        elif self._inverse is None:
             return {}
-        from .identify import _inverse_of_models
+        else:
+            from .identify import _inverse_of_models
 
-        A, b, c, d = (np.asarray(model[k], dtype=np.float64) for k in "Abcd")
-        out = _inverse_of_models(self._inverse, A[None], b[None], c[None], d.reshape(1),
-                                 self._ccf)
-        return {k: float(v[0]) for k, v in out.items()}
+            A = np.asarray(model["A"], dtype=np.float64)
+            n = A.shape[-1]
+            A = A.reshape(-1, n, n)
+            b, c = (np.asarray(model[k], dtype=np.float64).reshape(-1, n) for k in "bc")
+            d = np.asarray(model["d"], dtype=np.float64).reshape(-1)
+            out = _inverse_of_models(self._inverse, A, b, c, d, self._ccf)
+        return {k: np.asarray(v, dtype=np.float64) if batched else float(np.ravel(v)[0])
+                for k, v in out.items()}

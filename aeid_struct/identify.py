@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from .encoder import Encoder, EncoderConfig
+from .records import as_array, check_records, normalise, require_finite
 from .structures import Structure, System
 
 #: The file format written: maps are references (``aeid_struct.maps``), never code.
@@ -63,6 +64,9 @@ FLAG_FALSE_RATE = 0.015
 #: How the decoder treats a record's initial state: from rest (the paper), or fitted by least
 #: squares (records that start mid-motion; ``decoder.initial_state``).
 INITIAL_STATES = ("rest", "fitted")
+#: What ``Identifier.identify`` does with a record it cannot identify (non-finite, all zero,
+#: ...): raise (the default), or collect a reason per record and identify the good ones.
+ERROR_MODES = ("raise", "collect")
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +90,10 @@ class Estimate:
             mid-motion: ``x0`` is the least-squares initial state and ``y_hat`` starts there).
         training_range: the identifier's training range (``Identifier.training_range``), or
             None where unknown; see ``outside``.
+        errors: set by ``Identifier.identify(errors="collect")``: per record of ``y`` (one entry
+            for an unbatched ``y``), why it could not be identified, or None for a good record;
+            a bad record's model rows are NaN and its ``y_hat``, ``fit`` NaN. None when the
+            records were checked with ``errors="raise"`` (all of them were good).
 
     ``fit``, ``y_hat`` and ``physical`` are computed on first access, so that a plain
     identification costs one encoder pass.
@@ -106,6 +114,7 @@ class Estimate:
     structure: object = field(default=None, repr=False)
     initial: str = "rest"
     training_range: dict | None = field(default=None, repr=False)
+    errors: tuple[str | None, ...] | None = None
 
     @property
     def records(self) -> int:
@@ -122,22 +131,50 @@ class Estimate:
         tuple of ``R`` responses for a several-record estimate)."""
         from .decoder import simulate
 
-        if self.records == 1:
-            return simulate(self.A, self.b, self.c, self.d, self.u, self.dt, x0=self._x0())
         x0 = self._x0()
-        return tuple(simulate(self.A[..., r, :, :], self.b[..., r, :], self.c[..., r, :],
-                              self.d[..., r], self.u[r], self.dt[r],
-                              x0=None if x0 is None else x0[r])
-                     for r in range(self.records))
+        if self.records == 1:
+            return self._on_good(
+                lambda A, b, c, d, u, x: simulate(A, b, c, d, u, self.dt, x0=x),
+                self.A, self.b, self.c, self.d, self.u, x0, out=np.shape(self.y))
+        return tuple(self._on_good(
+            lambda A, b, c, d, u, x, r=r: simulate(A, b, c, d, u, self.dt[r], x0=x),
+            self.A[..., r, :, :], self.b[..., r, :], self.c[..., r, :], self.d[..., r],
+            self.u[r], None if x0 is None else x0[r], out=np.shape(self.y[r]))
+            for r in range(self.records))
+
+    @property
+    def _good(self) -> np.ndarray | None:
+        """``(batch,)`` bool (``(1,)`` unbatched): the records identified, where
+        ``errors="collect"`` set some aside; None when every record is good."""
+        if self.errors is None or all(e is None for e in self.errors):
+            return None
+        return np.array([e is None for e in self.errors], dtype=bool)
+
+    def _on_good(self, fn, *args, out):
+        """``fn(*args)`` on the good records only (``_good``), NaN of shape ``out`` for the
+        others; ``args`` are batched like the estimate (None passes through)."""
+        good = self._good
+        if good is None:
+            return fn(*args)
+        result = np.full(out, np.nan)
+        if not self.batched or not good.any():
+            return result          # an unbatched estimate with errors is a bad record
+        rows = np.flatnonzero(good)
+        result[rows] = fn(*(None if a is None else np.asarray(a)[rows] for a in args))
+        return result
 
     def take(self, index) -> Estimate:
         """The estimates of the records ``index`` (an int array, slice or mask) of a batch."""
         if not self.batched or self.records != 1:
             raise ValueError("take needs a batched estimate of one record per system")
+        errors = self.errors
+        if errors is not None:
+            rows = np.atleast_1d(np.arange(len(errors))[index])
+            errors = tuple(errors[i] for i in rows)
         return dataclasses.replace(
             self, A=self.A[index], b=self.b[index], c=self.c[index], d=self.d[index],
             elements={k: np.asarray(v)[index] for k, v in self.elements.items()},
-            y=self.y[index], u=self.u[index])
+            y=self.y[index], u=self.u[index], errors=errors)
 
     @cached_property
     def outside(self):
@@ -155,6 +192,9 @@ class Estimate:
         that, less on cleaner records). Quantities the family holds constant (the leg's c1 = 0)
         are not compared.
 
+        A record with an undefined fit (a constant ``y``: ``fit`` is NaN) and a record set aside
+        by ``errors="collect"`` are flagged.
+
         Why both: an encoder that extrapolates decodes a record from beyond the range well (its
         residual says nothing) while its parameters land outside the range; one that saturates
         keeps the parameters inside and misfits. Physical parameters (through an inverse map)
@@ -166,8 +206,15 @@ class Estimate:
         if not rng or "excess" not in rng:
             return None
         excess = np.asarray(self.excess)
-        flags = (excess > rng["excess"]) | ~np.isfinite(excess) \
-            | (np.asarray(self.fit) < rng["fit"])
+        fit = np.asarray(self.fit)
+        # An undefined fit (NaN: a constant record, or one set aside by errors="collect") is
+        # no evidence that the estimate is inside the range: flagged.
+        low = (fit < rng["fit"]) | ~np.isfinite(fit)
+        if self.records > 1:                   # (batch, R) or (R,): any record of the system
+            low = np.any(low, axis=-1)
+        flags = (excess > rng["excess"]) | ~np.isfinite(excess) | low
+        if self._good is not None:
+            flags = flags | ~(self._good if self.batched else self._good[0])
         return flags if self.batched else bool(flags)
 
     @cached_property
@@ -203,18 +250,24 @@ class Estimate:
             from .decoder import initial_state
 
             if self.records == 1:
-                value = initial_state(self.A, self.b, self.c, self.d, self.u, self.y, self.dt)
+                value = self._on_good(
+                    lambda A, b, c, d, u, y: initial_state(A, b, c, d, u, y, self.dt),
+                    self.A, self.b, self.c, self.d, self.u, self.y, out=np.shape(self.b))
             else:
-                value = tuple(initial_state(self.A[..., r, :, :], self.b[..., r, :],
-                                            self.c[..., r, :], self.d[..., r], self.u[r],
-                                            self.y[r], self.dt[r]) for r in range(self.records))
+                value = tuple(self._on_good(
+                    lambda A, b, c, d, u, y, r=r: initial_state(A, b, c, d, u, y, self.dt[r]),
+                    self.A[..., r, :, :], self.b[..., r, :], self.c[..., r, :],
+                    self.d[..., r], self.u[r], self.y[r], out=np.shape(self.b[..., r, :]))
+                    for r in range(self.records))
             self.__dict__["_x0_fitted"] = value
         return self.__dict__["_x0_fitted"]
 
     @cached_property
     def fit(self):
         """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record (a float,
-        ``(batch,)``, or with several records ``(R,)`` / ``(batch, R)``)."""
+        ``(batch,)``, or with several records ``(R,)`` / ``(batch, R)``); NaN where it is
+        undefined: a constant record (``||y - mean(y)|| = 0``), or one set aside by
+        ``errors="collect"``. Such records are flagged ``outside``."""
         from .metrics import nrmse_fit
 
         if self.records == 1:
@@ -343,23 +396,8 @@ def _through_ccf(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
     return out
 
 
-def _as_array(name: str, value) -> np.ndarray:
-    """``value`` as a float64 array, or a ValueError naming the argument."""
-    try:
-        return np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of numbers; got {type(value).__name__}") \
-            from None
-
-
-def _require_finite(name: str, arr: np.ndarray) -> None:
-    """A ValueError naming the first non-finite entry of a ``(steps,)`` or ``(batch, steps)``
-    record ("at sample k" or "at record r, sample k")."""
-    if not np.all(np.isfinite(arr)):
-        where = np.argwhere(~np.isfinite(arr))[0]
-        labels = ("record", "sample")[-arr.ndim:]
-        at = ", ".join(f"{label} {i}" for label, i in zip(labels, where, strict=True))
-        raise ValueError(f"{name} must be finite; got {arr[tuple(where)]} at {at}")
+# The record checks live in records.py; these names stay for modules that imported them.
+_as_array, _require_finite = as_array, require_finite
 
 
 def _same_dt(dt, dts: tuple[float, ...]) -> bool:
@@ -368,22 +406,6 @@ def _same_dt(dt, dts: tuple[float, ...]) -> bool:
     return len(given) == len(dts) and all(
         isinstance(g, (int, float)) and math.isclose(g, t, rel_tol=1e-9)
         for g, t in zip(given, dts, strict=True))
-
-
-def _as_records(name: str, value, steps: int, dt: float) -> tuple[np.ndarray, bool]:
-    """Validate a record argument: ``(steps,)`` or ``(batch, steps)`` finite numbers.
-
-    Returns the records as ``(batch, steps)`` and whether a batch axis was given."""
-    arr = _as_array(name, value)
-    batched = arr.ndim == 2
-    if arr.ndim not in (1, 2) or arr.shape[-1] != steps:
-        raise ValueError(
-            f"{name} must have shape ({steps},) or (batch, {steps}) for this identifier "
-            f"(dt={dt}, steps={steps}); got {arr.shape}"
-        )
-    arr = np.atleast_2d(arr)
-    _require_finite(name, arr)
-    return arr, batched
 
 
 class Identifier:
@@ -457,7 +479,6 @@ class Identifier:
         self.meta = dict(meta or {})
         self._fast_path = None                      # (weight versions, _Batch1 or None)
         self._params = list(encoder.parameters())   # cached: walking the modules costs ~0.5 ms
-        self._unit_steps = [torch.ones(1, steps) for steps in encoder.config.record_steps]
         # 1 for the elements that scale with the output (c_i, d), 0 elsewhere
         self._output_mask = torch.tensor([[
             1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
@@ -533,10 +554,7 @@ class Identifier:
         if self.scale == "feature":
             mean, spread = (f.to(gain.dtype) for f in self._features)
             features = (torch.log(gain) - mean) / spread
-        z = self.encoder(x[0] if self.records == 1 else x, features)
-        theta = self.theta_mean.to(z.dtype) + self.theta_scale.to(z.dtype) * z
-        elements = self.structure.elements(theta)
-        sys = self.structure.assemble(elements)
+        sys, elements, z = self._decode(x, features)
         if self.scale == "denormalise":
             gain = gain[:, 0]
             # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
@@ -545,6 +563,15 @@ class Identifier:
             mask = self._output_mask.to(elements.dtype)
             elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
         return (sys, elements, z) if raw else (sys, elements)
+
+    def _decode(self, x: list, features):
+        """Normalised records ``x`` (one ``(batch, channels, steps_r)`` tensor per record) and
+        scale ``features`` -> ``(System, elements, z)`` as the structure outputs them (before
+        any de-normalisation), with the encoder's standardised output ``z (batch, p)``."""
+        z = self.encoder(x[0] if self.records == 1 else x, features)
+        theta = self.theta_mean.to(z.dtype) + self.theta_scale.to(z.dtype) * z
+        elements = self.structure.elements(theta)
+        return self.structure.assemble(elements), elements, z
 
     def _fast(self):
         """The batch-1 path: a ``_Batch1`` (numpy encoder + traced structure), or None.
@@ -584,13 +611,14 @@ class Identifier:
 
     # -- public identification -----------------------------------------------------------------
     def identify(self, y, u=None, *, dt: float | None = None,
-                 refine: bool | str = False) -> Estimate:
+                 refine: bool | str = False, errors: str = "raise") -> Estimate:
         """Identify the system behind a record in one encoder pass.
 
         Args:
-            y: measured output, ``(steps,)`` or ``(batch, steps)``, sampled at ``t_k = k*dt``
-                from rest (zero initial state). For a several-record identifier a sequence of
-                ``R`` records, one per subsystem, each on its own grid.
+            y: measured output, ``(steps,)`` or ``(batch, steps)`` with ``batch >= 1``, sampled
+                at ``t_k = k*dt`` from rest (zero initial state); real numbers (a complex
+                array is refused). For a several-record identifier a sequence of ``R``
+                records, one per subsystem, each on its own grid.
             u: input, same shape (or ``(steps,)`` for a whole batch); ``None`` means a unit
                 step, which is what step-trained identifiers expect. A sequence of ``R`` (or
                 None) for several records.
@@ -599,35 +627,84 @@ class Identifier:
             refine: polish the estimate with a CasADi NLP in the same structure (refine.py):
                 True for every record, ``"auto"`` for exactly the records whose estimate is
                 flagged ``outside`` the training range (``info["refined_rows"]`` says which).
+            errors: what a record that cannot be identified does (non-finite samples, an
+                all-zero ``y`` or ``u``, a varying ``u`` for an identifier that does not read
+                it, ``max|y| / max|u|`` beyond float64; ``records.record_problems``):
+                ``"raise"`` (default) raises a ``records.RecordError`` (a ValueError) for the
+                first such record, so that nothing is identified from bad data unnoticed;
+                ``"collect"`` identifies the good records as a batch of only them would be
+                (no record's estimate depends on another's), gives the bad ones NaN model
+                rows, and puts each record's reason (None for a good one) in
+                ``Estimate.errors``; the bad ones are flagged ``outside`` where the identifier
+                knows its range. A malformed argument (wrong shape, complex, no records)
+                raises in both modes.
 
         Returns:
             An ``Estimate``; batched when ``y`` is.
+
+        Records are normalised (Eq. 15) per record in float64 before the encoder's float32,
+        and the model is de-normalised in float64, so a record's estimate does not depend on
+        the other records of its batch, whatever their magnitudes.
         """
         start = time.perf_counter()
         if refine not in (True, False, "auto"):
             raise ValueError(f"refine must be True, False or 'auto'; got {refine!r}")
+        if errors not in ERROR_MODES:
+            raise ValueError(f"errors must be one of {ERROR_MODES}; got {errors!r}")
         if dt is not None and not _same_dt(dt, self._dts):
             raise ValueError(f"dt must be {self.dt} s for this identifier (trained on records of "
                              f"{self.steps} samples at dt={self.dt}); got dt={dt!r}")
         if self.records > 1:
-            return self._identify_several(y, u, start, refine)
-        y2, batched = _as_records("y", y, self.steps, self.dt)
-        count = y2.shape[0]
-        u2 = self._check_records("y", "u", y2, u, self.steps, self.dt)
-        ut = (self._unit_steps[0].expand(count, self.steps) if u2 is None
-              else torch.from_numpy(np.ascontiguousarray(u2, dtype=np.float32)))
-        fast = self._fast() if count == 1 else None
-        if fast is not None:
-            A, b, c, d, el = fast(y2[0], None if u2 is None else u2[0])
-            return self._estimate(A, b, c, d, el, y2, u2, batched, start, refine)
-        yt = torch.from_numpy(y2.astype(np.float32))
-        A, b, c, d, el = self._batched([yt], [ut])
-        return self._estimate(A, b, c, d, el, y2, u2, batched, start, refine)
+            return self._identify_several(y, u, start, refine, errors)
+        checked = check_records(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
+        if errors == "raise":
+            checked.raise_first()
+        good = checked.good
+        y2, u2 = checked.y, checked.u
+        if good.all():
+            A, b, c, d, el = self._encode(y2, u2)
+        else:
+            rows = np.flatnonzero(good)
+            n, q = self.structure.n, len(self.structure.element_names)
+            A, b, c, d, el = (np.full((checked.count, *shape), math.nan)
+                              for shape in ((n, n), (n,), (n,), (), (q,)))
+            if rows.size:
+                parts = self._encode(y2[rows], None if u2 is None else u2[rows])
+                for whole, part in zip((A, b, c, d, el), parts, strict=True):
+                    whole[rows] = part
+        return self._estimate(A, b, c, d, el, y2, u2, checked.batched, start, refine,
+                              None if errors == "raise" else checked.problems)
 
-    def _batched(self, ys: list[torch.Tensor], us: list[torch.Tensor]):
-        """Float64 ``A, b, c, d, elements`` of records ``ys, us`` (one ``(count, steps_r)`` tensor
-        per record) through the encoder, in chunks, without gradients."""
+    def _encode(self, y2: np.ndarray, u2: np.ndarray | None):
+        """Float64 ``A (count, n, n), b, c (count, n), d (count,), elements (count, q)`` of
+        good records ``y2 (count, steps)``, ``u2`` (or None): the batch-1 path for one record,
+        the batched one otherwise."""
+        fast = self._fast() if y2.shape[0] == 1 else None
+        if fast is not None:
+            return fast(y2[0], None if u2 is None else u2[0])
+        return self._batched([y2], [u2])
+
+    def _batched(self, ys: list[np.ndarray], us: list[np.ndarray | None]):
+        """Float64 ``A, b, c, d, elements`` of good records ``ys, us`` (one float64
+        ``(count, steps_r)`` array per record; None for a unit step) through the encoder, in
+        chunks, without gradients.
+
+        Eq. 15 runs per record in float64 (``records.normalise``) and only the normalised
+        records, in ``[-1, 1]``, and the standardised scale features are cast to the encoder's
+        float32; the model is de-normalised in float64. So one record of 1e40 (beyond float32)
+        or 1e-44 (below its normal range) among others gives what it gives alone."""
         count = ys[0].shape[0]
+        x, gains = [], []
+        for y2, u2 in zip(ys, us, strict=True):
+            y_tilde, u_tilde, y_bar, u_bar = normalise(y2, u2)
+            channels = [y_tilde, u_tilde] if self.inputs else [y_tilde]
+            x.append(torch.from_numpy(np.stack(channels, axis=1).astype(np.float32)))
+            gains.append(y_bar / u_bar)
+        gain = np.stack(gains, axis=1)                                   # (count, R)
+        features = None
+        if self.scale == "feature":
+            mean, spread = (f.numpy() for f in self._features)
+            features = torch.from_numpy(((np.log(gain) - mean) / spread).astype(np.float32))
         # Small batches are dominated by per-operation overhead, which a second thread only
         # adds to (thread wake-ups); large ones gain from both cores.
         threads = torch.get_num_threads()
@@ -639,53 +716,24 @@ class Identifier:
                 # of 16k in one pass ran at half the throughput of chunks of 1k.
                 parts = []
                 for i in range(0, count, 1024):
-                    y = [v[i: i + 1024] for v in ys]
-                    u = [v[i: i + 1024] for v in us]
-                    sys, el = (self._forward(y[0], u[0]) if self.records == 1
-                               else self._forward(y, u))
+                    sys, el, _ = self._decode([v[i: i + 1024] for v in x],
+                                              None if features is None
+                                              else features[i: i + 1024])
                     parts.append((sys.A, sys.b, sys.c, sys.d, el))
-                return tuple(torch.cat(t).numpy().astype(np.float64)
-                             for t in zip(*parts, strict=True))
+                A, b, c, d, el = (torch.cat(t).numpy().astype(np.float64)
+                                  for t in zip(*parts, strict=True))
         finally:
             if torch.get_num_threads() != threads:
                 torch.set_num_threads(threads)
+        if self.scale == "denormalise":
+            # Exact de-normalisation (linearity), in float64: the structure described
+            # u/u_bar -> y/y_bar. A product, not el * (1 + mask (g - 1)), which is 0 for g=1e-44.
+            g = gain[:, 0]
+            c, d = c * g[:, None], d * g
+            el = np.where(self._output_mask.numpy()[0] > 0, el * g[:, None], el)
+        return A, b, c, d, el
 
-    def _check_records(self, yname: str, uname: str, y2: np.ndarray, u, steps: int,
-                       dt: float) -> np.ndarray | None:
-        """Check a validated output record set ``y2 (count, steps)`` and its input ``u``
-        (None = unit step); returns the inputs ``(count, steps)`` or None."""
-        count = y2.shape[0]
-        zero_y = ~np.any(y2 != 0, axis=1)
-        if zero_y.any():
-            raise ValueError(
-                f"{yname} must not be all zero (record {int(np.argmax(zero_y))} of {count}): "
-                "the normalisation y_tilde = 2 y / max|y| - 1 (Eq. 15) needs max|y| > 0"
-            )
-        if u is None:
-            return None
-        u2, _ = _as_records(uname, u, steps, dt)
-        if u2.shape[0] == 1 and count > 1:
-            u2 = np.broadcast_to(u2, y2.shape)
-        if u2.shape[0] != count:
-            raise ValueError(f"{uname} must have {count} records like {yname}; "
-                             f"got {u2.shape[0]}")
-        zero_u = ~np.any(u2 != 0, axis=1)
-        if zero_u.any():
-            raise ValueError(f"{uname} must not be all zero (record {int(np.argmax(zero_u))}): "
-                             "a system at rest with zero input reveals nothing")
-        if not self.inputs:
-            # The encoder never sees u: only a step (of any height, which the exact
-            # de-normalisation or the scale feature absorbs) is what it was trained on.
-            varying = np.any(u2 != u2[:, :1], axis=1)
-            if varying.any():
-                raise ValueError(
-                    f"{uname} must be a constant step for this identifier (record "
-                    f"{int(np.argmax(varying))} varies): it was trained on step responses "
-                    "and does not read u; use an identifier trained with another "
-                    "excitation (TrainConfig(excitation='mix')) for arbitrary inputs")
-        return u2
-
-    def _identify_several(self, y, u, start: float, refine: bool) -> Estimate:
+    def _identify_several(self, y, u, start: float, refine: bool, errors: str) -> Estimate:
         """``identify`` for a several-record identifier: ``y``, ``u`` sequences of R records."""
         R, grids = self.records, list(zip(self.encoder.config.record_steps, self._dts,
                                           strict=True))
@@ -698,25 +746,41 @@ class Identifier:
                               or not hasattr(u, "__len__") or len(u) != R):
             raise ValueError(f"u must be None (unit steps) or a sequence of {R} inputs, one per "
                              f"record; got {type(u).__name__}")
-        ys, us, batched = [], [], None
-        for r, (steps, dt) in enumerate(grids):
-            y2, b = _as_records(f"y[{r}]", y[r], steps, dt)
-            batched = b if batched is None else batched
-            if ys and (b != batched or y2.shape[0] != ys[0].shape[0]):
-                raise ValueError(f"y[{r}] must be batched like y[0] ({ys[0].shape[0]} "
-                                 f"record(s), batch axis {batched}); got shape {np.shape(y[r])}")
-            u2 = self._check_records(f"y[{r}]", f"u[{r}]", y2, None if u is None else u[r],
-                                     steps, dt)
-            ys.append(y2)
-            us.append(np.ones_like(y2) if u2 is None else np.asarray(u2))
         if refine:
             raise ValueError("refine=True is not available for a several-record identifier: "
                              "the refinement fits one record; refine each subsystem's estimate "
                              "in its own structure")
-        A, b, c, d, el = self._batched(
-            [torch.from_numpy(v.astype(np.float32)) for v in ys],
-            [torch.from_numpy(np.ascontiguousarray(v, dtype=np.float32)) for v in us])
+        checks = []
+        for r, (steps, dt) in enumerate(grids):
+            checked = check_records(y[r], None if u is None else u[r], steps=steps, dt=dt,
+                                    reads_u=self.inputs, names=(f"y[{r}]", f"u[{r}]"))
+            if checks and (checked.batched != checks[0].batched
+                           or checked.count != checks[0].count):
+                raise ValueError(f"y[{r}] must be batched like y[0] ({checks[0].count} "
+                                 f"record(s), batch axis {checks[0].batched}); got shape "
+                                 f"{np.shape(y[r])}")
+            checks.append(checked)
+        # A system's row is good when each of its R records is; its reason is the first one's.
+        problems = tuple(next((c.problems[i] for c in checks if c.problems[i] is not None),
+                              None) for i in range(checks[0].count))
+        if errors == "raise":
+            for c in checks:
+                c.raise_first()
+        ys = [c.y for c in checks]
+        us = [np.ones_like(c.y) if c.u is None else np.asarray(c.u) for c in checks]
+        good = np.array([p is None for p in problems])
+        count, n, q = len(problems), self.structure.n, len(self.structure.element_names)
+        A, b, c, d = (np.full((count, R, *shape), math.nan)
+                      for shape in ((n, n), (n,), (n,), ()))
+        el = np.full((count, q), math.nan)
+        rows = np.flatnonzero(good)
+        if rows.size:
+            parts = self._batched([v[rows] for v in ys], [v[rows] for v in us])
+            for whole, part in zip((A, b, c, d, el), parts, strict=True):
+                whole[rows] = part
         names = self.structure.element_names
+        batched = checks[0].batched
+        collected = None if errors == "raise" else problems
         if batched:
             elements = {name: el[:, i] for i, name in enumerate(names)}
             y_out, u_out = tuple(ys), tuple(us)
@@ -727,9 +791,10 @@ class Identifier:
         return Estimate(A, b, c, d, elements, y_out, u_out, self._dts,
                         time.perf_counter() - start, False, {}, self._physical_source(),
                         structure=self.structure, initial=self.initial,
-                        training_range=self.training_range)
+                        training_range=self.training_range, errors=collected)
 
-    def _estimate(self, A, b, c, d, el, y2, u2, batched, start, refine) -> Estimate:
+    def _estimate(self, A, b, c, d, el, y2, u2, batched, start, refine,
+                  errors=None) -> Estimate:
         """Wrap float64 arrays ``A (count, n, n)``, ..., ``el (count, q)`` as an Estimate."""
         if u2 is None:
             u2 = np.ones_like(y2)
@@ -738,36 +803,46 @@ class Identifier:
             est = Estimate(A, b, c, d, elements, y2, np.asarray(u2), self.dt,
                            time.perf_counter() - start, False, {}, self._physical_source(),
                            structure=self.structure, initial=self.initial,
-                           training_range=self.training_range)
+                           training_range=self.training_range, errors=errors)
         else:
             elements = dict(zip(self.structure.element_names, el[0].tolist(), strict=True))
             est = Estimate(A[0], b[0], c[0], float(d[0]), elements, y2[0], np.asarray(u2)[0],
                            self.dt, time.perf_counter() - start, False, {},
                            self._physical_source(), structure=self.structure,
-                           initial=self.initial, training_range=self.training_range)
+                           initial=self.initial, training_range=self.training_range,
+                           errors=errors)
         if refine:
             from .refine import refine as _refine
 
             if refine == "auto":
                 return self._refine_flagged(est, _refine)
+            if est._good is not None:      # errors="collect" set records aside: refine the rest
+                return self._refine_rows(est, est._good, _refine)
             est = _refine(est, est.y, est.u, self.dt, structure=self.structure)
         return est
 
     def _refine_flagged(self, est: Estimate, _refine) -> Estimate:
-        """``refine="auto"``: refine exactly the records flagged ``outside``."""
+        """``refine="auto"``: refine exactly the records flagged ``outside`` (and identified:
+        a record set aside by ``errors="collect"`` has nothing to start from)."""
         flags = est.outside
         if flags is None:
             raise ValueError("refine='auto' needs an identifier that knows its calibrated "
                              "training range (trained by this version of train(), a shipped "
                              "one, or one passed through training.recalibrate)")
+        good = est._good
         if not est.batched:
-            if not flags:
+            if not flags or (good is not None and not good[0]):
                 return dataclasses.replace(est, info={**est.info, "refined_rows": False})
             est = _refine(est, est.y, est.u, self.dt, structure=self.structure)
             return dataclasses.replace(est, info={**est.info, "refined_rows": True})
-        rows = np.flatnonzero(flags)
+        return self._refine_rows(est, flags if good is None else flags & good, _refine)
+
+    def _refine_rows(self, est: Estimate, mask: np.ndarray, _refine) -> Estimate:
+        """Refine the records ``mask (batch,)`` of a batched estimate, keep the others;
+        ``info["refined_rows"]`` is ``mask``, ``info["refine"]`` the refinement's info."""
+        rows = np.flatnonzero(mask)
         if rows.size == 0:
-            return dataclasses.replace(est, info={**est.info, "refined_rows": flags})
+            return dataclasses.replace(est, info={**est.info, "refined_rows": mask})
         sub = _refine(est.take(rows), est.y[rows], est.u[rows], self.dt,
                       structure=self.structure)
         A, b, c, d = (np.array(x, copy=True) for x in (est.A, est.b, est.c, est.d))
@@ -778,7 +853,7 @@ class Identifier:
         return dataclasses.replace(
             est, A=A, b=b, c=c, d=d, elements=elements, refined=True,
             seconds=est.seconds + sub.info["seconds"].sum(),
-            info={**est.info, "refined_rows": flags, "refine": sub.info})
+            info={**est.info, "refined_rows": mask, "refine": sub.info})
 
     def _physical_source(self):
         from .structures import Physical
@@ -1061,15 +1136,11 @@ class _Batch1:
 
     def __call__(self, y: np.ndarray, u: np.ndarray | None):
         cfg = self.cfg
-        y_bar = np.abs(y).max()
-        u_bar = 1.0 if u is None else np.abs(u).max()
-        gain = y_bar / u_bar
-        channels = [2.0 * y / y_bar - 1.0]                    # Eq. 15
-        if cfg.inputs:
-            channels.append(np.ones_like(y) if u is None else u / u_bar)
-        x = np.stack(channels)
+        y_tilde, u_tilde, y_bar, u_bar = normalise(y[None], None if u is None else u[None])
+        gain = float(y_bar[0] / u_bar[0])
+        x = np.concatenate([y_tilde, u_tilde]) if cfg.inputs else y_tilde     # Eq. 15
         if cfg.pool > 1:
-            x = x[:, : self.length * cfg.pool].reshape(len(channels), self.length,
+            x = x[:, : self.length * cfg.pool].reshape(x.shape[0], self.length,
                                                        cfg.pool).mean(axis=2)
         h = x
         for W, b in self.convs:
@@ -1087,7 +1158,8 @@ class _Batch1:
             A, b, c, d, el = (t.numpy() for t in self.structure(theta))
         if self.ident.scale == "denormalise":
             c, d = c * gain, d * gain
-            el = el * (1.0 + self.mask * (gain - 1.0))
+            # a product, not el * (1 + mask (gain - 1)), which is 0 for gain = 1e-44
+            el = np.where(self.mask > 0, el * gain, el)
         return A, b, c, d, el
 
 

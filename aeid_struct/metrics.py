@@ -104,9 +104,25 @@ def parameter_errors(true: dict, est: dict) -> dict[str, np.ndarray]:
 
 
 def nrmse_fit(y, y_hat) -> np.ndarray:
-    """NRMSE fit in % (MATLAB's ``compare``): ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``."""
+    """NRMSE fit in % (MATLAB's ``compare``): ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``.
+
+    Args:
+        y, y_hat: ``(batch, steps)`` or ``(steps,)`` measured and simulated outputs.
+
+    Returns:
+        ``(batch,)`` (``(1,)`` for single records). NaN for a constant record, whose fit is
+        undefined (``||y - mean(y)|| = 0``: no model explains it better than its mean, and
+        reporting 100 % would call any model perfect).
+    """
     y = np.atleast_2d(np.asarray(y, dtype=np.float64))
     y_hat = np.atleast_2d(np.asarray(y_hat, dtype=np.float64))
-    num = np.linalg.norm(y - y_hat, axis=1)
-    den = np.linalg.norm(y - y.mean(axis=1, keepdims=True), axis=1)
-    return 100.0 * (1.0 - num / np.where(den > 0, den, np.inf))
+    if y.shape != y_hat.shape:
+        raise ValueError(f"y_hat must have the shape of y {y.shape}; got {y_hat.shape}")
+    # Constant: all samples equal (max == min). Not den == 0: the mean of 60 samples of 0.7
+    # is rounded, which leaves den ~ 1e-16 and a fit of -1e17 %. (A record with a non-finite
+    # sample has no fit either: NaN.)
+    constant = ~(np.max(y, axis=1) > np.min(y, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        num = np.linalg.norm(y - y_hat, axis=1)
+        den = np.linalg.norm(y - y.mean(axis=1, keepdims=True), axis=1)
+        return 100.0 * (1.0 - num / np.where(constant, np.nan, den))

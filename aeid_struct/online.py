@@ -22,6 +22,17 @@ are still settling from the first estimate then); the alarm is raised once
 ``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive windows for any
 parameter, and stays raised (a change alarm, not a level indicator) until :meth:`Tracker.reset`.
 
+Bad stretches of a stream. A window that the identifier cannot identify -- the checks of
+``records.check_records``, the same for both engines: an input that is zero over the whole window
+(a leg at rest), a varying input to a step identifier, ... -- or whose estimate is not finite
+gives an :class:`Update` with ``error`` set (its reason) and NaN estimates; it leaves the
+smoothing, the reference and the alarm as they were, and the stream goes on: every sample of a
+chunk is consumed. Samples that are not finite (or not real) are refused by ``push`` before it
+consumes any of its chunk. Anything else that fails while a window is identified (the engine
+itself) raises a :class:`PushError` that says how many samples of the chunk were consumed
+(``consumed``) and carries the updates produced before it (``updates``): push the rest,
+``u[consumed:]``, to go on.
+
 Engine. ``Tracker(engine="onnx")`` exports the identifier once to ONNX (``export.onnx_bytes``)
 and identifies each window with onnxruntime on one thread, then maps the model to physical
 parameters with the identifier's CasADi inverse; ``engine="identifier"`` calls
@@ -38,6 +49,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .records import RecordError, as_array
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -92,6 +105,10 @@ class Update:
         drift: ``smoothed / reference - 1`` per parameter (nan until the reference exists).
         alarm: whether the change alarm is raised (it stays raised).
         seconds: wall time of the identification.
+        error: None for an identified window; else why it could not be identified (the
+            message of the identifier's check, or a non-finite estimate): then ``estimate``
+            holds NaN for each tracked parameter known so far, and ``smoothed``, ``drift``,
+            ``alarm`` are the tracker's state, unchanged by this window.
     """
 
     t: float
@@ -100,6 +117,22 @@ class Update:
     drift: dict[str, float]
     alarm: bool
     seconds: float
+    error: str | None = None
+
+
+class PushError(ValueError):
+    """A failure of the engine while ``Tracker.push`` identified a window (module docstring).
+
+    Attributes:
+        consumed: samples of the chunk taken into the stream, the failed window's last one
+            included; the stream goes on with ``u[consumed:], y[consumed:]``.
+        updates: the updates of the windows completed before the failure.
+    """
+
+    def __init__(self, message: str, consumed: int, updates: list) -> None:
+        super().__init__(message)
+        self.consumed = consumed
+        self.updates = updates
 
 
 @dataclass
@@ -167,14 +200,25 @@ class Tracker:
 
     def push(self, u, y) -> list[Update]:
         """Feed samples ``u, y (k,)`` (any number, in stream order); returns the updates of the
-        windows completed by them (one per ``hop`` samples once the first window is full)."""
-        u = np.atleast_1d(np.asarray(u, dtype=np.float64))
-        y = np.atleast_1d(np.asarray(y, dtype=np.float64))
+        windows completed by them (one per ``hop`` samples once the first window is full),
+        including windows that could not be identified (``Update.error``).
+
+        Raises:
+            ValueError: ``u, y`` not 1-D real arrays of one length, or not finite; nothing of
+                the chunk is consumed.
+            PushError: the engine failed on a window; ``consumed`` and ``updates`` say how far
+                the chunk went (module docstring).
+        """
+        u = np.atleast_1d(as_array("u", u))
+        y = np.atleast_1d(as_array("y", y))
         if u.ndim != 1 or u.shape != y.shape:
             raise ValueError(f"u and y must be 1-D sample arrays of one length; got shapes "
                              f"{u.shape} and {y.shape}")
-        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
-            raise ValueError("u and y must be finite")
+        for name, v in (("u", u), ("y", y)):
+            if not np.all(np.isfinite(v)):
+                k = int(np.flatnonzero(~np.isfinite(v))[0])
+                raise ValueError(f"u and y must be finite; got {v[k]} in {name} at sample {k} "
+                                 "of the chunk (no sample of it was consumed)")
         s, steps, hop = self._s, self.steps, self.config.hop
         updates = []
         i = 0
@@ -188,13 +232,20 @@ class Tracker:
             i += take
             if s.filled < steps:
                 s.filled += take
-                if s.filled == steps:
-                    updates.append(self._identify())
+                due = s.filled == steps
             else:
                 s.since += take
-                if s.since == hop:
+                due = s.since == hop
+                if due:
                     s.since = 0
+            if due:
+                try:
                     updates.append(self._identify())
+                except Exception as err:
+                    raise PushError(f"{err} (the window ending at sample {i - 1} of this chunk "
+                                    f"failed: {i} of its {len(u)} samples were consumed, "
+                                    f"{len(updates)} update(s) before it; see "
+                                    "PushError.consumed and .updates)", i, updates) from err
         return updates
 
     def _physical(self) -> tuple[dict, float]:
@@ -211,13 +262,21 @@ class Tracker:
 
     def _identify(self) -> Update:
         s, cfg = self._s, self.config
-        physical, seconds = self._physical()
+        t0 = time.perf_counter()
+        try:
+            physical, seconds = self._physical()
+        except RecordError as err:   # the identifier's own check refused the window
+            return self._skipped(str(err), time.perf_counter() - t0)
         values = {k: float(v) for k, v in physical.items()
                   if not cfg.parameters or k in cfg.parameters}
         if not values:
             raise ValueError("identifier must give physical parameters (a physical structure, or "
                              "an inverse map); its estimates have none"
                              + (f" named {cfg.parameters}" if cfg.parameters else ""))
+        bad = [k for k, v in values.items() if not math.isfinite(v)]
+        if bad:
+            return self._skipped("the window's estimate is not finite: "
+                                 + ", ".join(f"{k} = {values[k]}" for k in bad), seconds)
         s.history.append(dict(values))
         recent = s.history[-cfg.median:]
         for k in values:
@@ -240,6 +299,16 @@ class Tracker:
             s.alarm = s.alarm or s.over >= cfg.patience
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
                       seconds)
+
+    def _skipped(self, reason: str, seconds: float) -> Update:
+        """The update of a window that could not be identified: NaN estimates, the state as it
+        was (module docstring)."""
+        s, cfg = self._s, self.config
+        names = list(s.smoothed) or list(cfg.parameters)
+        drift = {k: (s.smoothed[k] / s.reference[k] - 1.0 if s.reference is not None
+                     else math.nan) for k in s.smoothed}
+        return Update(s.samples * self.dt - self.dt, {k: math.nan for k in names},
+                      dict(s.smoothed), drift, s.alarm, seconds, error=reason)
 
 
 def _onnx_runner(identifier, required: bool):

@@ -125,7 +125,8 @@ import casadi
 import numpy as np
 
 from .decoder import _check_dt
-from .identify import Estimate, _as_array, _require_finite
+from .identify import Estimate
+from .records import as_array, require_finite
 from .structures import Structure
 
 __all__ = [
@@ -327,7 +328,8 @@ def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int, free: bool = Fa
     """
     dt = _check_dt(dt)
     A, b, c, d, u = (v if isinstance(v, (casadi.SX, casadi.MX, casadi.DM))
-                     else casadi.DM(np.asarray(v, dtype=np.float64)) for v in (A, b, c, d, u))
+                     else casadi.DM(as_array(name, v))
+                     for name, v in zip("Abcdu", (A, b, c, d, u), strict=True))
     n = A.shape[0]
     for name, v, shape in (("A", A, (n, n)), ("b", b, (n, 1)), ("c", c, (n, 1)),
                            ("d", d, (1, 1))):
@@ -568,11 +570,11 @@ def _structure_key(structure: Structure) -> str:
 # Refinement of one record from an element vector
 # ---------------------------------------------------------------------------------------------
 def _record(name: str, value, steps: int | None = None) -> np.ndarray:
-    arr = _as_array(name, value)
+    arr = as_array(name, value)
     want = "(steps,)" if steps is None else f"({steps},) like y"
     if arr.ndim != 1 or arr.shape[0] < 1 or (steps is not None and arr.shape[0] != steps):
         raise ValueError(f"{name} must have shape {want}; got {arr.shape}")
-    _require_finite(name, arr)
+    require_finite(name, arr)
     return arr
 
 
@@ -723,13 +725,13 @@ def _refine_one(structure, key, x, y, u, dt, config, start,
 # ---------------------------------------------------------------------------------------------
 def _records(name: str, value, count: int, batched: bool) -> np.ndarray:
     """``(count, steps)`` from ``(steps,)`` or ``(count, steps)``."""
-    arr = _as_array(name, value)
+    arr = as_array(name, value)
     want = f"(steps,) or ({count}, steps) like the estimate" if batched else "(steps,)"
     ok = arr.ndim == 1 or (batched and arr.ndim == 2 and arr.shape[0] in (1, count))
     if not ok or arr.shape[-1] < 1:
         raise ValueError(f"{name} must have shape {want}; got {arr.shape}")
     arr = np.broadcast_to(np.atleast_2d(arr), (count, arr.shape[-1]))
-    _require_finite(name, arr)
+    require_finite(name, arr)
     return arr
 
 

@@ -133,21 +133,116 @@ def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
         assert phys[name] == pytest.approx(est.physical[name], rel=1e-5)
     # and it identifies the leg (noise-free window under a random binary force)
     assert phys["k"] == pytest.approx(rec.systems.params["k"][0], rel=0.03)
+    # a batch: the physical parameters of every record, as the identifier gives them
+    batch = runner.physical(runner(rec.y, rec.u))
+    every = ident.identify(rec.y, rec.u).physical
+    for name in ("k", "d", "m"):
+        assert batch[name].shape == (5,)
+        np.testing.assert_allclose(batch[name], every[name], rtol=1e-5)
 
 
-def test_onnx_reader_checks_its_input(tmp_path):
+def _bad_inputs():
+    """(what, y, u, message) that both the identifier and its ONNX export must refuse alike."""
+    ok = np.arange(1.0, 61.0)
+    real = r"must be real; got a complex array \(dtype complex128\)"
+    return [
+        ("wrong length", np.ones(59), np.ones(59),
+         r"y must have shape \(60,\) or \(batch, 60\) for this identifier \(dt=0.05, "
+         r"steps=60\); got \(59,\)"),
+        ("nan u", ok, np.r_[np.ones(59), np.nan], r"u must be finite; got nan at record 0, "
+                                                  r"sample 59"),
+        ("inf y", np.r_[np.inf, ok[1:]], np.ones(60), r"y must be finite; got inf at record 0, "
+                                                      r"sample 0"),
+        ("zero y", np.zeros(60), np.ones(60), r"y must not be all zero \(record 0 of 1\)"),
+        ("zero u", ok, np.zeros(60), r"u must not be all zero \(record 0\): a system at rest"),
+        ("complex y", ok * (1 + 1j), np.ones(60), "y " + real),
+        ("complex u", ok, np.ones(60) * (1 - 2j), "u " + real),
+        ("no records", np.ones((0, 60)), None, r"y must hold at least one record; got shape "
+                                               r"\(0, 60\)"),
+        ("a bad record in a batch", np.stack([ok, np.zeros(60)]), None,
+         r"y must not be all zero \(record 1 of 2\)"),
+    ]
+
+
+@pytest.mark.parametrize("inputs", [False, True])
+def test_onnx_reader_refuses_what_the_identifier_refuses_with_the_same_message(inputs):
+    from aeid_struct.export import OnnxIdentifier, onnx_bytes
+
+    ident = _identifier(ae.CCF(2), inputs)
+    runner = OnnxIdentifier(onnx_bytes(ident))
+    cases = _bad_inputs()
+    if not inputs:   # a step identifier does not read u: a varying one is refused, not ignored
+        cases.append(("varying u", np.arange(1.0, 61.0), np.linspace(0.5, 1.0, 60),
+                      r"u must be a constant step for this identifier \(record 0 varies\)"))
+    for what, y, u, match in cases:
+        answers = []
+        for engine in (ident.identify, runner):
+            with pytest.raises(ValueError, match=match) as err:
+                engine(y, u)
+            answers.append(str(err.value))
+        assert answers[0] == answers[1], what
+
+
+def test_onnx_reader_gives_the_identifier_numbers_at_any_magnitude_and_in_batches():
+    # Before: an all-zero u gave c = inf, d = nan, and a record of 1e40 (beyond float32) gave
+    # NaN. Now Eq. 15 runs in float64 before the graph, as in the identifier.
+    from aeid_struct.export import OnnxIdentifier, onnx_bytes
+
+    rng = np.random.default_rng(6)
+    base = np.cumsum(rng.uniform(0.1, 1.0, (3, 60)), axis=1)
+    y = base * np.array([1e40, 1e-44, 2.0])[:, None]
+    for structure, inputs in EXPORTABLE:
+        ident = _identifier(structure, inputs)
+        runner = OnnxIdentifier(onnx_bytes(ident))
+        u = 0.5 + rng.random((3, 60)) if inputs else None
+        est = ident.identify(y, u)
+        got = runner(y, u)                                   # a batch: row by row
+        for i in range(3):
+            one = runner(y[i], None if u is None else u[i])
+            for k in "Abcd":
+                want = np.asarray(getattr(est, k))[i]
+                np.testing.assert_allclose(got[k][i], want, rtol=2e-6,
+                                           atol=2e-6 * np.abs(want).max())
+                np.testing.assert_array_equal(one[k], got[k][i])
+            np.testing.assert_allclose(got["elements"][i],
+                                       [est.elements[k][i] for k in structure.element_names],
+                                       rtol=2e-6, atol=2e-6 * np.abs(got["elements"][i]).max())
+
+
+def test_onnx_reader_of_a_feature_scaled_identifier_reads_the_scale_of_any_record():
+    # scale="feature" (fixed c0: c cannot be rescaled freely): the graph reads
+    # log(max|y| / max|u|) itself; the reader splits that ratio between y and u, so a record
+    # of 1e40 with an input of 1e35 (ratio 1e5) reaches it inside float32.
+    from aeid_struct.export import OnnxIdentifier, onnx_bytes
+
+    structure = ae.CCF(2).fixed(c0=1.0)
+    torch.manual_seed(0)
+    enc = Encoder(EncoderConfig(steps=60, outputs=structure.p, inputs=True, features=1,
+                                width=4, pool=2, dense=(8,)))
+    ident = Identifier(enc.eval(), structure, dt=0.05, theta_mean=torch.zeros(structure.p),
+                       theta_scale=torch.full((structure.p,), 0.3), scale="feature",
+                       feature_mean=8.0, feature_scale=4.0)
+    runner = OnnxIdentifier(onnx_bytes(ident))
+    rng = np.random.default_rng(7)
+    y = np.cumsum(rng.uniform(0.1, 1.0, 60))
+    u = 0.5 + rng.random(60)
+    for sy, su in ((1.0, 1.0), (1e40, 1e35), (1e-40, 1e-44)):
+        est, got = ident.identify(sy * y, su * u), runner(sy * y, su * u)
+        for k in "Abcd":
+            want = np.asarray(getattr(est, k))
+            np.testing.assert_allclose(got[k], want, rtol=2e-6, atol=2e-6 * np.abs(want).max())
+    with pytest.raises(ValueError, match=r"y and u must have a scale ratio max\|y\| / max\|u\| "
+                                         r"inside float32's range for this export .*got 1e\+40"):
+        runner(1e40 * y / np.abs(y).max(), u / np.abs(u).max())
+
+
+def test_onnx_reader_checks_its_model(tmp_path):
     import onnx
 
     from aeid_struct.export import OnnxIdentifier, onnx_bytes
 
     ident = _identifier(ae.CCF(2), True)
     runner = OnnxIdentifier(onnx_bytes(ident))
-    with pytest.raises(ValueError, match=r"y must have shape \(60,\) for this identifier"):
-        runner(np.ones(59), np.ones(59))
-    with pytest.raises(ValueError, match=r"u must be finite"):
-        runner(np.ones(60), np.full(60, np.nan))
-    with pytest.raises(ValueError, match=r"y must not be all zero"):
-        runner(np.zeros(60), np.ones(60))
     assert runner.physical(runner(np.arange(1.0, 61.0), np.ones(60))) == {}
     model = onnx.load_from_string(onnx_bytes(ident))
     del model.metadata_props[:]

@@ -325,3 +325,226 @@ def test_excess_is_the_distance_beyond_the_range_in_error_units():
               "c1": np.array([9.0, 9.0, 9.0, 9.0, 9.0]),        # constant in the family: skipped
               "k": np.array([22.0, 22.0, 22.0, 22.0, 31.0])}
     np.testing.assert_array_equal(_excess(values, rng), [0.0, 2.0, 2.0, np.inf, 3.0])
+
+
+# -- every bad input answered (issue 11): complex records, extreme magnitudes, no records, ------
+# -- constant records, and a batch whose bad records are set aside ------------------------------
+def _complex(n=60):
+    return np.linspace(1.0, 2.0, n) * (1 + 0.5j)
+
+
+def _complex_cases():
+    """(entry point, call, message): a complex ``y`` or ``u`` at every place a record enters."""
+    from aeid_struct import baselines as bl
+    from aeid_struct.refine import refine
+
+    ident = _identifier()
+    reads_u = _identifier(inputs=True)
+    y, z = _record(), _complex()
+    est = ident.identify(y)
+    ls = lambda y_, u_: bl.least_squares(y_, u_, 0.05, structure=ae.CCF(2))  # noqa: E731
+    classical = bl.Classical(ls, dt=0.05, steps=60)
+    real = r"must be real; got a complex array \(dtype complex128\)"
+    return [
+        ("identify y", lambda: ident.identify(z), "y " + real),
+        ("identify u", lambda: reads_u.identify(y, z), "u " + real),
+        ("identify collect", lambda: ident.identify(z, errors="collect"), "y " + real),
+        ("joint identify", lambda: _joint_identifier().identify(
+            [_joint_records(1).y[0][0].astype(complex), _joint_records(1).y[1][0]]),
+         r"y\[0\] " + real),
+        ("n4sid y", lambda: bl.n4sid(z, np.ones(60), 0.05, order=2), "y " + real),
+        ("n4sid u", lambda: bl.n4sid(y, z, 0.05, order=2), "u " + real),
+        ("least_squares y", lambda: ls(z, None), "y " + real),
+        ("Classical y", lambda: classical.identify(z), "y " + real),
+        ("Classical u", lambda: classical.identify(y, z), "u " + real),
+        ("failure truth_y", lambda: bl.failure(est, truth_y=z), "truth_y " + real),
+        ("refine y", lambda: refine(est, z, None, 0.05), "y " + real),
+        ("refine u", lambda: refine(est, y, z, 0.05), "u " + real),
+        ("simulate u", lambda: ae.simulate(est.A, est.b, est.c, 0.0, z, 0.05),
+         r"u must be a real array; got dtype complex128"),
+        # a complex number among floats (object array): no silent cast either
+        ("identify object y", lambda: ident.identify(np.array([1.0] * 59 + [1j], dtype=object)),
+         r"y must be an array of real numbers; got ndarray of dtype object"),
+        ("identify complex tensor", lambda: ident.identify(torch.tensor(z)), "y " + real),
+    ]
+
+
+def test_complex_records_are_refused_at_every_entry_point():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")      # numpy's ComplexWarning would mean a silent cast
+        for name, call, match in _complex_cases():
+            with pytest.raises(ValueError, match=match):
+                call()
+            assert name
+
+
+@pytest.mark.parametrize("make", [
+    lambda: _identifier(),                                                 # step, denormalise
+    lambda: _random_identifier(ae.CCF(3, feedthrough=True), inputs=True),  # reads u, d != 0
+    lambda: _random_identifier(                                             # scale feature
+        ae.Physical(leg.stable_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)}),
+        features=1, scale="feature", pool=1),
+])
+def test_a_batch_gives_each_record_what_it_gives_alone_whatever_the_magnitudes(make):
+    # Eq. 15 per record in float64 before the float32 encoder: a record of 1e40 (float32
+    # overflows at 3.4e38) or 1e-44 (a float32 subnormal) among ordinary ones (before: NaN
+    # rows, "theta must be finite"). Oracles: the record in a batch without the extreme others
+    # (the same float32 path: 1e-6), the record alone (the batch-1 path, float64 throughout:
+    # the float32 encoder's rounding, 1e-5 as for the fast path above) and, by the exact
+    # de-normalisation, the unscaled record's model with c and d times the scale.
+    ident = make()
+    rng = np.random.default_rng(3)
+    base = np.cumsum(rng.uniform(0.1, 1.0, (4, 60)), axis=1)
+    scales = np.array([1.0, 1e40, 1e-44, 3.0])
+    y = base * scales[:, None]
+    u = 0.5 + rng.random((4, 60)) if ident.inputs else None
+    batch = ident.identify(y, u)
+    for i in range(4):
+        alone = ident.identify(y[i], None if u is None else u[i])
+        pair = ident.identify(np.stack([y[i], base[0]]),
+                              None if u is None else np.stack([u[i], u[0]]))
+        for name in "Abcd":
+            got = np.asarray(getattr(batch, name))[i]
+            np.testing.assert_allclose(got, np.asarray(getattr(pair, name))[0], rtol=1e-6,
+                                       atol=0, err_msg=f"{name}[{i}]")
+            np.testing.assert_allclose(got, np.asarray(getattr(alone, name)), rtol=1e-5,
+                                       atol=0, err_msg=f"{name}[{i}]")
+        for k, v in alone.elements.items():
+            assert batch.elements[k][i] == pytest.approx(pair.elements[k][0], rel=1e-6, abs=0)
+            assert batch.elements[k][i] == pytest.approx(v, rel=1e-5, abs=0), (k, i)
+    if ident.scale == "denormalise":
+        plain = ident.identify(base, u)
+        for i in range(4):
+            np.testing.assert_allclose(batch.A[i], plain.A[i], rtol=1e-6)
+            np.testing.assert_allclose(batch.c[i], scales[i] * plain.c[i], rtol=1e-6)
+            np.testing.assert_allclose(batch.d[i], scales[i] * plain.d[i], rtol=1e-6, atol=0)
+
+
+def test_a_batch_of_no_records_and_an_unrepresentable_scale_are_refused():
+    ident, reads_u = _identifier(), _identifier(inputs=True)
+    with pytest.raises(ValueError, match=r"y must be an array of real numbers; got None"):
+        ident.identify(None)
+    with pytest.raises(ValueError, match=r"y must be an array of real numbers; got list"):
+        ident.identify([[1.0, 2.0], [3.0]])
+    # a tensor that requires grad is read, not refused with torch's RuntimeError
+    y = torch.tensor(_record(), requires_grad=True)
+    np.testing.assert_array_equal(ident.identify(y).A, ident.identify(_record()).A)
+    with pytest.raises(ValueError, match=r"y must hold at least one record; got shape \(0, 60\)"):
+        ident.identify(np.ones((0, 60)))
+    with pytest.raises(ValueError, match=r"y must hold at least one record"):
+        ident.identify(np.ones((0, 60)), errors="collect")
+    with pytest.raises(ValueError, match=r"u must hold at least one record; got shape \(0, 60\)"):
+        reads_u.identify(np.ones(60), np.ones((0, 60)))
+    # max|y| / max|u| = 1e300 / 1e-300 is beyond float64: the model could not be de-normalised
+    with pytest.raises(ValueError, match=r"y and u must have a scale ratio max\|y\| / max\|u\| "
+                                         r"that float64 holds .*got 1e\+300 / 1e-300 at record 0"):
+        reads_u.identify(np.full(60, 1e300), np.full(60, 1e-300))
+
+
+def _ranged(ident, fit=-1e9, excess=1.0):
+    """``ident`` with a calibrated training range that flags nothing by itself (no element
+    ranges, a fit threshold below any fit): only the undefined-fit rule is left to flag."""
+    ident.meta["training_range"] = {"elements": {}, "physical": {}, "excess": excess,
+                                    "fit": fit}
+    return ident
+
+
+def test_a_constant_record_has_no_fit_and_is_flagged():
+    ident = _ranged(_identifier())
+    y = _record()
+    est = ident.identify(np.stack([y, np.full(60, 0.7)]))
+    assert np.isfinite(est.fit[0]) and np.isnan(est.fit[1])
+    assert est.outside.tolist() == [False, True]
+    one = ident.identify(np.full(60, -2.0))
+    assert np.isnan(one.fit) and one.outside is True
+    # the fit is still the closed form where it is defined
+    np.testing.assert_allclose(est.fit[0], 100 * (1 - np.linalg.norm(y - est.y_hat[0])
+                                                  / np.linalg.norm(y - y.mean())))
+
+
+def test_collect_identifies_the_good_records_as_alone_and_gives_a_reason_for_each_bad_one():
+    ident = _ranged(_identifier())
+    rng = np.random.default_rng(5)
+    y = np.cumsum(rng.uniform(0.1, 1.0, (5, 60)), axis=1)
+    y[1, 7] = np.nan
+    y[3] = 0.0
+    est = ident.identify(y, errors="collect")
+    assert est.errors == (None, "y must be finite; got nan at record 1, sample 7", None,
+                          "y must not be all zero (record 3 of 5): the normalisation y_tilde = "
+                          "2 y / max|y| - 1 (Eq. 15) needs max|y| > 0", None)
+    good = [0, 2, 4]
+    together = ident.identify(y[good])
+    for i, row in enumerate(good):
+        alone = ident.identify(y[row])
+        for name in "Abcd":
+            np.testing.assert_array_equal(np.asarray(getattr(est, name))[row],
+                                          np.asarray(getattr(together, name))[i])
+            np.testing.assert_allclose(np.asarray(getattr(est, name))[row],
+                                       np.asarray(getattr(alone, name)), rtol=1e-6)
+    for bad in (1, 3):
+        assert np.all(np.isnan(est.A[bad])) and np.isnan(est.d[bad])
+        assert all(np.isnan(v[bad]) for v in est.elements.values())
+        assert np.all(np.isnan(est.y_hat[bad])) and np.isnan(est.fit[bad])
+        assert np.isnan(est.physical["k"][bad])
+    np.testing.assert_allclose(est.y_hat[good], together.y_hat)
+    np.testing.assert_allclose(est.fit[good], together.fit)
+    assert est.outside.tolist() == [False, True, False, True, False]
+    kept = est.take(np.array(good))
+    assert kept.errors == (None, None, None) and kept.outside.tolist() == [False] * 3
+    np.testing.assert_allclose(kept.physical["k"], together.physical["k"])
+    # all good: the same numbers as errors="raise", with no reason anywhere
+    clean = ident.identify(y[good], errors="collect")
+    assert clean.errors == (None, None, None)
+    np.testing.assert_array_equal(clean.A, together.A)
+    assert together.errors is None
+    # one unbatched bad record: a NaN estimate with its reason
+    one = ident.identify(np.zeros(60), errors="collect")
+    assert one.errors[0].startswith("y must not be all zero") and np.isnan(one.A).all()
+    assert one.outside is True and np.isnan(one.fit)
+    # the default raises, naming the first bad record
+    with pytest.raises(ValueError, match=r"y must be finite; got nan at record 1, sample 7"):
+        ident.identify(y)
+    with pytest.raises(ValueError, match=r"errors must be one of \('raise', 'collect'\); "
+                                         r"got 'ignore'"):
+        ident.identify(y, errors="ignore")
+
+
+def test_collect_checks_inputs_per_record_too_and_refines_only_the_good_records():
+    ident = _identifier()
+    y = np.stack([_record(), 2 * _record(), _record()])
+    u = np.ones((3, 60))
+    u[1] = 0.0                                     # a system at rest: nothing to identify
+    u[2, 30:] = 2.0                                # a step identifier cannot read this input
+    est = ident.identify(y, u, errors="collect", refine=True)
+    assert est.errors[0] is None
+    assert est.errors[1] == "u must not be all zero (record 1): a system at rest with zero " \
+                            "input reveals nothing"
+    assert est.errors[2].startswith("u must be a constant step for this identifier (record 2 "
+                                    "varies)")
+    assert est.refined and est.info["refined_rows"].tolist() == [True, False, False]
+    np.testing.assert_allclose(est.A[0], [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-6, atol=1e-8)
+    assert np.isnan(est.A[1:]).all()
+    # refine="auto" refines the flagged records that were identified (a fit threshold of 99 %
+    # flags the untrained identifier's estimate), never a record set aside
+    auto = _ranged(_identifier(), fit=99.0).identify(np.stack([_record(), np.zeros(60)]),
+                                                     errors="collect", refine="auto")
+    assert auto.info["refined_rows"].tolist() == [True, False]
+    assert auto.fit[0] > 99.9 and np.isnan(auto.A[1]).all()
+    assert auto.outside.tolist() == [False, True]   # refined: it fits now; set aside: flagged
+
+
+def test_collect_on_a_several_record_identifier():
+    ident = _joint_identifier()
+    rec = _joint_records(3)
+    y = [rec.y[0].copy(), rec.y[1].copy()]
+    y[1][1, 4] = np.inf
+    est = ident.identify(y, errors="collect")
+    assert est.errors == (None, "y[1] must be finite; got inf at record 1, sample 4", None)
+    together = ident.identify([v[[0, 2]] for v in y])
+    np.testing.assert_array_equal(est.A[[0, 2]], together.A)
+    assert np.isnan(est.A[1]).all() and np.isnan(est.physical["k"][1])
+    assert np.isnan(est.fit[1]).all() and np.isfinite(est.fit[[0, 2]]).all()
+    with pytest.raises(ValueError, match=r"y\[1\] must be finite; got inf at record 1, sample 4"):
+        ident.identify(y)

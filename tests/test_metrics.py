@@ -70,3 +70,17 @@ def test_parameter_errors_and_fit():
     y = np.array([1.0, 2.0, 3.0])
     assert nrmse_fit(y, y)[0] == pytest.approx(100.0)
     assert nrmse_fit(y, np.full(3, 2.0))[0] == pytest.approx(0.0)
+
+
+def test_fit_of_a_constant_record_is_undefined():
+    # ||y - mean(y)|| = 0: no model explains the record better than its mean, so the fit is
+    # NaN, not 100 % (the old answer, which called any model perfect). 0.7 is not a binary
+    # fraction: the rounded mean leaves ||y - mean|| ~ 1e-16, which must not count as a spread.
+    y = np.stack([np.full(60, 0.7), np.array([1.0, 2.0, 3.0] * 20)])
+    fit = nrmse_fit(y, np.stack([np.full(60, 0.7), np.array([1.0, 2.0, 3.0] * 20) + 0.1]))
+    assert np.isnan(fit[0])
+    # the defined one against the closed form: ||0.1||_2 over the spread of [1, 2, 3] * 20
+    assert fit[1] == pytest.approx(100 * (1 - np.sqrt(60 * 0.01) / np.sqrt(40.0)))
+    assert np.isnan(nrmse_fit(np.full(5, -3.0), np.zeros(5))[0])
+    with pytest.raises(ValueError, match=r"y_hat must have the shape of y \(1, 5\); got \(1, 4\)"):
+        nrmse_fit(np.arange(5.0), np.arange(4.0))

@@ -79,8 +79,14 @@ def test_tracker_refuses_identifiers_from_rest_and_bad_samples():
     tracker = Tracker(_Stub())
     with pytest.raises(ValueError, match=r"u and y must be 1-D sample arrays of one length"):
         tracker.push(np.ones(3), np.ones(4))
-    with pytest.raises(ValueError, match=r"u and y must be finite"):
+    with pytest.raises(ValueError, match=r"u and y must be finite; got nan in y at sample 1 of "
+                                         r"the chunk \(no sample of it was consumed\)"):
         tracker.push(np.ones(3), np.array([1.0, np.nan, 1.0]))
+    with pytest.raises(ValueError, match=r"u must be real; got a complex array"):
+        tracker.push(np.ones(3) * 1j, np.ones(3))
+    with pytest.raises(ValueError, match=r"y must be real; got a complex array"):
+        tracker.push(np.ones(3), np.ones(3) + 1e-3j)
+    assert tracker._s.samples == 0                 # a refused chunk consumes nothing
     with pytest.raises(ValueError, match=r"smoothing must be in \(0, 1\]; got 0"):
         TrackerConfig(smoothing=0)
 
@@ -247,3 +253,96 @@ def test_running_median_before_the_moving_average_and_bounded_memory():
     assert len(tracker._s.history) == 3           # only the median's windows are kept
     with pytest.raises(ValueError, match=r"median must be a positive integer; got 0"):
         TrackerConfig(median=0)
+
+
+def _leg_stream(seed, N, dt=0.01):
+    """A running leg (k 25, d 3, m 1) under a random binary force: ``u, y (N,)``."""
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.choice([-1.0, 1.0], size=N // 5 + 1), 5)[:N]
+    return u, wearing_leg(np.full(N, 25.0), np.full(N, 3.0), np.full(N, 1.0), u, dt)
+
+
+def test_both_engines_skip_and_report_the_same_bad_windows_and_consume_every_sample():
+    # A leg at rest with a sensor offset: u = 0, y = 0.01 over 400 samples. Before, the ONNX
+    # engine returned NaN estimates, the identifier engine raised at the first window and the
+    # last 100 of the 400 samples were lost. Now both report each window that cannot be
+    # identified with the identifier's own message, consume every sample, and go on.
+    ident = ae.load_pretrained("leg-stable-window")            # 300 samples per window
+    cfg = TrackerConfig(hop=50, baseline=1, median=1)
+    engines = [Tracker(ident, cfg, engine=e) for e in ("onnx", "identifier")]
+    rest_u, rest_y = np.zeros(400), np.full(400, 0.01)
+    u, y = _leg_stream(2, 400)
+    answers = []
+    for tracker in engines:
+        bad = tracker.push(rest_u, rest_y)
+        assert tracker._s.samples == 400
+        # windows end at samples 299, 349, 399: all three refused, same message
+        assert [round(up.t / 0.01) for up in bad] == [299, 349, 399]
+        for up in bad:
+            assert up.error == ("u must not be all zero (record 0): a system at rest with zero "
+                                "input reveals nothing")
+            assert up.estimate == {} and up.smoothed == {} and not up.alarm
+        # the force starts: windows from 449 on hold some of it and are identified; from the
+        # first window that is all motion on (699), the leg's k
+        good = tracker.push(u, y)
+        assert [round(up.t / 0.01) for up in good] == list(range(449, 800, 50))
+        assert all(up.error is None for up in good)
+        assert good[-1].estimate["k"] == pytest.approx(25.0, rel=0.05)
+        answers.append((bad, good))
+    (bad_a, good_a), (bad_b, good_b) = answers
+    assert [up.error for up in bad_a] == [up.error for up in bad_b]
+    for x, z in zip(good_a, good_b, strict=True):
+        for k in ("k", "d", "m"):
+            assert x.estimate[k] == pytest.approx(z.estimate[k], rel=2e-5)
+
+
+def test_a_refused_window_leaves_the_tracking_state_as_it_was():
+    # Stub engine: k is the mean of the window's last samples of y; it answers a negative
+    # window with NaN (a non-finite estimate), which is reported, not averaged in.
+    class _NanStub(_Stub):
+        def identify(self, y, u):
+            est = super().identify(y, u)
+            if y[-1] < 0:
+                est.physical = {"k": math.nan, "m": 1.0}
+            return est
+
+    cfg = TrackerConfig(hop=20, smoothing=0.5, median=1, baseline=1, parameters=("k",))
+    tracker = Tracker(_NanStub(), cfg)
+    k = np.concatenate([np.full(40, 25.0), np.full(20, -1.0), np.full(20, 20.0)])
+    ups = tracker.push(np.ones_like(k), k)
+    assert [up.error for up in ups] == [None, None, "the window's estimate is not finite: "
+                                                    "k = nan", None]
+    assert math.isnan(ups[2].estimate["k"])
+    assert ups[2].smoothed == ups[1].smoothed == {"k": 25.0}
+    assert ups[2].drift == {"k": 0.0}
+    # the next window continues the average from 25 as if the refused one had not been
+    assert ups[3].smoothed["k"] == pytest.approx(25.0 + 0.5 * (20.0 - 25.0))
+
+
+def test_an_engine_failure_says_how_many_samples_were_consumed():
+    from aeid_struct.online import PushError
+
+    class _Failing(_Stub):
+        def identify(self, y, u):
+            if len(self.windows) == 2:                # the third window breaks the engine
+                self.windows.append(None)
+                raise RuntimeError("engine lost")
+            return super().identify(y, u)
+
+    cfg = TrackerConfig(hop=10, median=1, baseline=1)
+    stream = np.arange(1.0, 101.0)
+    tracker = Tracker(_Failing(), cfg)
+    with pytest.raises(PushError, match=r"engine lost \(the window ending at sample 39 of this "
+                                        r"chunk failed: 40 of its 100 samples were consumed, "
+                                        r"2 update\(s\) before it") as caught:
+        tracker.push(stream, stream)
+    err = caught.value
+    assert isinstance(err, ValueError) and isinstance(err.__cause__, RuntimeError)
+    assert err.consumed == 40 and [round(up.t / 0.01) for up in err.updates] == [19, 29]
+    # the caller pushes the rest; only the failed window (39) is missing against a tracker
+    # that never failed
+    rest = tracker.push(stream[err.consumed:], stream[err.consumed:])
+    whole = Tracker(_Stub(), cfg).push(stream, stream)
+    assert [round(up.t / 0.01) for up in err.updates + rest] == \
+        [round(up.t / 0.01) for up in whole if round(up.t / 0.01) != 39]
+    assert [up.estimate["k"] for up in rest] == [up.estimate["k"] for up in whole[3:]]

@@ -1,0 +1,239 @@
+"""Measured records: the one place where a user's ``y`` and ``u`` become validated float64 arrays.
+
+Every entry point that reads a record -- ``Identifier.identify``, ``export.OnnxIdentifier``,
+``online.Tracker`` (both engines), ``refine`` and the baselines -- checks it here, so that a bad
+input gets the same answer (the same exception, the same message) whichever way it comes in.
+
+Two kinds of problem, kept apart because a batch treats them differently:
+
+- **structural**, about the argument as a whole: not an array of real numbers (a complex array
+  is refused, never silently cut to its real part), a wrong shape, a batch of no records, an
+  input with another record count than the output. Always a ``ValueError``.
+- **per record**: non-finite samples, an all-zero output (Eq. 15 divides by ``max|y|``) or
+  input, a varying input to an identifier that only reads steps, a scale ratio
+  ``max|y| / max|u|`` that float64 cannot hold (the de-normalisation multiplies the model by
+  it). :meth:`Checked.raise_first` raises the first as a :class:`RecordError` (a
+  ``ValueError`` naming the record); ``Identifier.identify(errors="collect")`` keeps every
+  record's reason instead and identifies the good ones.
+
+:func:`normalise` is Eq. 15 in float64, per record, before anything is cast to float32: a
+record of 1e40 (beyond float32) or 1e-44 (below its normal range) reaches the encoder as the
+same ``y_tilde`` in ``[-1, 1]`` as any other record of its shape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Checked", "RecordError", "as_array", "as_records", "check_records", "normalise",
+           "record_problems", "require_finite"]
+
+
+class RecordError(ValueError):
+    """A record that cannot be identified (non-finite, all zero, ...), as opposed to a
+    malformed argument.
+
+    Attributes:
+        record: the record's index in its batch (0 for a single record).
+    """
+
+    def __init__(self, message: str, record: int) -> None:
+        super().__init__(message)
+        self.record = record
+
+
+def as_array(name: str, value) -> np.ndarray:
+    """``value`` as a float64 array of real numbers, or a ValueError naming ``name``.
+
+    A complex array is refused, whatever its imaginary part: numpy's cast would drop it
+    silently, and a model identified from half of the data looks like a good one."""
+    if value is None:
+        raise ValueError(f"{name} must be an array of real numbers; got None")
+    if hasattr(value, "detach") and hasattr(value, "cpu"):   # a torch tensor, grad or GPU
+        value = value.detach().cpu()
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(f"{name} must be an array of real numbers; got "
+                         f"{type(value).__name__}") from None
+    if arr.dtype.kind == "c":
+        raise ValueError(f"{name} must be real; got a complex array (dtype {arr.dtype}): pass "
+                         f"{name}.real or abs({name}) explicitly if that is what you mean")
+    try:
+        return arr.astype(np.float64, copy=False)
+    except (TypeError, ValueError):   # strings, objects (a complex number among them, ...)
+        raise ValueError(f"{name} must be an array of real numbers; got "
+                         f"{type(value).__name__} of dtype {arr.dtype}") from None
+
+
+def require_finite(name: str, arr: np.ndarray) -> None:
+    """A ValueError naming the first non-finite entry of a ``(steps,)`` or ``(batch, steps)``
+    record ("at sample k" or "at record r, sample k")."""
+    if not np.all(np.isfinite(arr)):
+        where = np.argwhere(~np.isfinite(arr))[0]
+        labels = ("record", "sample")[-arr.ndim:]
+        at = ", ".join(f"{label} {i}" for label, i in zip(labels, where, strict=True))
+        raise ValueError(f"{name} must be finite; got {arr[tuple(where)]} at {at}")
+
+
+def as_records(name: str, value, steps: int, dt: float, *,
+               batch: bool = True) -> tuple[np.ndarray, bool]:
+    """The structural check of a record argument: ``(steps,)`` or ``(batch, steps)`` (only
+    ``(steps,)`` without ``batch``) real numbers, at least one record.
+
+    Returns the records as float64 ``(count, steps)`` and whether a batch axis was given.
+    Finiteness is a per-record matter (:func:`record_problems`)."""
+    arr = as_array(name, value)
+    ndims = (1, 2) if batch else (1,)
+    if arr.ndim not in ndims or arr.shape[-1] != steps:
+        want = f"({steps},) or (batch, {steps})" if batch else f"({steps},)"
+        raise ValueError(f"{name} must have shape {want} for this identifier (dt={dt}, "
+                         f"steps={steps}); got {arr.shape}")
+    if arr.ndim == 2 and arr.shape[0] == 0:
+        raise ValueError(f"{name} must hold at least one record; got shape {arr.shape} (a "
+                         "batch of no records)")
+    return np.atleast_2d(arr), arr.ndim == 2
+
+
+@dataclass(frozen=True)
+class Checked:
+    """Records that passed the structural checks, with each one's problem.
+
+    Attributes:
+        y: float64 ``(count, steps)``.
+        u: float64 ``(count, steps)`` (a ``(steps,)`` input broadcast over the batch), or None
+            for a unit step.
+        batched: whether ``y`` came with a batch axis.
+        problems: per record, why it cannot be identified, or None for a good record.
+    """
+
+    y: np.ndarray
+    u: np.ndarray | None
+    batched: bool
+    problems: tuple[str | None, ...]
+
+    @property
+    def count(self) -> int:
+        return self.y.shape[0]
+
+    @property
+    def good(self) -> np.ndarray:
+        """``(count,)`` bool: the records without a problem."""
+        return np.array([p is None for p in self.problems], dtype=bool)
+
+    def raise_first(self) -> None:
+        """Raise the first record's problem as a :class:`RecordError`; nothing if all are
+        good."""
+        for i, problem in enumerate(self.problems):
+            if problem is not None:
+                raise RecordError(problem, i)
+
+
+def check_records(y, u, *, steps: int, dt: float, reads_u: bool, batch: bool = True,
+                  names: tuple[str, str] = ("y", "u")) -> Checked:
+    """Check an output record set ``y`` and its input ``u`` for an identifier of ``steps``
+    samples at ``dt`` (module docstring).
+
+    Args:
+        y: ``(steps,)`` or ``(batch, steps)`` (only ``(steps,)`` without ``batch``).
+        u: like ``y``, ``(steps,)`` for a whole batch, or None (a unit step).
+        reads_u: whether the identifier reads ``u`` (otherwise ``u`` must be a constant step).
+        names: the arguments' names in messages (``("y[1]", "u[1]")`` for a second record).
+
+    Returns:
+        :class:`Checked`. Structural problems raise a ValueError.
+    """
+    yname, uname = names
+    y2, batched = as_records(yname, y, steps, dt, batch=batch)
+    u2 = None
+    if u is not None:
+        u2, _ = as_records(uname, u, steps, dt, batch=batch)
+        count = y2.shape[0]
+        if u2.shape[0] == 1 and count > 1:
+            u2 = np.broadcast_to(u2, y2.shape)
+        if u2.shape[0] != count:
+            raise ValueError(f"{uname} must have {count} records like {yname}; "
+                             f"got {u2.shape[0]}")
+    return Checked(y2, u2, batched, record_problems(y2, u2, reads_u=reads_u, names=names))
+
+
+def record_problems(y2: np.ndarray, u2: np.ndarray | None, *, reads_u: bool,
+                    names: tuple[str, str] = ("y", "u")) -> tuple[str | None, ...]:
+    """Why each record of ``y2 (count, steps)`` with input ``u2`` (same shape, or None for a
+    unit step) cannot be identified; None for a good one. The first problem of a record, in
+    the order: ``y`` non-finite, ``y`` all zero, ``u`` non-finite, ``u`` all zero, ``u``
+    varying for an identifier that does not read it, ``max|y| / max|u|`` beyond float64."""
+    yname, uname = names
+    count = y2.shape[0]
+    finite_y = np.isfinite(y2).all(axis=1)
+    zero_y = ~np.any(y2 != 0, axis=1)
+    bad = ~finite_y | zero_y
+    if u2 is not None:
+        finite_u = np.isfinite(u2).all(axis=1)
+        zero_u = ~np.any(u2 != 0, axis=1)
+        varying = np.zeros(count, bool) if reads_u else np.any(u2 != u2[:, :1], axis=1)
+        bad = bad | ~finite_u | zero_u | varying
+    # The de-normalisation multiplies c, d by max|y| / max|u| (Eq. 15 and linearity): it must
+    # be a positive float64 number (1e300 / 1e-300 is not).
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        y_bar = np.abs(np.where(np.isfinite(y2), y2, 0.0)).max(axis=1)
+        u_bar = (np.ones(count) if u2 is None
+                 else np.abs(np.where(np.isfinite(u2), u2, 0.0)).max(axis=1))
+        ratio = y_bar / u_bar
+    bad = bad | ~(np.isfinite(ratio) & (ratio > 0))
+    if not bad.any():
+        return (None,) * count
+    out: list[str | None] = [None] * count
+    for r in np.flatnonzero(bad):
+        out[r] = _problem(int(r), count, y2[r], None if u2 is None else u2[r], reads_u,
+                          y_bar[r], u_bar[r], yname, uname)
+    return tuple(out)
+
+
+def _problem(r: int, count: int, y: np.ndarray, u: np.ndarray | None, reads_u: bool,
+             y_bar: float, u_bar: float, yname: str, uname: str) -> str:
+    """The message of record ``r``'s first problem (``record_problems``)."""
+    for name, v in ((yname, y), (uname, u)):
+        if v is None:
+            continue
+        if not np.all(np.isfinite(v)):
+            k = int(np.flatnonzero(~np.isfinite(v))[0])
+            return f"{name} must be finite; got {v[k]} at record {r}, sample {k}"
+        if not np.any(v):
+            if name == yname:
+                return (f"{yname} must not be all zero (record {r} of {count}): the "
+                        "normalisation y_tilde = 2 y / max|y| - 1 (Eq. 15) needs max|y| > 0")
+            return (f"{uname} must not be all zero (record {r}): a system at rest with zero "
+                    "input reveals nothing")
+    if u is not None and not reads_u and np.any(u != u[0]):
+        # The encoder never sees u: only a step (of any height, which the exact
+        # de-normalisation or the scale feature absorbs) is what it was trained on.
+        return (f"{uname} must be a constant step for this identifier (record {r} varies): "
+                "it was trained on step responses and does not read u; use an identifier "
+                "trained with another excitation (TrainConfig(excitation='mix')) for "
+                "arbitrary inputs")
+    return (f"{yname} and {uname} must have a scale ratio max|{yname}| / max|{uname}| that "
+            f"float64 holds (the model is de-normalised by it, Eq. 15); got {y_bar:.3g} / "
+            f"{u_bar:.3g} at record {r}")
+
+
+def normalise(y2: np.ndarray, u2: np.ndarray | None):
+    """Eq. 15 per record, in float64: ``y_tilde = 2 y / y_bar - 1`` with ``y_bar = max|y|``,
+    and ``u / u_bar`` with ``u_bar = max|u|`` (ones and ``u_bar = 1`` for a unit step).
+
+    Args:
+        y2, u2: good records (:func:`record_problems`), float64 ``(count, steps)``; u2 may be
+            None.
+
+    Returns:
+        ``y_tilde, u_tilde`` ``(count, steps)`` in ``[-1, 1]``, ``y_bar, u_bar`` ``(count,)``.
+    """
+    y_bar = np.abs(y2).max(axis=1)
+    # y / y_bar first: 2 y overflows for |y| near float64's largest number
+    y_tilde = 2.0 * (y2 / y_bar[:, None]) - 1.0
+    if u2 is None:
+        return y_tilde, np.ones_like(y2), y_bar, np.ones_like(y_bar)
+    u_bar = np.abs(u2).max(axis=1)
+    return y_tilde, u2 / u_bar[:, None], y_bar, u_bar
