@@ -11,6 +11,9 @@ Accuracy is checked on ``problems.modal_system`` (well-conditioned bases, see it
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import control
 import numpy as np
 import pytest
@@ -689,3 +692,314 @@ def test_free_fit_response_is_the_simulation_from_the_fitted_state():
     # the least-squares residual is orthogonal to every free-response column
     O = decoder._free_response(A[None], c[None], 0.05, 80)
     assert (O.mT @ (y - y_hat)[..., None]).abs().max() < 1e-9 * y.abs().max() * O.abs().max()
+
+
+
+# ------------------------------------------------------------------------------------------------
+# Large |pole| dt and overflow (issue 11): the per-step recursion as the oracle
+# ------------------------------------------------------------------------------------------------
+# The oracle is Eq. 12-13 stepped one sample at a time in float64 with scipy's expm of the
+# augmented FOH matrix (_augmented_expm), independent of the library. Accuracy is per sample,
+# relative to the size of the sample's own terms, |c|^T |x_k| + |d u_k| (x_k the oracle's state):
+# the plain relative error for a response without cancellation (the issue's example), and still
+# meaningful at the zero crossings of an oscillation, where |y_k| itself is ~0. Where the two
+# differ most (a real unstable pole, pole dt = 30: 5e-11), it is the oracle's expm: against the
+# same recursion in 40-digit mpmath the library is within 1.4e-13 and scipy's expm 4.8e-11.
+
+#: The issue's example: poles -4 and +6 rad/s, y = x_1 (so the measure is |y_k| itself).
+_ISSUE = (np.array([[0.0, 1.0], [24.0, 2.0]]), np.array([0.0, 1.0]), np.array([1.0, 0.0]), 0.0)
+_OVERFLOW = r"simulate: the response overflows {} \(largest finite {}\) in "
+
+
+@contextlib.contextmanager
+def _no_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        yield
+
+
+def _recursion(A, b, c, d, u, dt, x0=None):
+    """The oracle: ``y (steps,)``, ``X (steps, n)`` and the per-sample scale ``(steps,)``; past
+    float64's range its entries are whatever the arithmetic gives (inf, nan)."""
+    Phi, gamma1, gamma2 = _augmented_expm(A, b, dt)
+    x = np.zeros(len(b)) if x0 is None else np.asarray(x0, dtype=float)
+    X = []
+    with np.errstate(all="ignore"):
+        for k in range(len(u)):
+            X.append(x)
+            if k + 1 < len(u):
+                x = Phi @ x + gamma1 * u[k] + gamma2 * (u[k + 1] - u[k])
+        X = np.array(X)
+        return X @ c + d * u, X, np.abs(X) @ np.abs(c) + np.abs(d * u)
+
+
+def _overflow_point(values) -> int:
+    """Index of the first sample (axis 0) with a non-finite entry; the length if none."""
+    bad = ~np.isfinite(np.asarray(values, dtype=float))
+    bad = bad.reshape(len(bad), -1).any(axis=1)
+    return int(np.argmax(bad)) if bad.any() else len(bad)
+
+
+def _assert_recursion(y, expected, scale, rtol):
+    """Where the oracle is finite: within ``rtol`` of each sample's scale; from its first
+    non-finite sample on: +inf; never NaN."""
+    y = np.asarray(y, dtype=float)
+    k = _overflow_point(expected)
+    assert not np.isnan(y).any()
+    assert np.all(np.isfinite(y[:k])), f"finite oracle, non-finite result before sample {k}"
+    err = np.abs(y[:k] - expected[:k]) / np.maximum(scale[:k], 1e-300)
+    assert err.max(initial=0.0) <= rtol, (float(err.max()), int(err.argmax()))
+    assert np.all(np.isposinf(y[k:])), f"not +inf from sample {k} on"
+
+
+@pytest.mark.parametrize("dt", [1.0, 5.0, 10.0, 12.0, 15.0])
+def test_issue_example_matches_the_per_step_recursion(dt):
+    """pole dt = 6 .. 90 over 30 samples. The former shifted-state kernel lost 3e-5 relative
+    at dt = 5 and every digit at dt = 10 ([0, 0, 5e58, 0, ..] for [0, 1.9e24, 2.2e50, ..])."""
+    A, b, c, d = _ISSUE
+    u = np.ones(30)
+    expected, _, scale = _recursion(A, b, c, d, u, dt)
+    overflows = _overflow_point(expected) < 30
+    assert overflows == (dt > 1.0)  # e^(6 dt 29) passes 1.8e308 for dt >= 5
+    expect = (pytest.warns(RuntimeWarning, match=_OVERFLOW.format("float64", r"1.8e\+308"))
+              if overflows else _no_warning())
+    with expect:
+        y = simulate(A, b, c, d, u, dt)
+    _assert_recursion(y, expected, scale, RTOL[np.float64])
+    assert y[0] == 0.0
+    if dt == 10.0:
+        assert abs(y[1] / 1.90334565e24 - 1.0) < 1e-8 and abs(y[2] / 2.1736348e50 - 1.0) < 1e-7
+    # torch float64: the same numbers.
+    with pytest.warns(RuntimeWarning) if overflows else _no_warning():
+        y_t = simulate(*_torch(A, b, c), d, torch.as_tensor(u), dt)
+    np.testing.assert_array_equal(y_t.numpy(), y)
+
+
+def _poles_system(poles, rng, feedthrough=True):
+    """Real (A, b, c, d) with exactly these poles (conjugates implied for complex ones) in a
+    basis of condition <= 3, as problems.modal_system builds it."""
+    blocks = [np.array([[p.real]]) if p.imag == 0 else
+              np.array([[p.real, p.imag], [-p.imag, p.real]]) for p in poles]
+    M = scipy.linalg.block_diag(*blocks)
+    n = len(M)
+    Q1, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    Q2, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    T = Q1 @ np.diag(rng.uniform(1.0, 3.0, size=n)) @ Q2
+    d = float(rng.normal()) if feedthrough else 0.0
+    return T @ M @ np.linalg.inv(T), rng.normal(size=n), rng.normal(size=n), d
+
+
+#: |pole| dt of the grid, from a pole that barely moves in a step to one that grows e^40.
+_SIZES = [1e-3, 1e-2, 0.1, 1.0, 3.0, 10.0, 20.0, 30.0, 40.0]
+#: Pole patterns scaled by s = |pole| dt / dt (order 3 each, so one batch holds every size).
+_KINDS = {
+    "stable": lambda s: [complex(-s), complex(-0.3 * s), complex(-0.05 * s)],
+    "unstable": lambda s: [complex(s), complex(-0.5 * s), complex(-0.02 * s)],
+    "oscillatory": lambda s: [complex(-0.1 * s, s), complex(-0.5 * s)],
+    "unstable oscillatory": lambda s: [complex(0.3 * s, s), complex(-s)],
+    "undamped": lambda s: [complex(0.0, s), complex(-0.2 * s)],
+}
+
+
+@pytest.mark.parametrize("dt", [0.01, 1.0])
+@pytest.mark.parametrize("kind", list(_KINDS))
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+def test_grid_of_pole_sizes_in_one_batch_matches_the_recursion(kind, backend, dt):
+    """Every |pole| dt from 1e-3 to 40 in one batch, with a random input and initial state: the
+    records that overflow (+inf, warned) spoil none of the others, each of which matches the
+    per-step recursion to 1e-10 of its own samples' size."""
+    rng = np.random.default_rng([len(kind), int(dt * 100), 7])
+    systems = [_poles_system(_KINDS[kind](size / dt), rng) for size in _SIZES]
+    A, b, c = (np.stack([s[j] for s in systems]) for j in range(3))
+    d = np.array([s[3] for s in systems])
+    u = rng.normal(size=(len(_SIZES), 30))
+    x0 = rng.normal(size=b.shape)
+    oracle = [_recursion(A[i], b[i], c[i], d[i], u[i], dt, x0[i]) for i in range(len(_SIZES))]
+    overflows = [_overflow_point(r[0]) < 30 for r in oracle]
+    args = (A, b, c, d, u) if backend == "numpy" else _torch(A, b, c, d, u)
+    start = x0 if backend == "numpy" else _torch(x0)[0]
+    expect = pytest.warns(RuntimeWarning, match=rf"in {sum(overflows)} of 9 records") \
+        if any(overflows) else _no_warning()
+    with expect:
+        y = simulate(*args, dt, x0=start)
+    y = np.asarray(y)
+    for i, (expected, _, scale) in enumerate(oracle):
+        _assert_recursion(y[i], expected, scale, RTOL[np.float64])
+    # e^(s 29) passes 1.8e308 for the real unstable pole at s = 30 and 40 only.
+    assert sum(overflows) == (2 if kind == "unstable" else 0)
+
+
+@pytest.mark.parametrize("dt", [1.0, 5.0])
+def test_states_at_large_pole_dt_match_the_recursion(dt):
+    A, b, c, d = _ISSUE
+    u = np.sin(np.arange(30.0))
+    x0 = np.array([0.5, -3.0])
+    _, X_expected, _ = _recursion(A, b, c, d, u, dt, x0)
+    k = _overflow_point(X_expected)
+    assert (k < 30) == (dt == 5.0)
+    with pytest.warns(RuntimeWarning, match=r"states: the response overflows float64") \
+            if k < 30 else _no_warning():
+        X = states(A, b, u, dt, x0=x0)
+    # max-norm per sample: the 2-norm's squares would overflow near 1e308
+    err = np.abs(X[:k] - X_expected[:k]).max(axis=1) / np.abs(X_expected[:k]).max(axis=1)
+    assert err.max() <= RTOL[np.float64]
+    assert np.all(np.isposinf(X[k:])) and not np.isnan(X).any()
+
+
+# -- overflow: +inf from the first overflowing sample on, a RuntimeWarning, never NaN -----------
+
+
+def test_overflow_in_one_step_dt_100():
+    """pole dt = 600: Phi = e^600 is finite, y_1 ~ 6e258, y_2 ~ e^1200 is not."""
+    A, b, c, d = _ISSUE
+    expected, _, scale = _recursion(A, b, c, d, np.ones(30), 100.0)
+    match = (_OVERFLOW.format("float64", r"1.8e\+308") + r"the record \(from sample 2 of 30; "
+             r"its largest pole Re\(p\) = 6 rad/s grows by e\^\(Re\(p\) dt steps\) = e\^1.8e\+04 "
+             r"over the record\); those samples are \+inf")
+    with pytest.warns(RuntimeWarning, match=match):
+        y = simulate(A, b, c, d, np.ones(30), 100.0)
+    _assert_recursion(y, expected, scale, RTOL[np.float64])
+    assert np.isfinite(y[1]) and y[1] > 6e258
+
+
+@pytest.mark.parametrize("dtype", ["numpy", torch.float64, torch.float32])
+def test_overflow_over_3000_steps_is_inf_not_nan(dtype):
+    """3000 samples at dt = 0.5 (pole dt = 3): the former kernel gave 2676 inf and 86 NaN. Now
+    the samples before the overflow are the recursion's (float32: to 1e-4) and the rest +inf,
+    the same rule for numpy and torch, float64 and float32 (which overflows at 3.4e38)."""
+    A, b, c, d = _ISSUE
+    u = np.ones(3000)
+    cast = (lambda a: a) if dtype == "numpy" else (lambda a: torch.as_tensor(a, dtype=dtype))
+    name, largest = ("float32", r"3.4e\+38") if dtype == torch.float32 else ("float64",
+                                                                           r"1.8e\+308")
+    with pytest.warns(RuntimeWarning, match=_OVERFLOW.format(name, largest)) as caught:
+        y = simulate(cast(A), cast(b), cast(c), d, cast(u), 0.5)
+    assert len(caught) == 1
+    y = np.asarray(y, dtype=float)
+    expected, _, scale = _recursion(A, b, c, d, u, 0.5)
+    if dtype == torch.float32:
+        # The float32 range ends where the true response passes 3.4e38.
+        expected = np.where(np.abs(expected) < np.finfo(np.float32).max, expected, np.inf)
+    k = _overflow_point(expected)
+    assert k == (238 if name == "float64" else 31)
+    _assert_recursion(y, expected, scale, RTOL[np.float64 if name == "float64" else np.float32])
+    assert np.isposinf(y).sum() == 3000 - k and not np.isnan(y).any()
+
+
+def test_overflowing_record_leaves_the_batch_alone():
+    A, b, c, d = _ISSUE
+    stable = _system(2, stable=True, salt=4)
+    As, bs, cs = np.stack([stable[0], A, stable[0]]), np.stack([stable[1], b, stable[1]]), \
+        np.stack([stable[2], c, stable[2]])
+    ds = np.array([stable[3], d, 0.0])
+    u = np.ones((3, 300))
+    with pytest.warns(RuntimeWarning, match=r"in 1 of 3 records \(the first: record 1, from "
+                                            r"sample 238 of 300; "):
+        y = simulate(As, bs, cs, ds, u, 0.5)
+    for i in (0, 2):
+        np.testing.assert_array_equal(y[i], simulate(As[i], bs[i], cs[i], ds[i], u[i], 0.5))
+    assert np.isposinf(y[1, 238:]).all() and np.isfinite(y[1, :238]).all()
+
+
+def test_kernel_overflow_with_a_finite_response_is_exact_and_silent():
+    """Pole dt = 200 with b = 1e-300: y_k ~ 1e-302 e^(200 k) stays finite for 7 samples, while
+    the chunked kernel's scan squares Phi^2 = e^400 into e^800, which overflows. simulate must
+    then give the recursion's finite values, without a warning."""
+    A, b, c = np.array([[200.0]]), np.array([1e-300]), np.array([1.0])
+    u = np.ones(7)
+    kernel = decoder._simulate(*(t[None] for t in _torch(A, b, c, 0.0, u)), 1.0)
+    assert not bool(torch.isfinite(kernel).all())  # the fallback is exercised
+    expected, _, scale = _recursion(A, b, c, 0.0, u, 1.0)
+    assert np.isfinite(expected).all() and expected[-1] > 1e200
+    with _no_warning():
+        y = simulate(A, b, c, 0.0, u, 1.0)
+    _assert_recursion(y, expected, scale, RTOL[np.float64])
+
+
+def test_states_overflow_rule():
+    A, b, _, _ = _ISSUE
+    with pytest.warns(RuntimeWarning, match=r"states: the response overflows float32 \(largest "
+                                            r"finite 3.4e\+38\) in the record \(from sample "):
+        X = states(torch.as_tensor(A, dtype=torch.float32), torch.as_tensor(b).float(),
+                   torch.ones(40), 1.0)
+    k = _overflow_point(X.numpy())
+    assert 10 < k < 40 and torch.isfinite(X[:k]).all()
+    assert torch.isposinf(X[k:]).all() and not torch.isnan(X).any()
+
+
+# -- initial_state where the forced or free response is huge ------------------------------------
+
+
+def test_initial_state_of_a_fast_unstable_record():
+    """pole dt = 30 over 20 samples (y up to ~1e247): the free response's 2-norm overflows
+    (the former column scaling gave NaN) and the shifted-state forced response was off by 3e-5;
+    the least-squares x0 of a noise-free record is now exact. A stable record shares the
+    batch."""
+    A = np.array([[[6.0]], [[-0.5]]])
+    b, c, d = np.array([[1.0], [2.0]]), np.array([[1.0], [0.5]]), np.array([0.0, 0.3])
+    u = np.cos(np.arange(20.0))[None].repeat(2, axis=0)
+    x0 = np.array([[0.7], [-1.2]])
+    y = np.stack([_recursion(A[i], b[i], c[i], d[i], u[i], 5.0, x0[i])[0] for i in range(2)])
+    assert np.isfinite(y).all() and np.abs(y).max() > 1e240
+    with _no_warning():
+        found = decoder.initial_state(A, b, c, d, u, y, 5.0)
+    np.testing.assert_allclose(found, x0, rtol=1e-12)
+    found_t = decoder.initial_state(*_torch(A, b, c, d, u, y), 5.0)
+    np.testing.assert_allclose(found_t.numpy(), x0, rtol=1e-12)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_initial_state_overflow_rule(dtype):
+    """The model's response over the record leaves the range: no finite least-squares x0 in
+    that precision, so +inf with the warning (never NaN); the other record is fitted."""
+    A = torch.tensor([[[6.0]], [[-0.5]]], dtype=dtype)
+    b, c, d = torch.ones(2, 1, dtype=dtype), torch.ones(2, 1, dtype=dtype), torch.zeros(2)
+    u = torch.ones(2, 30, dtype=dtype)
+    y = simulate(A[1], b[1], c[1], 0.0, u[1], 5.0, x0=torch.tensor([0.4], dtype=dtype))
+    name = str(dtype).removeprefix("torch.")
+    with pytest.warns(RuntimeWarning, match=rf"initial_state: the response overflows {name} "
+                                            r".* in 1 of 2 records \(the first: record 0, from "
+                                            r"sample \d+ of 30; .* x0 of those records is \+inf"):
+        x0 = decoder.initial_state(A, b, c, d, u, y.expand(2, 30), 5.0)
+    assert torch.isposinf(x0[0]).all()
+    torch.testing.assert_close(x0[1], torch.tensor([0.4], dtype=dtype), rtol=RTOL[dtype],
+                               atol=0.0)
+
+
+def test_initial_state_rejects_an_unobservable_model():
+    """c sees only the first state of a triangular A: the second initial state is not
+    determined (the former fit returned NaN silently)."""
+    A = np.stack([np.array([[-1.0, 0.0], [1.0, -2.0]]), np.array([[-1.0, 1.0], [0.0, -2.0]])])
+    b, c = np.array([0.0, 1.0]), np.array([1.0, 0.0])
+    with pytest.raises(ValueError, match=r"A and c must give an observable model \(record 0 of "
+                                         r"2\): the free response c\^T e\^\{A k dt\} has rank < n"):
+        decoder.initial_state(A, b, c, 0.0, np.ones(50), np.ones((2, 50)), 0.1)
+
+
+# -- the training path keeps its gradients --------------------------------------------------------
+
+
+def test_gradcheck_training_decoder_at_large_pole_dt():
+    """decoder._simulate (the decoder training calls) in float64 on a batch that mixes
+    pole dt = 0.05 and pole dt = 12 (growth e^72 over the record); _free_fit (training with
+    fitted initial states) at pole dt = 1.5, where its least squares is well-conditioned enough
+    for finite differences (at pole dt = 3 they fail, with the former column scaling too)."""
+    def batch(growth):
+        A = torch.tensor([[[0.0, 1.0], [24.0, 2.0]], [[0.0, 1.0], [-24.0, -2.0]]],
+                         dtype=torch.float64)
+        A = A * torch.tensor([growth, 0.01], dtype=torch.float64)[:, None, None]
+        b = torch.tensor([[0.0, 1.0], [0.3, 1.0]], dtype=torch.float64)
+        c = torch.tensor([[1.0, 0.2], [1.0, -0.5]], dtype=torch.float64)
+        d = torch.tensor([0.0, 0.4], dtype=torch.float64)
+        return tuple(t.requires_grad_() for t in (A, b, c, d))
+
+    u = torch.sin(torch.arange(7.0, dtype=torch.float64))[None].expand(2, 7).contiguous()
+    args = batch(2.0)  # poles +12 and -8 rad/s
+    # Scaled per record so that every output is O(1) and gradcheck's tolerances mean the same.
+    scale = 1.0 / decoder._simulate(*args, u, 1.0).detach().abs().amax(1, keepdim=True)
+    assert torch.autograd.gradcheck(lambda *a: decoder._simulate(*a, u, 1.0) * scale, args)
+    args = batch(0.25)  # poles +1.5 and -1 rad/s
+    y = decoder._simulate(*args, u, 1.0).detach()
+    y = 1.001 * y + 0.01 * y.abs().amax(1, keepdim=True) * torch.cos(torch.arange(7.0))
+    assert torch.autograd.gradcheck(lambda *a: decoder._free_fit(*a, u, y, 1.0)[1], args)
+    assert torch.autograd.gradcheck(lambda *a: decoder._free_fit(*a, u, y, 1.0)[0], args)
