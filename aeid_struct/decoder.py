@@ -568,6 +568,10 @@ def _overflow(out: torch.Tensor, index: torch.Tensor, exact: torch.Tensor, calle
     return out
 
 
+class OverflowWarning(RuntimeWarning):
+    """A simulated response exceeded the dtype's range; the record is +inf from that sample on."""
+
+
 def _warn_overflow(caller: str, records: torch.Tensor, first: int, A, dt: float, steps: int,
                    dtype: torch.dtype, batched: bool, returned: str, stacklevel: int) -> None:
     """The RuntimeWarning of the overflow rule: which records, from which sample, and why."""
@@ -583,7 +587,7 @@ def _warn_overflow(caller: str, records: torch.Tensor, first: int, A, dt: float,
     warnings.warn(
         f"{caller}: the response overflows {name} (largest finite {torch.finfo(dtype).max:.3g}) "
         f"in {where}from sample {first} of {steps}; {why}); {returned}",
-        RuntimeWarning,
+        OverflowWarning,
         stacklevel=stacklevel,
     )
 
