@@ -231,12 +231,19 @@ def _leg(args: argparse.Namespace) -> int:
     print("Robot-leg study (paper Sec. IV): "
           + ("shipped identifiers" if args.pretrained else
              (f"training both identifiers, {args.epochs} epochs each" if args.epochs else
-              f"training both identifiers, {seconds:.0f} s budget in total"))
+              f"training both identifiers, {seconds:.0f} s budget in total (at least "
+              f"{study.MIN_EPOCHS['stable']} / {study.MIN_EPOCHS['unstable']} epochs)"))
           + f", {args.validation} validation systems, seed {args.seed}", flush=True)
-    result = study.run(pretrained=args.pretrained, seconds=seconds, seed=args.seed,
-                       out=args.out, fig4_sizes=args.fig4_sizes if args.fig4 else None,
-                       fig4_seconds=args.fig4_seconds, validation=args.validation,
-                       progress=not args.quiet, command=command, epochs=args.epochs)
+    import warnings
+
+    from .training import UndertrainedWarning
+
+    with warnings.catch_warnings():   # printed below, beside the table they qualify
+        warnings.simplefilter("ignore", UndertrainedWarning)
+        result = study.run(pretrained=args.pretrained, seconds=seconds, seed=args.seed,
+                           out=args.out, fig4_sizes=args.fig4_sizes if args.fig4 else None,
+                           fig4_seconds=args.fig4_seconds, validation=args.validation,
+                           progress=not args.quiet, command=command, epochs=args.epochs)
     print()
     print("Table I, ours beside the paper's (noise-free; Bode over "
           f"{result['frequency_grid_rad_s'][0]:g}-{result['frequency_grid_rad_s'][1]:g} rad/s, "
@@ -244,13 +251,16 @@ def _leg(args: argparse.Namespace) -> int:
     print(result["markdown"])
     print()
     for name, row in result["table"].items():
-        print(f"{name}: training {result['train_seconds'][name]:.1f} s, identification "
+        trained = ("shipped identifier" if args.pretrained else
+                   f"training {result['train_seconds'][name]:.1f} s, "
+                   f"{result['train_epochs'][name]} epochs")
+        print(f"{name}: {trained}, identification "
               f"{row['latency_ms']:.3f} ms per call (batch 1), "
               f"{row['throughput_per_s']:,.0f} identifications/s batched "
               f"(paper: {study.PAPER_SECONDS['encoder_400mhz']} s on a 400 MHz core)")
-    out = Path(args.out)
-    print(f"\nwrote {out / 'leg_study.json'}, {out / 'fig3_leg_scenario.png'}"
-          + (f", {out / 'fig4_error_vs_size.png'}" if args.fig4 else ""))
+    for note in result["warnings"]:
+        print(f"\nWARNING (under-trained): {note}")
+    print("\nwrote " + ", ".join(result["run"]["files"]))
     return 0
 
 
@@ -831,7 +841,9 @@ def build_parser() -> argparse.ArgumentParser:
                            "(default 100 300 1000 3000 10000 30000 100000)")
     legp.add_argument("--fig4-seconds", type=_POSITIVE, default=30.0,
                       help="training budget per size and subsystem for Fig. 4")
-    legp.add_argument("--out", default="out/leg", help="folder for JSON, PNGs, identifiers")
+    legp.add_argument("--out", default="out/leg",
+                      help="parent folder: a run writes JSON, PNGs and identifiers to "
+                           "OUT/trained or OUT/pretrained (default out/leg)")
     legp.add_argument("--quiet", action="store_true", help="no progress lines")
     legp.set_defaults(func=_leg)
 

@@ -12,13 +12,26 @@ Record settings (the paper gives none; ours):
 Training uses 10^4 simulated step responses per subsystem with (k, d, m) uniform in the paper's
 ranges, 20 % held out; evaluation uses 500 fresh systems from another seed and the paper's
 scenario k = 24.23, d = 2.24, m = 1.01, all noise-free unless asked.
+
+The main job trains each identifier for half of a wall-time budget, but never for fewer than
+``MIN_EPOCHS`` epochs (a busy machine then takes longer than the budget), and warns
+(``training.UndertrainedWarning``, also in the JSON's ``warnings``) when a budget fit fewer
+epochs or an identifier ends above its expected held-out loss ``TARGET_LOSS``.
+
+Each run writes into a folder of its own kind, ``<out>/trained`` or ``<out>/pretrained``, and
+first removes the study's files left there by an earlier run, so that a folder holds one run's
+outputs only; its JSON says which run made them (``run``: command, date, seed, budget, and
+each identifier's file or shipped name with its SHA-256) and lists every file written.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +53,22 @@ PAPER = {
                  "phase_rad": (0.0, 0.0), "k": (24.19, 26.36), "m": (50.13, 48.32)},
 }
 PAPER_SECONDS = {"encoder_400mhz": 1.194, "n4sid_matlab": 3.682}
+
+#: The main job's floor per identifier: a wall-time budget never gives fewer epochs. Measured
+#: with epoch budgets (seed 0, 500 validation systems), the overall step error after
+#: 15 / 30 / 60 / 100 epochs: stable 1.0e-3 / 5.2e-4 / 2.4e-4 / 1.7e-4, unstable 1.0e-3 /
+#: 5.6e-4 / 5.2e-4 / 2.0e-4 (k error 11 / 5.3 / 5.0 / 2.0 %). A lightly loaded machine fits
+#: about 140 / 160 epochs into the 150 s of each, so the floors bind on busy machines only.
+MIN_EPOCHS = {"stable": 60, "unstable": 100}
+#: The best held-out loss (Eq. 14) each identifier of the main job is expected to reach; above
+#: it the study warns (``training.UndertrainedWarning``). 3.5x the loss of a run of the floor's
+#: epochs (1.4e-6 both; the 150 s runs reached 3.4e-7 / 5.4e-7), below that of half as many
+#: (stable 30 epochs: 5.3e-6, unstable 60: 7.1e-6).
+TARGET_LOSS = {"stable": 5e-6, "unstable": 5e-6}
+
+#: The files a study run may write into its folder (removed there before a run writes).
+OUTPUTS = ("leg-stable.aeid", "leg-unstable.aeid", "fig3_leg_scenario.png",
+           "fig4_error_vs_size.png", "leg_study.json")
 
 
 @dataclass(frozen=True)
@@ -63,19 +92,28 @@ class Evaluation:
 
 def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
                     count: int = 10_000, noise=0.0, checkpoint=None, progress: bool = True,
-                    epochs: int | None = None):
-    """The study's training settings for one subsystem: a wall-time budget, or an epoch budget
-    (reproducible whatever else the machine is doing) when ``epochs`` is given."""
+                    epochs: int | None = None, min_epochs: int = 1,
+                    target_loss: float | None = None):
+    """The study's training settings for one subsystem: a wall-time budget (which cannot end
+    the run before ``min_epochs``), or an epoch budget (reproducible whatever else the machine
+    is doing) when ``epochs`` is given; ``target_loss``: the expected best held-out loss
+    (``TrainConfig``).
+
+    One torch thread. Why: the network is small, and a second thread buys nothing on a quiet
+    machine but costs up to 10x on a busy one, where the two threads wait for each other's
+    core (measured on the unstable leg beside other work: 16-75 s per epoch on two threads,
+    2.6-4.3 s on one).
+    """
     from .training import TrainConfig
 
     dt, steps = _grid(subsystem)
     if epochs is not None:
-        seconds = None
+        seconds, min_epochs = None, 1
     # With a wall-time budget the epoch limit must not bind: 100,000 epochs are weeks here.
     return TrainConfig(dt=dt, steps=steps, count=count, epochs=epochs or 100_000,
-                       seconds=seconds,
+                       seconds=seconds, min_epochs=min_epochs, target_loss=target_loss,
                        batch=128, lr=3e-3, gamma=1.0, noise=noise, seed=seed,
-                       checkpoint=checkpoint, progress=progress)
+                       checkpoint=checkpoint, progress=progress, threads=1)
 
 
 def _grid(subsystem: str):
@@ -108,13 +146,15 @@ def leg_encoder(subsystem: str):
 
 def train_leg(subsystem: str, *, seconds: float | None, seed: int = 0, count: int = 10_000,
               noise=0.0, checkpoint=None, progress: bool = True, command: str = "",
-              epochs: int | None = None):
-    """Train one leg identifier with the study's settings."""
+              epochs: int | None = None, min_epochs: int = 1,
+              target_loss: float | None = None):
+    """Train one leg identifier with the study's settings (``training_config``)."""
     from .training import train
 
     inverse = LegFamily(subsystem=subsystem).inverse()
     config = training_config(subsystem, seconds=seconds, seed=seed, count=count, noise=noise,
-                             checkpoint=checkpoint, progress=progress, epochs=epochs)
+                             checkpoint=checkpoint, progress=progress, epochs=epochs,
+                             min_epochs=min_epochs, target_loss=target_loss)
     return train(leg_structure(subsystem), LegFamily(subsystem=subsystem), config,
                  encoder=leg_encoder(subsystem), inverse=inverse,
                  meta={"name": f"leg-{subsystem}", "command": command, "seed": seed})
@@ -195,23 +235,29 @@ def table(evals: list[Evaluation]) -> str:
     return "\n".join(lines)
 
 
-def figure3(idents: dict, path, source: str = "identifiers given") -> None:
-    """Paper Fig. 3 for the scenario: step and Bode, true vs identified, both subsystems;
+def figure3(idents: dict, path, source: str = "identifiers given",
+            sources: dict | None = None) -> None:
+    """Paper Fig. 3 for the scenario: step and Bode, true vs identified, both subsystems.
+
     ``source`` says where the identifiers came from (trained in this run, or shipped) and goes
-    into the figure's title with the scenario."""
+    into the figure's title with the scenario; ``sources``: subsystem -> which identifier it is
+    (e.g. "shipped leg-stable", "trained 138 epochs"), in the panel titles.
+    """
     from .plots import LEG_SIGNALS, Comparison, fig3
 
     comparisons = []
     for subsystem, ident in idents.items():
+        kind = "translational" if subsystem == "stable" else "rotational"
+        name = f"{subsystem} subsystem ({kind})"
+        if sources and subsystem in sources:
+            name += f", {sources[subsystem]}"
         dt, steps = RECORDS[subsystem]
         family = LegFamily(subsystem=subsystem)
         s = family.systems(**{k: [v] for k, v in SCENARIO.items()})
         true = (s.A[0], s.b[0], s.c[0], float(s.d[0]))
         y = simulate(*true, np.ones(steps), dt)
         est = ident.identify(y)
-        kind = "translational" if subsystem == "stable" else "rotational"
-        comparisons.append(Comparison(f"{subsystem} subsystem ({kind})", true,
-                                      (est.A, est.b, est.c, est.d), dt, steps,
+        comparisons.append(Comparison(name, true, (est.A, est.b, est.c, est.d), dt, steps,
                                       **LEG_SIGNALS[subsystem]))
     fig3(comparisons, path,
          title=f"Robot leg, paper scenario k = {SCENARIO['k']} N/m, d = {SCENARIO['d']} N s/m, "
@@ -239,40 +285,86 @@ def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
     return errors
 
 
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _shipped_sha256(name: str) -> str:
+    """The SHA-256 of a shipped identifier's file (``identify.load_pretrained``)."""
+    from importlib.resources import files
+
+    return hashlib.sha256((files("aeid_struct.pretrained") / f"{name}.aeid").read_bytes()
+                          ).hexdigest()
+
+
 def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
         fig4_seconds: float = 30.0, validation: int = 500, progress: bool = True,
         save: bool = True, command: str = "", epochs: int | None = None) -> dict:
-    """The whole study; returns the JSON-able result and writes figures and JSON to ``out``."""
-    from .identify import load_pretrained
+    """The whole study; returns the JSON-able result and writes figures, JSON and (trained,
+    ``save``) the identifiers into ``<out>/trained`` or ``<out>/pretrained``.
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    idents, train_seconds = {}, {}
+    The folder first loses the study's files (``OUTPUTS``) of an earlier run, so that what is
+    in it came from this run. The result's ``run`` says which run it was (command, UTC date,
+    seed, budget, each identifier's file or shipped name with its SHA-256, and ``files``: every
+    file written); ``train_epochs`` the epochs each identifier trained; ``warnings`` what fell
+    short (``training.UndertrainedWarning``: a budget that fit fewer than ``MIN_EPOCHS``
+    epochs, a held-out loss above ``TARGET_LOSS``).
+    """
+    from .identify import load_pretrained
+    from .training import UndertrainedWarning
+
+    folder = Path(out) / ("pretrained" if pretrained else "trained")
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in OUTPUTS:
+        (folder / name).unlink(missing_ok=True)
+    written: list[Path] = []
+    idents, train_seconds, train_epochs, identifiers, notes = {}, {}, {}, {}, []
     for subsystem in ("stable", "unstable"):
+        name = f"leg-{subsystem}"
         if pretrained:
-            idents[subsystem] = load_pretrained(f"leg-{subsystem}")
-            train_seconds[subsystem] = 0.0
-        else:
-            t0 = time.perf_counter()
-            idents[subsystem] = train_leg(subsystem, seconds=seconds / 2, seed=seed,
-                                          progress=progress, command=command, epochs=epochs)
-            train_seconds[subsystem] = time.perf_counter() - t0
-            if save:
-                idents[subsystem].save(out / f"leg-{subsystem}.aeid")
+            idents[subsystem] = load_pretrained(name)
+            train_seconds[subsystem], train_epochs[subsystem] = 0.0, 0
+            identifiers[subsystem] = {"shipped": name, "sha256": _shipped_sha256(name)}
+            continue
+        t0 = time.perf_counter()
+        budget = {} if epochs else {"min_epochs": MIN_EPOCHS[subsystem],
+                                    "target_loss": TARGET_LOSS[subsystem]}
+        with warnings.catch_warnings():
+            # the study reports them itself (result "warnings"; the command prints them)
+            warnings.simplefilter("ignore", UndertrainedWarning)
+            ident = train_leg(subsystem, seconds=seconds / 2, seed=seed, progress=progress,
+                              command=command, epochs=epochs, **budget)
+        idents[subsystem] = ident
+        train_seconds[subsystem] = time.perf_counter() - t0
+        train_epochs[subsystem] = ident.meta["train"]["epochs"]
+        notes += [f"{name}: {note}" for note in ident.meta["train"]["warnings"]]
+        identifiers[subsystem] = {"trained": name, "epochs": train_epochs[subsystem],
+                                  "best_holdout_loss": ident.meta["train"]["best_holdout_loss"],
+                                  "file": None, "sha256": None}
+        if save:
+            path = ident.save(folder / f"{name}.aeid")
+            written.append(Path(path))
+            identifiers[subsystem].update(file=str(path), sha256=_sha256(path))
+    for note in notes:
+        warnings.warn(note, UndertrainedWarning, stacklevel=2)
     evals = [evaluate(idents[s], s, count=validation) for s in ("stable", "unstable")]
-    done = " / ".join(str(len(idents[s].meta.get("history", {}).get("holdout_loss", [])))
-                      for s in ("stable", "unstable"))
+    done = " / ".join(str(train_epochs[s]) for s in ("stable", "unstable"))
     budget = (f"{epochs} epochs each" if epochs is not None
               else f"{seconds / 2:g} s budget each ({done} epochs)")
-    figure3(idents, out / "fig3_leg_scenario.png",
+    sources = {s: (f"shipped {identifiers[s]['shipped']}" if pretrained else
+                   f"trained {train_epochs[s]} epochs") for s in idents}
+    figure3(idents, folder / "fig3_leg_scenario.png",
             source="shipped identifiers leg-stable, leg-unstable" if pretrained else
-            f"identifiers trained in this run: {budget}, seed {seed}")
+            f"identifiers trained in this run: {budget}, seed {seed}", sources=sources)
+    written.append(folder / "fig3_leg_scenario.png")
     result = {
         "records": {k: {"dt": v[0], "steps": v[1]} for k, v in RECORDS.items()},
         "frequency_grid_rad_s": [float(FREQUENCIES[0]), float(FREQUENCIES[-1]),
                                  len(FREQUENCIES)],
         "pretrained": pretrained,
         "train_seconds": train_seconds,
+        "train_epochs": train_epochs,
+        "warnings": notes,
         "table": {ev.subsystem: {"scenario": ev.scenario, "overall": ev.overall,
                                  "latency_ms": ev.latency_ms,
                                  "throughput_per_s": ev.throughput} for ev in evals},
@@ -281,9 +373,24 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
     }
     if fig4_sizes:
         errors = figure4(fig4_sizes, seconds_each=fig4_seconds, seed=seed,
-                         path=out / "fig4_error_vs_size.png", progress=progress,
+                         path=folder / "fig4_error_vs_size.png", progress=progress,
                          validation=min(validation, 200))
+        written.append(folder / "fig4_error_vs_size.png")
         result["fig4"] = {"sizes": list(fig4_sizes),
                           "step_error": {k: v.tolist() for k, v in errors.items()}}
-    (out / "leg_study.json").write_text(json.dumps(result, indent=2))
+    json_path = folder / "leg_study.json"
+    written.append(json_path)
+    result["run"] = {
+        "command": command,
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "folder": str(folder),
+        "seed": seed,
+        "budget": (None if pretrained else
+                   {"epochs": epochs} if epochs else
+                   {"seconds": seconds, "min_epochs": MIN_EPOCHS,
+                    "target_loss": TARGET_LOSS}),
+        "identifiers": identifiers,
+        "files": [str(p) for p in written],
+    }
+    json_path.write_text(json.dumps(result, indent=2))
     return result

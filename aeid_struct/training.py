@@ -30,9 +30,20 @@ Choices the paper leaves open, and ours:
   (``decoder.initial_state``; the free response is linear in ``x0``) and the loss compares the
   record with the response from that state. The encoder still outputs only the structure's
   parameters: ``x0`` is profiled out, exactly for noise-free windows.
-- Checkpoints: every epoch (atomically, ``torch.save`` of tensors and numbers only, loaded with
-  ``weights_only=True``); a killed run started again with the same checkpoint path resumes at
-  the epoch after the last checkpoint, with the same optimizer state and shuffling.
+- Checkpoints: every epoch, atomically (written to ``<path>.tmp``, flushed to disk with
+  ``fsync``, then renamed over the previous one; a ``.tmp`` left by a kill mid-write is removed
+  at the next start). A checkpoint holds tensors and numbers only and is read with
+  ``weights_only=True``, so a file that asks for code is refused, never run; a file that is
+  truncated, not a checkpoint, or written for another setup is refused with its path and how to
+  start over. A killed run started again with the same checkpoint path resumes at the epoch
+  after the last checkpoint and ends bit-identical to an uninterrupted run: every random
+  stream is in the checkpoint (torch's global generator, the shuffling and training-noise
+  generator, the held-out noise generator) or derived from ``(seed, epoch)`` (the fresh
+  records of ``TrainConfig.fresh``).
+- Budget: ``epochs``, or a wall time ``seconds`` that cannot end the run before ``min_epochs``
+  (on a busy machine an epoch can take 10-30 times longer, and a time budget alone then trains
+  an identifier that is silently far worse). A run that the time budget would have cut short,
+  or that ends above its ``target_loss``, warns (``UndertrainedWarning``) with the numbers.
 """
 
 from __future__ import annotations
@@ -40,8 +51,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import pickle
 import sys
 import time
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,6 +76,13 @@ from .identify import FLAG_FALSE_RATE, INITIAL_STATES, Identifier, _excess
 from .structures import Physical, Structure
 
 
+class UndertrainedWarning(UserWarning):
+    """A training run ended worse than its settings promise: its wall-time budget fit fewer
+    than ``min_epochs`` epochs (the run trained on past the budget), or its best held-out loss
+    stayed above ``target_loss``. The message gives the epochs, the budget, the time per epoch
+    and the losses."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class TrainConfig:
     """How to train; validates itself.
@@ -71,7 +92,13 @@ class TrainConfig:
             a several-record structure.
         count: simulated records (paper: 10^4), ``holdout`` of them held out (paper: 20 %).
         epochs: at most this many epochs; ``seconds``: at most this much wall time (None = no
-            limit).
+            limit), which cannot end the run before ``min_epochs`` epochs.
+        min_epochs: the fewest epochs a wall-time budget may give (default 1). Why: the time
+            an epoch takes depends on the machine's load, and a busy machine fit 14 epochs
+            where a quiet one fit 171, a 14x worse identifier; with a floor the run trains on
+            past ``seconds`` (the learning-rate schedule stretches to the floor) and warns.
+        target_loss: the best held-out loss (Eq. 14) the run is expected to reach; a run that
+            ends above it warns (``UndertrainedWarning``). None: no expectation.
         batch: records per gradient step; lr: peak learning rate; clip: gradient-norm limit.
         gamma: weight of the stationary-value term of Eq. 14; None (default): 1 for step
             records (the paper), 0 for other excitations. Why: the term compares DC gains in
@@ -104,7 +131,7 @@ class TrainConfig:
             shipped identifier uses it.
         checkpoint: file to checkpoint to and resume from (None = no checkpoints).
         progress: print a progress line (to stderr).
-        threads: torch threads (None = leave torch's setting).
+        threads: torch threads for the run, restored after it (None = torch's setting).
     """
 
     dt: float | tuple[float, ...]
@@ -113,6 +140,8 @@ class TrainConfig:
     holdout: float = 0.2
     epochs: int = 200
     seconds: float | None = None
+    min_epochs: int = 1
+    target_loss: float | None = None
     batch: int = 256
     lr: float = 3e-3
     clip: float = 1.0
@@ -156,6 +185,18 @@ class TrainConfig:
             raise ValueError(f"count={self.count} is too small to hold out {self.holdout:.0%}")
         if self.seconds is not None and not self.seconds > 0:
             raise ValueError(f"seconds must be positive or None; got {self.seconds!r}")
+        if (not isinstance(self.min_epochs, int) or isinstance(self.min_epochs, bool)
+                or not 1 <= self.min_epochs <= self.epochs):
+            raise ValueError(f"min_epochs must be an integer in [1, epochs={self.epochs}]; "
+                             f"got {self.min_epochs!r}")
+        if self.threads is not None and (not isinstance(self.threads, int)
+                                         or isinstance(self.threads, bool) or self.threads < 1):
+            raise ValueError(f"threads must be a positive integer or None; got {self.threads!r}")
+        if self.target_loss is not None and not (
+                isinstance(self.target_loss, (int, float)) and math.isfinite(self.target_loss)
+                and self.target_loss > 0):
+            raise ValueError(f"target_loss must be a positive finite held-out loss or None; "
+                             f"got {self.target_loss!r}")
         for name in ("lr", "clip"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive; got {getattr(self, name)!r}")
@@ -279,18 +320,81 @@ def _raw_statistics(structure: Structure, systems, gain: np.ndarray | None):
     return centre, scale
 
 
-def _progress(epoch: int, epochs: int, train: float, held: float, lr: float, elapsed: float,
-              end: str) -> None:
-    sys.stderr.write(
-        f"\repoch {epoch:4d}/{epochs} | loss {train:.3e} | held-out {held:.3e} | "
-        f"lr {lr:.1e} | {elapsed:6.1f} s{end}"
-    )
-    sys.stderr.flush()
+def _duration(seconds: float) -> str:
+    """``"42 s"``, ``"3 min 05 s"`` or ``"1 h 02 min"``."""
+    seconds = max(0.0, seconds)
+    if seconds < 10:
+        return f"{seconds:.2g} s"
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s"
+    return f"{int(seconds // 3600)} h {int(seconds % 3600 // 60):02d} min"
+
+
+def _eta(epoch: int, elapsed: float, config: TrainConfig) -> float:
+    """Seconds left after ``epoch`` epochs in ``elapsed`` s, at the mean time per epoch so far:
+    the epoch budget, or the time budget (but not before ``min_epochs``), whichever ends first
+    (the loop's stopping rule)."""
+    per = elapsed / max(epoch, 1)
+    left = (config.epochs - epoch) * per
+    if config.seconds is not None:
+        left = min(left, max(config.seconds - elapsed, (config.min_epochs - epoch) * per, 0.0))
+    return left
+
+
+def _progress_line(epoch: int, config: TrainConfig, train: float, held: float, lr: float,
+                   elapsed: float, label: str = "") -> str:
+    """The progress line after ``epoch`` epochs: the budget that applies (epochs, or the wall
+    time with its epoch floor), the losses, and the time to the end."""
+    if config.seconds is None:
+        budget = f"epoch {epoch:4d}/{config.epochs}"
+        clock = f"{_duration(elapsed)}"
+    else:
+        floor = f" (at least {config.min_epochs})" if config.min_epochs > 1 else ""
+        budget = f"epoch {epoch:4d}{floor}"
+        clock = f"{_duration(elapsed)} of {_duration(config.seconds)} budget"
+    prefix = f"{label}: " if label else ""
+    return (f"{prefix}{budget} | loss {train:.3e} | held-out {held:.3e} | lr {lr:.1e} | "
+            f"{clock} | ETA {_duration(_eta(epoch, elapsed, config))}")
+
+
+def _undertrained(config: TrainConfig, history: dict, best: float) -> list[str]:
+    """What the run fell short of (``UndertrainedWarning`` messages; empty when nothing):
+    the epochs its wall-time budget fit against ``min_epochs``, and the best held-out loss
+    against ``target_loss``. ``history``: the run's per-epoch history (``seconds``)."""
+    seconds = history["seconds"]
+    epochs = len(seconds)
+    if not epochs:
+        return []
+    per = seconds[-1] / epochs
+    notes = []
+    if config.seconds is not None:
+        # epoch i starts when epoch i - 1 ends; the budget alone runs every epoch that starts
+        # before it is spent
+        fit = 1 + sum(1 for t in seconds[:-1] if t < config.seconds)
+        if fit < config.min_epochs:
+            notes.append(
+                f"the {_duration(config.seconds)} training budget fit only {fit} "
+                f"epoch{'s' if fit > 1 else ''} "
+                f"({per:.1f} s each; a busy machine?); the run trained on to min_epochs="
+                f"{config.min_epochs}, {_duration(seconds[-1])} in all")
+    if config.target_loss is not None and not best <= config.target_loss:
+        budget = (f"the {_duration(config.seconds)} budget" if config.seconds is not None
+                  and epochs < config.epochs else f"an epoch budget of {config.epochs}")
+        notes.append(
+            f"best held-out loss {best:.3e} after {epochs} epoch{'s' if epochs > 1 else ''} "
+            f"({budget}, {per:.1f} s per epoch) is above the expected "
+            f"{config.target_loss:.3e}: the identifier is "
+            f"under-trained; train for more epochs (an epoch budget is reproducible on a busy "
+            f"machine)")
+    return notes
 
 
 def train(structure: Structure, family, config: TrainConfig, *,
           encoder: EncoderConfig | None = None, inverse=None,
-          meta: dict | None = None) -> Identifier:
+          meta: dict | None = None,
+          on_epoch: Callable[[int, dict], None] | None = None) -> Identifier:
     """Train an identifier for ``structure`` on records simulated from ``family``.
 
     Args:
@@ -300,13 +404,27 @@ def train(structure: Structure, family, config: TrainConfig, *,
         encoder: the network's shape; ``steps``, ``outputs``, ``inputs`` and ``features`` are
             set from the structure and ``config`` (paper widths by default).
         inverse: optional casadi.Function CCF -> physical parameters, stored in the identifier.
-        meta: provenance stored with the identifier.
+        meta: provenance stored with the identifier; its ``name``, if any, labels the
+            progress line.
+        on_epoch: called after each epoch, once its checkpoint is on disk, with the number of
+            epochs done and the history so far (read it, do not change it): for logging, or to
+            stop a run (an exception propagates; the run resumes from the checkpoint).
+
+    Warns:
+        UndertrainedWarning: the wall-time budget fit fewer than ``config.min_epochs`` epochs,
+            or the best held-out loss is above ``config.target_loss`` (the messages are also
+            in ``ident.meta["train"]["warnings"]``).
 
     Returns:
         The trained ``Identifier`` (weights with the lowest held-out loss); its per-epoch
         history (``train_loss``, ``holdout_loss``, ``lr``, ``seconds``, ``grad_norm_median``,
         ``grad_norm_max`` (before clipping), ``skipped`` (non-finite batches)) is in
         ``ident.meta["history"]`` and the run's settings in ``ident.meta["train"]``.
+
+    Raises:
+        ValueError: ``config.checkpoint`` names a file that cannot be resumed (unreadable,
+            truncated, not a checkpoint, or written for another structure, family settings or
+            encoder); the message names the path and how to start over.
     """
     if not isinstance(structure, Structure):
         raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
@@ -317,8 +435,20 @@ def train(structure: Structure, family, config: TrainConfig, *,
             f"{structure!r} describes {R} record(s) per parameter set; config.dt and "
             f"config.steps give {len(config.grids)} and the family "
             f"{getattr(family, 'records', 1)}: they must agree")
-    if config.threads is not None:
-        torch.set_num_threads(config.threads)
+    if config.threads is None:
+        return _train(structure, family, config, encoder, inverse, meta, on_epoch)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(config.threads)
+    try:
+        return _train(structure, family, config, encoder, inverse, meta, on_epoch)
+    finally:
+        torch.set_num_threads(threads)     # the setting is the run's, not the process's
+
+
+def _train(structure: Structure, family, config: TrainConfig, encoder, inverse, meta,
+           on_epoch) -> Identifier:
+    """``train()`` after its checks, on the run's torch threads."""
+    R = structure.records
     torch.manual_seed(config.seed)
     rec = records(family, config.count, steps=config.steps, dt=config.dt,
                   excitation_kind=config.excitation, seed=config.seed, warmup=config.warmup)
@@ -377,21 +507,27 @@ def train(structure: Structure, family, config: TrainConfig, *,
 
     params = list(ident.encoder.parameters())
     opt = torch.optim.Adam(params, lr=config.lr)
+    # Every random stream of the run, all checkpointed: the shuffling and training noise, the
+    # held-out noise (fresh each epoch), and torch's global generator (nothing draws from it
+    # after the weights are initialised today; kept so that nothing can break resumption).
     generator = torch.Generator().manual_seed(config.seed + 2)
+    held_noise_gen = torch.Generator().manual_seed(config.seed + 3)
+    generators = {"generator": generator, "held_generator": held_noise_gen}
     state = {"epoch": 0, "elapsed": 0.0, "best": math.inf, "best_state": None,
              "history": {"train_loss": [], "holdout_loss": [], "lr": [], "seconds": [],
                          "grad_norm_median": [], "grad_norm_max": [], "skipped": []}}
     ckpt = Path(config.checkpoint) if config.checkpoint else None
     fingerprint = _fingerprint(structure, config, enc_config)
-    if ckpt is not None and ckpt.exists():
-        state = _resume(ckpt, fingerprint, ident, opt, generator)
+    if ckpt is not None:
+        _remove_leftover(ckpt)
+        if ckpt.exists():
+            state = _resume(ckpt, fingerprint, ident, opt, generators)
 
     def noisy(idx: torch.Tensor):
         return batch(idx, [_add_noise(y[idx], scale_all[idx, r], noise_lo, noise_hi, generator)
                            for r, y in enumerate(y_all)])
 
     held_t = torch.as_tensor(held_idx)
-    held_noise_gen = torch.Generator().manual_seed(config.seed + 3)
 
     def holdout_loss() -> float:
         ident.encoder.eval()
@@ -415,9 +551,11 @@ def train(structure: Structure, family, config: TrainConfig, *,
     start = time.perf_counter() - state["elapsed"]
     ident.encoder.train()
     epoch = state["epoch"]
+    label = str((meta or {}).get("name", ""))
     while epoch < config.epochs:
         elapsed = time.perf_counter() - start
-        if config.seconds is not None and elapsed >= config.seconds:
+        if (config.seconds is not None and elapsed >= config.seconds
+                and epoch >= config.min_epochs):
             break
         if config.fresh and epoch > 0:
             new = _redraw(family, config, epoch, train_idx, u_all, y_all, yinf_all, scale_all)
@@ -429,9 +567,14 @@ def train(structure: Structure, family, config: TrainConfig, *,
         perm = train_t[torch.randperm(len(train_t), generator=generator)]
         running, skipped, norms = 0.0, 0, []
         for j in range(steps_per_epoch):
-            progress = max((epoch + j / steps_per_epoch) / config.epochs,
-                           (time.perf_counter() - start) / config.seconds
-                           if config.seconds else 0.0)
+            # the fraction of the budget spent: of the epochs, or of the wall time -- but a
+            # run the floor keeps going is only as far as its epochs towards min_epochs, so
+            # the schedule stretches to the floor instead of idling at its end
+            done = epoch + j / steps_per_epoch
+            progress = done / config.epochs
+            if config.seconds is not None:
+                progress = max(progress, min((time.perf_counter() - start) / config.seconds,
+                                             done / config.min_epochs))
             lr = _learning_rate(config.lr, min(progress, 1.0))
             for group in opt.param_groups:
                 group["lr"] = lr
@@ -469,12 +612,19 @@ def train(structure: Structure, family, config: TrainConfig, *,
                                    for k, v in ident.encoder.state_dict().items()}
         state["epoch"], state["elapsed"] = epoch, elapsed
         if ckpt is not None:
-            _save_checkpoint(ckpt, fingerprint, ident, opt, generator, state)
+            _save_checkpoint(ckpt, fingerprint, ident, opt, generators, state)
         if config.progress:
-            _progress(epoch, config.epochs, hist["train_loss"][-1], held, lr, elapsed,
-                      "" if tty and epoch < config.epochs else "\n")
+            sys.stderr.write(("\r" if tty else "") + _progress_line(
+                epoch, config, hist["train_loss"][-1], held, lr, elapsed, label)
+                + ("\033[K" if tty else "\n"))
+            sys.stderr.flush()
+        if on_epoch is not None:
+            on_epoch(epoch, hist)
     if config.progress and tty:
         sys.stderr.write("\n")
+    notes = _undertrained(config, state["history"], state["best"])
+    for note in notes:
+        warnings.warn(f"{label or 'training'}: {note}", UndertrainedWarning, stacklevel=3)
     if state["best_state"] is not None:
         ident.encoder.load_state_dict(state["best_state"])
     ident.encoder.eval()
@@ -482,7 +632,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
     ident.meta["train"] = {
         "epochs": state["epoch"], "seconds": round(state["elapsed"], 2),
         "best_holdout_loss": state["best"], "config": _config_dict(config),
-        "encoder": enc_config.to_dict(),
+        "encoder": enc_config.to_dict(), "warnings": notes,
     }
     if R == 1:
         ident.meta["training_range"] = _training_range(ident, rec, held_idx, noise_hi,
@@ -597,41 +747,192 @@ def _fingerprint(structure, config: TrainConfig, enc: EncoderConfig) -> str:
     import json
 
     d = _config_dict(config)
-    for key in ("epochs", "seconds", "progress", "checkpoint", "threads"):
+    for key in ("epochs", "seconds", "min_epochs", "target_loss", "progress", "checkpoint",
+                "threads"):
         d.pop(key)
     return json.dumps({"structure": structure.config(), "config": d,
                        "encoder": enc.to_dict()}, sort_keys=True)
 
 
-def _save_checkpoint(path: Path, fingerprint: str, ident, opt, generator, state) -> None:
+def _tmp_path(path: Path) -> Path:
+    """Where a checkpoint is written before the atomic rename."""
+    return path.with_name(path.name + ".tmp")
+
+
+def _remove_leftover(path: Path) -> None:
+    """Remove the ``.tmp`` file a kill between write and rename leaves: never a checkpoint
+    (the rename did not happen), so nothing is lost."""
+    tmp = _tmp_path(path)
+    if tmp.is_file():
+        tmp.unlink()
+
+
+def _save_checkpoint(path: Path, fingerprint: str, ident, opt, generators: dict,
+                     state) -> None:
+    """Write the run's state atomically: to ``<path>.tmp``, flushed to the disk (``fsync``),
+    then renamed over ``path``, so that a kill or a power loss at any point leaves the previous
+    checkpoint or this one, never a torn file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "fingerprint": fingerprint,
         "encoder": ident.encoder.state_dict(),
         "optimizer": opt.state_dict(),
-        "generator": generator.get_state(),
+        **{name: g.get_state() for name, g in generators.items()},
+        "torch_rng": torch.get_rng_state(),
         "epoch": state["epoch"],
         "elapsed": state["elapsed"],
         "best": state["best"],
         "best_state": state["best_state"],
         "history": state["history"],
     }
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)   # atomic: a kill mid-write leaves the previous checkpoint intact
+    tmp = _tmp_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())     # the bytes reach the disk before the name points at them
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_directory(path.parent)    # and the rename itself
 
 
-def _resume(path: Path, fingerprint: str, ident, opt, generator) -> dict:
-    payload = torch.load(path, weights_only=True)   # tensors and numbers only, never code
-    if payload.get("fingerprint") != fingerprint:
-        raise ValueError(
-            f"checkpoint {str(path)!r} was written for a different structure, family settings "
-            "or encoder; delete it or choose another checkpoint path"
-        )
+def _fsync_directory(folder: Path) -> None:
+    """Flush a directory entry (a rename) to the disk where the platform allows it (POSIX; a
+    directory cannot be opened on Windows, where ``os.replace`` is durable by itself)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+#: The checkpoint's entries: written by every version (``_REQUIRED``), and since resumption is
+#: bit-identical (older checkpoints without them resume with fresh held-out noise).
+_REQUIRED = ("fingerprint", "encoder", "optimizer", "generator", "epoch", "elapsed", "best",
+             "best_state", "history")
+_RANDOM_STATES = ("held_generator", "torch_rng")
+_HISTORY = ("train_loss", "holdout_loss", "lr", "seconds", "grad_norm_median", "grad_norm_max",
+            "skipped")
+
+
+def _unusable(payload, fingerprint: str, encoder_state: dict, opt) -> str | None:
+    """Why ``payload`` (what ``torch.load`` returned) cannot be resumed by this run, or None.
+
+    Checked before anything is loaded, so that a wrong file changes nothing: the entries and
+    their types, the fingerprint (structure, family settings, encoder), every weight's name and
+    shape (the encoder's, the best epoch's, the optimizer's moments), the generator states and
+    the history's length.
+    """
+    if not isinstance(payload, dict):
+        return f"it holds a {type(payload).__name__}, not a training checkpoint"
+    missing = [k for k in _REQUIRED if k not in payload]
+    if missing:
+        return f"it is not a training checkpoint (no {', '.join(missing)})"
+    if payload["fingerprint"] != fingerprint:
+        return "it was written for a different structure, family settings or encoder"
+
+    def weights(name: str, tensors) -> str | None:
+        if not isinstance(tensors, dict) or set(tensors) != set(encoder_state):
+            return f"its {name} are not this encoder's weights"
+        for key, ref in encoder_state.items():
+            value = tensors[key]
+            if not isinstance(value, torch.Tensor):
+                return f"its {name} {key!r} are a {type(value).__name__}, not a tensor"
+            if value.shape != ref.shape:
+                return (f"its {name} {key!r} have shape {tuple(value.shape)}, expected "
+                        f"{tuple(ref.shape)}")
+        return None
+
+    reason = weights("weights", payload["encoder"])
+    if reason is None and payload["best_state"] is not None:
+        reason = weights("best weights", payload["best_state"])
+    if reason:
+        return reason
+    epoch = payload["epoch"]
+    if not isinstance(epoch, int) or isinstance(epoch, bool) or epoch < 0:
+        return f"its epoch is {epoch!r}, not a count"
+    for key in ("elapsed", "best"):
+        if not isinstance(payload[key], (int, float)) or math.isnan(payload[key]):
+            return f"its {key} is {payload[key]!r}, not a number"
+    history = payload["history"]
+    if not isinstance(history, dict) or any(
+            not isinstance(history.get(k), list) or len(history[k]) != epoch
+            for k in _HISTORY[:4]):
+        return f"its history does not hold {epoch} epochs of {', '.join(_HISTORY[:4])}"
+    reference = torch.Generator().get_state()
+    for key in ("generator", *_RANDOM_STATES):
+        g = payload.get(key, reference)
+        expected = torch.get_rng_state() if key == "torch_rng" else reference
+        if not (isinstance(g, torch.Tensor) and g.dtype == expected.dtype
+                and g.shape == expected.shape):
+            return f"its {key} is not a random generator's state"
+    state = payload["optimizer"]
+    params = [p for group in opt.param_groups for p in group["params"]]
+    if not (isinstance(state, dict) and isinstance(state.get("state"), dict)
+            and isinstance(state.get("param_groups"), list)):
+        return "its optimizer state is not Adam's"
+    for i, moments in state["state"].items():
+        if not (isinstance(i, int) and 0 <= i < len(params) and isinstance(moments, dict)):
+            return "its optimizer state is for other parameters"
+        for name, value in moments.items():
+            if (not isinstance(value, torch.Tensor)
+                    or (value.dim() > 0 and value.shape != params[i].shape)):
+                return f"its optimizer's {name} of parameter {i} does not match the weights"
+    return None
+
+
+def _unreadable(err: Exception) -> str:
+    """Why ``torch.load(..., weights_only=True)`` could not read a checkpoint, in our words
+    (torch's own message for a refused pickle suggests ``weights_only=False``: never here)."""
+    if isinstance(err, pickle.UnpicklingError):
+        return ("it is not a file of tensors and numbers only (refused unread: loading it could "
+                "run code)")
+    if isinstance(err, EOFError):
+        return "it is empty or truncated"
+    if isinstance(err, OSError):
+        return f"it cannot be opened ({err.strerror or err})"
+    if isinstance(err, RuntimeError) and "zip archive" in str(err):
+        return "it is truncated or not a torch file"
+    first = (str(err).strip().splitlines() or [""])[0][:120]
+    return f"it cannot be read as a training checkpoint ({type(err).__name__}: {first})"
+
+
+def _resume(path: Path, fingerprint: str, ident, opt, generators: dict) -> dict:
+    """Load a checkpoint into the run (encoder, optimizer, generators) and return its state.
+
+    Raises ``ValueError`` naming ``path`` and how to start over for any file that is not a
+    checkpoint of this run; nothing is changed then. ``weights_only=True``: the file is read as
+    tensors and numbers only, a pickle that asks for anything else (code) is refused unrun.
+    """
+    def refused(reason: str) -> ValueError:
+        return ValueError(f"checkpoint {str(path)!r} cannot be resumed: {reason}; delete it or "
+                          "choose another checkpoint path to start over")
+
+    try:
+        payload = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception as err:    # truncated, not a torch file, a directory, a pickle of code
+        raise refused(_unreadable(err)) from None
+    reason = _unusable(payload, fingerprint, ident.encoder.state_dict(), opt)
+    if reason is not None:
+        raise refused(reason)
+    try:
+        opt.load_state_dict(payload["optimizer"])
+    except (ValueError, KeyError, TypeError, RuntimeError) as err:
+        raise refused(f"its optimizer state cannot be loaded ({err})") from None
     ident.encoder.load_state_dict(payload["encoder"])
-    opt.load_state_dict(payload["optimizer"])
-    generator.set_state(payload["generator"])
+    for name, g in generators.items():
+        if name in payload:
+            g.set_state(payload[name])
+    if "torch_rng" in payload:
+        torch.set_rng_state(payload["torch_rng"])
     state = {k: payload[k] for k in ("epoch", "elapsed", "best", "best_state", "history")}
-    for key in ("grad_norm_median", "grad_norm_max", "skipped"):   # older checkpoints
+    for key in _HISTORY[4:]:   # older checkpoints
         state["history"].setdefault(key, [math.nan] * state["epoch"])
     return state

@@ -31,13 +31,13 @@ def test_leg_pretrained_study(tmp_path, capsys):
     assert main(["leg", "--pretrained", "--validation", "100", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "Table I" in out and "| Step error |" in out
-    result = json.loads((tmp_path / "leg_study.json").read_text())
+    result = json.loads((tmp_path / "pretrained" / "leg_study.json").read_text())
     for sub in ("stable", "unstable"):
         overall = result["table"][sub]["overall"]
         # the shipped identifiers beat the paper's overall step error by far
         assert overall["step"] < 5e-3
         assert result["table"][sub]["latency_ms"] > 0
-    assert (tmp_path / "fig3_leg_scenario.png").stat().st_size > 10_000
+    assert (tmp_path / "pretrained" / "fig3_leg_scenario.png").stat().st_size > 10_000
 
 
 def test_train_then_identify_from_csv(tmp_path, capsys):
@@ -81,11 +81,11 @@ def test_bad_arguments_exit_with_message(argv, match):
 def test_leg_fig4_small(tmp_path, capsys):
     assert main(["leg", "--pretrained", "--validation", "20", "--fig4", "--fig4-sizes", "40",
                  "80", "--fig4-seconds", "2", "--quiet", "--out", str(tmp_path)]) == 0
-    result = json.loads((tmp_path / "leg_study.json").read_text())
+    result = json.loads((tmp_path / "pretrained" / "leg_study.json").read_text())
     assert result["fig4"]["sizes"] == [40, 80]
     assert all(len(v) == 2 and all(e > 0 for e in v)
                for v in result["fig4"]["step_error"].values())
-    assert (tmp_path / "fig4_error_vs_size.png").stat().st_size > 10_000
+    assert (tmp_path / "pretrained" / "fig4_error_vs_size.png").stat().st_size > 10_000
 
 
 @pytest.mark.slow

@@ -10,7 +10,6 @@ constraints.
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import casadi
 import numpy as np
@@ -309,24 +308,23 @@ def test_the_solver_is_built_once_per_format():
     structure, x_true, y, u, dt = CASES["ccf-stable-leg"]
     refine_elements(structure, perturbed(x_true, 0.05, 5), y, u, dt)
     assert cache_info().builds == 1
-    start = time.perf_counter()
     res = refine_elements(ae.CCF(2, descartes=True), perturbed(x_true, 0.05, 6), 3.0 * y, u, dt)
-    assert time.perf_counter() - start < 0.05  # no build (a build takes ~0.2 s)
     assert res.success
-    assert (cache_info().builds, cache_info().hits) == (1, 1)
+    assert (cache_info().builds, cache_info().hits) == (1, 1)   # no build: the cached solver
     refine_elements(structure, perturbed(x_true, 0.05, 7), y[:200], None, dt)  # new format
     assert cache_info().builds == 2
 
 
-@pytest.mark.slow
-def test_refinement_time_on_the_stable_leg():
-    # regression guard for the module docstring's measurement (median ~1-2 ms on a busy
-    # shared 2-core machine); generous so that load does not make it flaky
+def test_refinement_from_one_percent_off_takes_three_iterations_on_the_stable_leg():
+    # what makes the warm solve cheap, counted rather than timed (the time is the benchmark's,
+    # `aeid-struct bench`): Gauss-Newton from a start 1 % off reaches the truth to 1e-12 in the
+    # (at most) 3 iterations the module docstring states, from every one of 30 starts
     structure, x_true, y, u, dt = CASES["ccf-stable-leg"]
-    refine_elements(structure, x_true * 1.01, y, u, dt)
-    seconds = [refine_elements(structure, perturbed(x_true, 0.01, i), y, u, dt).seconds
-               for i in range(30)]
-    assert np.median(seconds) < 0.01
+    free = x_true != 0
+    for i in range(30):
+        res = refine_elements(structure, perturbed(x_true, 0.01, i), y, u, dt)
+        assert res.success and res.iterations <= 3, (i, res.iterations)
+        np.testing.assert_allclose(res.elements[free], x_true[free], rtol=1e-12)
 
 
 # -- Estimates and the Identifier -----------------------------------------------------------------

@@ -1,10 +1,11 @@
 """Unsupervised training: the loss falls, checkpoints resume after a kill, configs validate."""
 
 import os
+import pickle
+import re
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -62,62 +63,231 @@ def test_noise_training_records_its_settings():
     assert len(hist["holdout_loss"]) == 2 and all(np.isfinite(hist["holdout_loss"]))
 
 
+# A run with every random stream in play: fresh records each epoch, training noise, held-out
+# noise. argv: epochs, checkpoint, output .aeid, and the epoch after whose checkpoint the
+# process kills itself (0: never) -- a real SIGKILL at a deterministic point of the run.
 _SCRIPT = """
-import sys
+import os, signal, sys
 sys.path.insert(0, {root!r})
 import aeid_struct as ae
 from aeid_struct.data import PoleFamily
 from aeid_struct.encoder import EncoderConfig
 from aeid_struct.training import TrainConfig, train
-import torch
 fam = PoleFamily(real=1, pairs=0, decay=(1.0, 4.0), gain=(0.5, 2.0))
 cfg = TrainConfig(dt=0.05, steps=40, count=400, epochs=int(sys.argv[1]), batch=50, lr=1e-2,
-                  seed=0, progress=False, checkpoint=sys.argv[2])
+                  seed=0, progress=False, checkpoint=sys.argv[2], noise=(0.0, 0.05),
+                  fresh=True, excitation="mix", gamma=0.0)
+kill = int(sys.argv[4])
+
+def on_epoch(epoch, history):
+    if epoch == kill:
+        os.kill(os.getpid(), signal.SIGKILL)
+
 ident = train(ae.CCF(1, descartes=True), fam, cfg,
-              encoder=EncoderConfig(width=4, kernel=3, dense=(16,)))
+              encoder=EncoderConfig(width=4, kernel=3, dense=(16,)), on_epoch=on_epoch)
 ident.save(sys.argv[3])
 """
 
+#: What must be equal in a resumed run's history (the wall-clock ``seconds`` cannot be).
+_REPRODUCIBLE = ("train_loss", "holdout_loss", "lr", "grad_norm_median", "grad_norm_max",
+                 "skipped")
+
+
+def _assert_same_run(a, b):
+    """Bit-identical weights, the same best epoch and the same history."""
+    for (ka, va), (kb, vb) in zip(a.encoder.state_dict().items(),
+                                  b.encoder.state_dict().items(), strict=True):
+        assert ka == kb and torch.equal(va, vb), ka
+    ha, hb = a.meta["history"], b.meta["history"]
+    for key in _REPRODUCIBLE:
+        np.testing.assert_array_equal(ha[key], hb[key], err_msg=key)
+    assert int(np.argmin(ha["holdout_loss"])) == int(np.argmin(hb["holdout_loss"]))
+    assert a.meta["train"]["best_holdout_loss"] == b.meta["train"]["best_holdout_loss"]
+
 
 @pytest.mark.slow
-def test_killed_run_resumes_from_checkpoint(tmp_path):
+def test_killed_run_resumes_bit_identical(tmp_path):
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     script = tmp_path / "run.py"
     script.write_text(_SCRIPT.format(root=root))
     ckpt = tmp_path / "ckpt.pt"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    epochs = "40"
-    proc = subprocess.Popen([sys.executable, str(script), epochs, str(ckpt),
-                             str(tmp_path / "a.aeid")], env=env)
-    deadline = time.time() + 120
-    while not ckpt.exists() and time.time() < deadline:
-        time.sleep(0.05)
-    time.sleep(0.3)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert ckpt.exists(), "no checkpoint was written"
-    done = torch.load(ckpt, weights_only=True)["epoch"]
-    assert 1 <= done < int(epochs), f"the run was not killed mid-training (epoch {done})"
-    # Start again with the same checkpoint: it resumes and finishes.
-    subprocess.run([sys.executable, str(script), epochs, str(ckpt), str(tmp_path / "a.aeid")],
-                   env=env, check=True, timeout=300)
+    epochs, kill = "6", 3
+
+    def run(*args, **kw):
+        return subprocess.run([sys.executable, str(script), *map(str, args)], env=env,
+                              timeout=300, **kw)
+
+    killed = run(epochs, ckpt, tmp_path / "a.aeid", kill)
+    assert killed.returncode == -signal.SIGKILL
+    assert not (tmp_path / "a.aeid").exists()
+    assert torch.load(ckpt, weights_only=True)["epoch"] == kill    # killed right after it
+    run(epochs, ckpt, tmp_path / "a.aeid", 0, check=True)           # started again: resumes
     assert torch.load(ckpt, weights_only=True)["epoch"] == int(epochs)
-    # An uninterrupted run with the same seed gives the same weights: nothing was lost.
-    subprocess.run([sys.executable, str(script), epochs, str(tmp_path / "fresh.pt"),
-                    str(tmp_path / "b.aeid")], env=env, check=True, timeout=300)
+    run(epochs, tmp_path / "fresh.pt", tmp_path / "b.aeid", 0, check=True)   # uninterrupted
     a = ae.Identifier.load(tmp_path / "a.aeid")
     b = ae.Identifier.load(tmp_path / "b.aeid")
-    for (ka, va), (kb, vb) in zip(a.encoder.state_dict().items(),
-                                  b.encoder.state_dict().items(), strict=True):
-        assert ka == kb
-        torch.testing.assert_close(va, vb, rtol=1e-5, atol=1e-6)
+    assert len(a.meta["history"]["holdout_loss"]) == int(epochs)
+    _assert_same_run(a, b)
+
+
+class _Stop(Exception):
+    pass
+
+
+def _stop_after(k):
+    def on_epoch(epoch, history):
+        assert len(history["holdout_loss"]) == epoch
+        if epoch == k:
+            raise _Stop
+    return on_epoch
+
+
+@pytest.mark.parametrize("k", [1, 3])
+def test_interrupted_run_with_noise_and_fresh_records_resumes_bit_identical(tmp_path, k):
+    # in-process twin of the kill test: the interruption is an exception from on_epoch, raised
+    # once the epoch's checkpoint is on disk
+    config = _config(epochs=5, noise=(0.0, 0.05), fresh=True, excitation="mix", gamma=0.0)
+    whole = train(ae.CCF(1, descartes=True), FAMILY, config, encoder=SMALL)
+    ckpt = tmp_path / "ckpt.pt"
+    resumable = _config(epochs=5, noise=(0.0, 0.05), fresh=True, excitation="mix", gamma=0.0,
+                        checkpoint=str(ckpt))
+    with pytest.raises(_Stop):
+        train(ae.CCF(1, descartes=True), FAMILY, resumable, encoder=SMALL,
+              on_epoch=_stop_after(k))
+    assert torch.load(ckpt, weights_only=True)["epoch"] == k
+    resumed = train(ae.CCF(1, descartes=True), FAMILY, resumable, encoder=SMALL)
+    _assert_same_run(resumed, whole)
+
+
+def test_leftover_tmp_checkpoint_is_removed(tmp_path):
+    ckpt = tmp_path / "ckpt.pt"
+    leftover = tmp_path / "ckpt.pt.tmp"
+    leftover.write_bytes(b"half a checkpoint, the process was killed mid-write")
+    train(ae.CCF(1), FAMILY, _config(epochs=1, checkpoint=str(ckpt)), encoder=SMALL)
+    assert not leftover.exists()
+    assert torch.load(ckpt, weights_only=True)["epoch"] == 1
+    # and a leftover beside a good checkpoint goes too, the checkpoint resumes
+    leftover.write_bytes(b"\x00" * 10)
+    ident = train(ae.CCF(1), FAMILY, _config(epochs=2, checkpoint=str(ckpt)), encoder=SMALL)
+    assert not leftover.exists() and ident.meta["train"]["epochs"] == 2
+    assert len(ident.meta["history"]["holdout_loss"]) == 2
+
+
+def test_checkpoint_is_flushed_to_disk_before_the_rename(tmp_path, monkeypatch):
+    import stat
+
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        info = os.fstat(fd)
+        events.append(("fsync", "dir" if stat.S_ISDIR(info.st_mode) else info.st_size))
+        real_fsync(fd)
+
+    def replace(src, dst):
+        events.append(("replace", os.path.basename(src), os.path.basename(dst)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    ckpt = tmp_path / "ckpt.pt"
+    train(ae.CCF(1), FAMILY, _config(epochs=2, checkpoint=str(ckpt)), encoder=SMALL)
+    assert len(events) == 6
+    # per epoch: the whole file is flushed, then renamed over the checkpoint, then the
+    # directory entry is flushed
+    assert events[-3:] == [("fsync", ckpt.stat().st_size), ("replace", "ckpt.pt.tmp", "ckpt.pt"),
+                           ("fsync", "dir")]
+    assert [e[0] for e in events[:3]] == ["fsync", "replace", "fsync"]
 
 
 def test_checkpoint_of_another_setup_is_refused(tmp_path):
     ckpt = tmp_path / "ckpt.pt"
     train(ae.CCF(1), FAMILY, _config(epochs=1, checkpoint=str(ckpt)), encoder=SMALL)
-    with pytest.raises(ValueError, match="was written for a different structure"):
+    with pytest.raises(ValueError, match="was written for a different structure.*delete it or "
+                                         "choose another checkpoint path to start over"):
         train(ae.CCF(1), FAMILY, _config(epochs=2, seed=5, checkpoint=str(ckpt)), encoder=SMALL)
+
+
+class _RunsCode:
+    """A pickle payload that runs code when unpickled: it creates ``marker``."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def _good_checkpoint(path):
+    train(ae.CCF(1), FAMILY, _config(epochs=1, checkpoint=str(path)), encoder=SMALL)
+    return torch.load(path, weights_only=True)
+
+
+def _edit(key, value):
+    def write(path, marker):
+        payload = _good_checkpoint(path)
+        payload[key] = value(payload) if callable(value) else value
+        torch.save(payload, path)
+    return write
+
+
+def _weights_of_wrong_shape(payload):
+    name = next(iter(payload["encoder"]))
+    return {**payload["encoder"], name: torch.zeros(3, 3, 3, 3)}
+
+
+_BAD_CHECKPOINTS = {
+    "truncated": (lambda path, marker: path.write_bytes(
+        (_good_checkpoint(path), path.read_bytes())[1][:700]),
+        "it is truncated or not a torch file"),
+    "random bytes": (lambda path, marker: path.write_bytes(
+        np.random.default_rng(0).bytes(5000)), "it is not a file of tensors and numbers only"),
+    "empty": (lambda path, marker: path.write_bytes(b""), "it is empty or truncated"),
+    "a directory": (lambda path, marker: path.mkdir(), r"it cannot be opened \(Is a directory"),
+    "pickle that runs code, torch.save": (
+        lambda path, marker: torch.save({"fingerprint": _RunsCode(marker)}, path),
+        r"it is not a file of tensors and numbers only \(refused unread: loading it could "
+        r"run code\)"),
+    "pickle that runs code, plain pickle": (
+        lambda path, marker: path.write_bytes(pickle.dumps(_RunsCode(marker), protocol=2)),
+        r"it is not a file of tensors and numbers only \(refused unread: loading it could "
+        r"run code\)"),
+    "a tensor": (lambda path, marker: torch.save(torch.zeros(3), path),
+                 "it holds a Tensor, not a training checkpoint"),
+    "a dict with other keys": (lambda path, marker: torch.save({"model": torch.zeros(3)}, path),
+                               r"it is not a training checkpoint \(no fingerprint, encoder"),
+    "weights of the wrong shape": (
+        _edit("encoder", _weights_of_wrong_shape),
+        r"its weights 'main.0.weight' have shape \(3, 3, 3, 3\), expected \(4, 1, 3\)"),
+    "best weights of the wrong shape": (_edit("best_state", _weights_of_wrong_shape),
+                                        "its best weights"),
+    "weights of another network": (_edit("encoder", {"w": torch.zeros(2)}),
+                                   "its weights are not this encoder's weights"),
+    "a short history": (_edit("history", lambda p: {k: v[:0] for k, v in p["history"].items()}),
+                        "its history does not hold 1 epochs"),
+    "a negative epoch": (_edit("epoch", -3), "its epoch is -3"),
+    "a broken generator": (_edit("held_generator", torch.zeros(4)),
+                           "its held_generator is not a random generator's state"),
+    "optimizer moments of the wrong shape": (
+        _edit("optimizer", lambda p: {**p["optimizer"], "state": {
+            0: {**p["optimizer"]["state"][0], "exp_avg": torch.zeros(7)}}}),
+        "its optimizer's exp_avg of parameter 0 does not match the weights"),
+}
+
+
+@pytest.mark.parametrize("case", list(_BAD_CHECKPOINTS))
+def test_bad_checkpoint_is_refused_with_its_path_and_never_run(tmp_path, case):
+    make, match = _BAD_CHECKPOINTS[case]
+    ckpt = tmp_path / "ckpt.pt"
+    marker = tmp_path / "code-ran"
+    make(ckpt, marker)
+    assert not marker.exists()
+    with pytest.raises(ValueError, match=rf"checkpoint '{re.escape(str(ckpt))}' cannot be "
+                                         rf"resumed: {match}.*; delete it or choose another "
+                                         "checkpoint path to start over"):
+        train(ae.CCF(1), FAMILY, _config(epochs=2, checkpoint=str(ckpt)), encoder=SMALL)
+    assert not marker.exists()         # the payload's code never ran
 
 
 @pytest.mark.parametrize(
@@ -132,6 +302,12 @@ def test_checkpoint_of_another_setup_is_refused(tmp_path):
         ({"noise": (0.1, 0.0)}, "noise must be a level >= 0 or a"),
         ({"excitation": "chirp"}, "excitation must be one of"),
         ({"supervised": -1.0}, "supervised must be a finite weight >= 0"),
+        ({"threads": 0}, "threads must be a positive integer or None; got 0"),
+        ({"min_epochs": 0}, r"min_epochs must be an integer in \[1, epochs=12\]; got 0"),
+        ({"min_epochs": 13}, r"min_epochs must be an integer in \[1, epochs=12\]; got 13"),
+        ({"min_epochs": 2.5}, r"min_epochs must be an integer in \[1, epochs=12\]; got 2.5"),
+        ({"target_loss": 0.0}, "target_loss must be a positive finite held-out loss or None"),
+        ({"target_loss": float("nan")}, "target_loss must be a positive finite held-out loss"),
     ],
 )
 def test_config_errors(kw, match):
@@ -315,3 +491,96 @@ def test_supervised_training_steers_the_parameters_and_ends_on_the_paper_loss():
     assert ident.meta["train"]["config"]["supervised"] == 1.0
     # Stated factor: the parameter term brings the outputs 1.5x closer to the true parameters
     assert errors[1.0] < errors[0.0] / 1.5, errors
+
+
+# -- the budget: a floor under the wall time, the under-training warning, the progress line -----
+
+
+def test_tiny_time_budget_trains_min_epochs_and_warns_with_the_numbers():
+    from aeid_struct.training import UndertrainedWarning, _learning_rate
+
+    # 1 ms cannot hold one epoch: the budget alone would stop after the first one
+    config = _config(epochs=100, seconds=1e-3, min_epochs=3)
+    with pytest.warns(UndertrainedWarning) as caught:
+        ident = train(ae.CCF(1, descartes=True), FAMILY, config, encoder=SMALL,
+                      meta={"name": "tiny"})
+    info, hist = ident.meta["train"], ident.meta["history"]
+    assert info["epochs"] == 3 and len(hist["holdout_loss"]) == 3
+    (message,) = [str(w.message) for w in caught]
+    per = hist["seconds"][-1] / 3
+    assert message.startswith(f"tiny: the 0.001 s training budget fit only 1 epoch ({per:.1f} s "
+                              "each; a busy machine?); the run trained on to min_epochs=3")
+    assert info["warnings"] == [message.removeprefix("tiny: ")]
+    # the learning-rate schedule stretches to the floor instead of idling at its end: the last
+    # batch of epoch e (7 batches of the 320 training records) is at (e + 6/7) / 3 of it
+    expected = [_learning_rate(1e-2, (e + 6 / 7) / 3) for e in range(3)]
+    assert hist["lr"] == pytest.approx(expected, rel=1e-12)
+    assert hist["lr"][0] > 0.5 * 1e-2        # not 1e-4, the end of a schedule spent in 1 ms
+
+
+def test_held_out_loss_above_the_target_warns_and_a_run_that_reaches_it_does_not():
+    import warnings
+
+    from aeid_struct.training import UndertrainedWarning
+
+    quiet = train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL)
+    best = quiet.meta["train"]["best_holdout_loss"]
+    assert best < quiet.meta["history"]["holdout_loss"][0] / 10
+    target = best * 3                          # reached by 12 epochs, not by 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UndertrainedWarning)      # a warning fails the test
+        again = train(ae.CCF(1, descartes=True), FAMILY, _config(target_loss=target),
+                      encoder=SMALL)
+    assert again.meta["train"]["warnings"] == []
+    with pytest.warns(UndertrainedWarning) as caught:
+        short = train(ae.CCF(1, descartes=True), FAMILY, _config(epochs=1, target_loss=target),
+                      encoder=SMALL)
+    reached = short.meta["train"]["best_holdout_loss"]
+    assert reached > target
+    (message,) = [str(w.message) for w in caught]
+    per = short.meta["history"]["seconds"][0]
+    assert message == (
+        f"training: best held-out loss {reached:.3e} after 1 epoch (an epoch budget of 1, "
+        f"{per:.1f} s per epoch) is above the expected {target:.3e}: the identifier is "
+        "under-trained; train for more epochs (an epoch budget is reproducible on a busy "
+        "machine)")
+
+
+def test_progress_line_shows_the_budget_that_applies_and_an_eta():
+    from aeid_struct.training import _eta, _progress_line
+
+    timed = _config(epochs=100_000, seconds=150.0, min_epochs=60)
+    # 10 epochs in 50 s: 5 s each; the time budget has 100 s left, the floor 50 epochs (250 s)
+    assert _eta(10, 50.0, timed) == pytest.approx(250.0)
+    line = _progress_line(10, timed, 1e-3, 2e-3, 3e-3, 50.0, "leg-stable")
+    assert line.startswith("leg-stable: epoch   10 (at least 60) | loss 1.000e-03 | "
+                           "held-out 2.000e-03 | lr 3.0e-03 | 50 s of 2 min 30 s budget | ")
+    assert line.endswith("ETA 4 min 10 s")
+    assert "100000" not in line                # not the epoch limit that cannot bind
+    # a quiet machine: 100 epochs in 50 s, the time budget ends the run in 100 s
+    assert _eta(100, 50.0, timed) == pytest.approx(100.0)
+    epochs = _config(epochs=200)
+    assert _eta(38, 19.0, epochs) == pytest.approx(81.0)         # 162 epochs of 0.5 s
+    assert _progress_line(38, epochs, 1e-3, 2e-3, 3e-3, 19.0) == (
+        "epoch   38/200 | loss 1.000e-03 | held-out 2.000e-03 | lr 3.0e-03 | 19 s | "
+        "ETA 1 min 21 s")
+    # the ETA never exceeds the epoch budget: 2 epochs left of 1 s
+    assert _eta(98, 98.0, _config(epochs=100, seconds=1e6)) == pytest.approx(2.0)
+
+
+def test_training_prints_one_progress_line_per_epoch(capsys):
+    train(ae.CCF(1, descartes=True), FAMILY, _config(epochs=2, progress=True), encoder=SMALL,
+          meta={"name": "first-order"})
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" | ")[0] for line in lines] == ["first-order: epoch    1/2",
+                                                         "first-order: epoch    2/2"]
+    assert lines[-1].endswith("ETA 0 s")
+
+
+def test_threads_apply_to_the_run_and_are_restored_after_it():
+    before = torch.get_num_threads()
+    inside = []
+    train(ae.CCF(1), FAMILY, _config(epochs=1, threads=before + 1), encoder=SMALL,
+          on_epoch=lambda epoch, history: inside.append(torch.get_num_threads()))
+    assert inside == [before + 1] and torch.get_num_threads() == before
+
