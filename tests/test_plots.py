@@ -274,7 +274,8 @@ def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, mo
         # the run's own training is not what is tested here: a shipped identifier whose
         # history says it trained 7 (stable) or 9 (unstable) epochs stands in for it
         ident = load_pretrained(f"leg-{subsystem}")
-        ident.meta["history"] = {"holdout_loss": [1.0] * (7 if subsystem == "stable" else 9)}
+        ident.meta["train"] = {**ident.meta.get("train", {}), "warnings": [],
+                               "epochs": 7 if subsystem == "stable" else 9}
         return ident
 
     monkeypatch.setattr(study, "train_leg", trained)
@@ -282,7 +283,8 @@ def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, mo
         s, {}, {}, {}, math.nan, math.nan))
     study.run(pretrained=pretrained, seconds=60.0, seed=3, out=tmp_path, validation=5,
               progress=False, save=False)
-    assert (tmp_path / "fig3_leg_scenario.png").stat().st_size > 10_000
+    folder = tmp_path / ("pretrained" if pretrained else "trained")
+    assert (folder / "fig3_leg_scenario.png").stat().st_size > 10_000
     (title,) = titles
     assert title.startswith("Robot leg, paper scenario k = 24.23 N/m")
     assert title.endswith("shipped identifiers leg-stable, leg-unstable" if pretrained else
