@@ -18,46 +18,50 @@ from importlib import import_module
 from importlib.util import find_spec
 from typing import TYPE_CHECKING
 
+from aeid_struct import _compat
+
+_compat.install()      # old module paths (aeid_struct.decoder, .refine, ...) keep working
+
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
-    from .data import LegFamily as LegFamily
-    from .data import PoleFamily as PoleFamily
-    from .decoder import discretise as discretise
-    from .decoder import initial_state as initial_state
-    from .decoder import simulate as simulate
-    from .decoder import stationary_value as stationary_value
-    from .encoder import EncoderConfig as EncoderConfig
-    from .identify import Estimate as Estimate
-    from .identify import Identifier as Identifier
-    from .identify import load_pretrained as load_pretrained
-    from .refine import RefineConfig as RefineConfig
-    from .structures import CCF as CCF
-    from .structures import MCF as MCF
-    from .structures import Physical as Physical
-    from .structures import Structure as Structure
-    from .structures import System as System
-    from .training import TrainConfig as TrainConfig
-    from .training import train as train
+    from aeid_struct.encoder.network import EncoderConfig as EncoderConfig
+    from aeid_struct.identification.identifier import Estimate as Estimate
+    from aeid_struct.identification.identifier import Identifier as Identifier
+    from aeid_struct.identification.identifier import load_pretrained as load_pretrained
+    from aeid_struct.refinement.nlp import RefineConfig as RefineConfig
+    from aeid_struct.simulation.foh import discretise as discretise
+    from aeid_struct.simulation.foh import initial_state as initial_state
+    from aeid_struct.simulation.foh import simulate as simulate
+    from aeid_struct.simulation.foh import stationary_value as stationary_value
+    from aeid_struct.structures.base import CCF as CCF
+    from aeid_struct.structures.base import MCF as MCF
+    from aeid_struct.structures.base import Physical as Physical
+    from aeid_struct.structures.base import Structure as Structure
+    from aeid_struct.structures.base import System as System
+    from aeid_struct.training.families import LegFamily as LegFamily
+    from aeid_struct.training.families import PoleFamily as PoleFamily
+    from aeid_struct.training.loop import TrainConfig as TrainConfig
+    from aeid_struct.training.loop import train as train
 
 #: public name -> the submodule that defines it
 _SOURCES = {
-    "LegFamily": "data",
-    "PoleFamily": "data",
-    "discretise": "decoder",
-    "initial_state": "decoder",
-    "simulate": "decoder",
-    "stationary_value": "decoder",
-    "EncoderConfig": "encoder",
-    "Estimate": "identify",
-    "Identifier": "identify",
-    "load_pretrained": "identify",
-    "RefineConfig": "refine",
-    "CCF": "structures",
-    "MCF": "structures",
-    "Physical": "structures",
-    "Structure": "structures",
-    "System": "structures",
-    "TrainConfig": "training",
-    "train": "training",
+    "LegFamily": "training.families",
+    "PoleFamily": "training.families",
+    "discretise": "simulation.foh",
+    "initial_state": "simulation.foh",
+    "simulate": "simulation.foh",
+    "stationary_value": "simulation.foh",
+    "EncoderConfig": "encoder.network",
+    "Estimate": "identification.identifier",
+    "Identifier": "identification.identifier",
+    "load_pretrained": "identification.identifier",
+    "RefineConfig": "refinement.nlp",
+    "CCF": "structures.base",
+    "MCF": "structures.base",
+    "Physical": "structures.base",
+    "Structure": "structures.base",
+    "System": "structures.base",
+    "TrainConfig": "training.loop",
+    "train": "training.loop",
 }
 
 __all__ = [

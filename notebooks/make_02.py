@@ -50,7 +50,9 @@ import torch
 from IPython.display import Markdown, display
 
 import aeid_struct as ae
-from aeid_struct import knowledge, plots, scorecard
+from aeid_struct.studies import knowledge as knowledge
+from aeid_struct.evaluation import plots as plots
+from aeid_struct.evaluation import scorecard as scorecard
 from symbolic import leg
 
 FAST = os.environ.get("AEID_FAST") == "1"

@@ -55,7 +55,10 @@ import torch
 from IPython.display import Markdown, display
 
 import aeid_struct as ae
-from aeid_struct import data, plots, scorecard, study
+from aeid_struct.training import families as data
+from aeid_struct.evaluation import plots as plots
+from aeid_struct.evaluation import scorecard as scorecard
+from aeid_struct.studies import leg_paper as study
 
 FAST = os.environ.get("AEID_FAST") == "1"
 torch.set_num_threads(1)                  # one core: the budgets below are measured on one

@@ -14,9 +14,9 @@ from helpers import rel_max_error
 from problems import modal_system
 
 import aeid_struct as ae
-from aeid_struct import baselines as bl
-from aeid_struct.data import LegFamily
-from aeid_struct.identify import Estimate
+from aeid_struct.baselines import classical as bl
+from aeid_struct.identification.identifier import Estimate
+from aeid_struct.training.families import LegFamily
 from symbolic import leg
 
 #: The study's record grids (aeid_struct.study.RECORDS).
@@ -400,7 +400,7 @@ def test_casadi_cold_recovers_the_stable_leg_from_the_generic_start():
 def test_classical_stacks_per_record_estimates_like_an_identifier():
     from functools import partial
 
-    from aeid_struct.data import records
+    from aeid_struct.training.families import records
 
     rec = records(LegFamily(subsystem="unstable"), 3, steps=UNSTABLE[1], dt=UNSTABLE[0], seed=4)
     method = partial(bl.least_squares, structure=ae.CCF(2).fixed(a1=0.0),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.bench_online import _outside_family, bench_excitation, format_tables
+from aeid_struct.studies.bench_online import _outside_family, bench_excitation, format_tables
 
 RANGES = {"k": (19.0, 27.0), "d": (1.5, 5.5), "m": (0.5, 1.5)}
 
@@ -38,7 +38,7 @@ def test_excitation_rows_refine_to_the_truth_on_clean_records():
 
 @pytest.mark.slow
 def test_bench_online_quick_runs_and_writes_the_targets(tmp_path, capsys):
-    from aeid_struct.cli import main
+    from aeid_struct.cli.main import main
 
     out = tmp_path / "b.json"
     assert main(["bench-online", "--quick", "--quiet", "--json", str(out)]) == 0
@@ -59,7 +59,7 @@ def test_bench_online_quick_runs_and_writes_the_targets(tmp_path, capsys):
 
 
 def test_tables_keep_every_parameter_in_its_place_and_define_their_columns():
-    from aeid_struct.bench_online import LEGENDS
+    from aeid_struct.studies.bench_online import LEGENDS
 
     stage = {"step_error": 1e-3, "failures": 0.05, "ms": 2.0}
     rows = [{"kind": "prbs", "noise": 0.01, "count": 20,

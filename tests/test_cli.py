@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeid_struct.cli import main
+from aeid_struct.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -108,7 +108,7 @@ def test_identify_a_joint_identifier_from_one_file_per_record(tmp_path, capsys):
     import torch
 
     import aeid_struct as ae
-    from aeid_struct.encoder import Encoder, EncoderConfig
+    from aeid_struct.encoder.network import Encoder, EncoderConfig
     from symbolic import leg
 
     torch.manual_seed(0)
@@ -180,7 +180,7 @@ def test_help_imports_neither_torch_nor_casadi():
     # loaded. This is what made --help take 4 s (torch and CasADi imported before parsing).
     code = (
         "import contextlib, io, json, sys\n"
-        "from aeid_struct.cli import main\n"
+        "from aeid_struct.cli.main import main\n"
         "pages = {}\n"
         "for argv in ([], ['demo'], ['leg'], ['train'], ['track'], ['identify'], ['bench'],\n"
         "             ['bench-online']):\n"
@@ -217,7 +217,7 @@ def _shipped_oracle() -> list[str]:
 
 
 def test_shipped_names_are_those_load_pretrained_loads():
-    from aeid_struct.cli import shipped_names
+    from aeid_struct.cli.main import shipped_names
 
     names = shipped_names()
     assert names == _shipped_oracle()
@@ -250,7 +250,7 @@ def test_package_names_resolve_lazily():
 
 
 def test_every_option_has_help():
-    from aeid_struct.cli import build_parser
+    from aeid_struct.cli.main import build_parser
 
     def parsers(p):
         yield p.prog, p
@@ -271,8 +271,8 @@ def test_every_option_has_help():
 
 
 def test_excitations_in_help_are_the_libraries():
-    from aeid_struct import cli
-    from aeid_struct.data import EXCITATIONS
+    from aeid_struct.cli import main as cli
+    from aeid_struct.training.families import EXCITATIONS
 
     assert cli._EXCITATIONS == EXCITATIONS
 
@@ -436,7 +436,7 @@ def test_other_input_errors_are_one_line(tmp_path, capsys, argv, match):
 
 def test_a_bug_keeps_its_traceback(tmp_path, monkeypatch):
     # Only input errors become one line; anything else a subcommand raises is a bug to see.
-    from aeid_struct.identify import Identifier
+    from aeid_struct.identification.identifier import Identifier
 
     def broken(self, *args, **kwargs):
         raise ZeroDivisionError("a bug")
@@ -452,7 +452,7 @@ def test_command_line_status_and_stderr(tmp_path):
     # estimate (a record sampled at 0.02 s given to the 0.01 s identifier), no traceback.
     files = _files(tmp_path)
     np.savetxt(tmp_path / "coarse.csv", _leg_step(22.0, 3.0, 1.0, 0.02), delimiter=",")
-    code = "import sys\nfrom aeid_struct.cli import main\nsys.exit(main(sys.argv[1:]))\n"
+    code = "import sys\nfrom aeid_struct.cli.main import main\nsys.exit(main(sys.argv[1:]))\n"
     bad = _run_python(code, "identify", "leg-stable", "--y", files["letters.csv"])
     assert bad.returncode == 2 and bad.stdout == ""
     assert bad.stderr.splitlines() == [f"aeid-struct: error: --y file {files['letters.csv']!r}: "
@@ -590,7 +590,7 @@ def test_named_columns_and_header_rows_are_read(tmp_path, capsys):
 def test_demo_figure_labels_and_curves(tmp_path, monkeypatch):
     from PIL import Image
 
-    from aeid_struct import cli
+    from aeid_struct.cli import main as cli
     from symbolic import leg
 
     figures = []

@@ -24,8 +24,8 @@ from helpers import RTOL, rel_max_error
 from problems import inputs, modal_system
 
 import aeid_struct as ae
-from aeid_struct import decoder
-from aeid_struct.decoder import (
+from aeid_struct.simulation import foh as decoder
+from aeid_struct.simulation.foh import (
     Discrete,
     denormalise,
     discretise,
@@ -630,7 +630,7 @@ def test_tensors_on_one_device_and_core_skips_checks():
 
 
 def test_bench_decoder_smoke():
-    from aeid_struct.bench import DecoderTiming, bench_decoder, format_decoder_table
+    from aeid_struct.studies.bench import DecoderTiming, bench_decoder, format_decoder_table
 
     threads = torch.get_num_threads()
     rows = bench_decoder(batch=4, steps=(5, 9), dtype=torch.float64, repeats=1, threads=1)

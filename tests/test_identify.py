@@ -7,9 +7,9 @@ import pytest
 import torch
 
 import aeid_struct as ae
-from aeid_struct.encoder import Encoder, EncoderConfig
-from aeid_struct.identify import Identifier
-from aeid_struct.metrics import nrmse_fit
+from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.evaluation.metrics import nrmse_fit
+from aeid_struct.identification.identifier import Identifier
 from symbolic import leg
 
 
@@ -207,7 +207,7 @@ def test_dt_mismatch_names_what_the_identifier_expects():
 
 
 def test_standalone_refine_uses_the_estimates_structure():
-    from aeid_struct.refine import refine
+    from aeid_struct.refinement.nlp import refine
 
     ident = _identifier()
     y = _record()
@@ -236,7 +236,7 @@ def _joint_identifier(seed=0):
 
 
 def _joint_records(count=4):
-    from aeid_struct.data import records
+    from aeid_struct.training.families import records
 
     return records(ae.LegFamily(subsystem="joint"), count, steps=(60, 20), dt=(0.05, 0.025),
                    seed=1)
@@ -317,7 +317,7 @@ def test_physical_of_a_modal_estimate_goes_through_its_transfer_function():
 
 
 def test_excess_is_the_distance_beyond_the_range_in_error_units():
-    from aeid_struct.identify import _excess
+    from aeid_struct.identification.identifier import _excess
 
     rng = {"elements": {"a0": [1.0, 4.0, 0.5], "c1": [0.0, 0.0, 0.1]},
            "physical": {"k": [20.0, 25.0, 2.0]}}
@@ -335,8 +335,8 @@ def _complex(n=60):
 
 def _complex_cases():
     """(entry point, call, message): a complex ``y`` or ``u`` at every place a record enters."""
-    from aeid_struct import baselines as bl
-    from aeid_struct.refine import refine
+    from aeid_struct.baselines import classical as bl
+    from aeid_struct.refinement.nlp import refine
 
     ident = _identifier()
     reads_u = _identifier(inputs=True)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.online import Tracker, TrackerConfig, wearing_leg
+from aeid_struct.online.tracker import Tracker, TrackerConfig, wearing_leg
 
 
 class _Stub:
@@ -119,8 +119,8 @@ def _window_identifier():
 
 
 def test_wear_study_scenario_truth_and_outputs(tmp_path):
-    from aeid_struct import plots
-    from aeid_struct.online import wear_study
+    from aeid_struct.evaluation import plots as plots
+    from aeid_struct.online.tracker import wear_study
 
     ident = _window_identifier()
     cfg = TrackerConfig(hop=100, baseline=3)
@@ -144,7 +144,7 @@ def test_wear_study_scenario_truth_and_outputs(tmp_path):
 def test_track_command_prints_and_writes(tmp_path, capsys):
     import json
 
-    from aeid_struct.cli import main
+    from aeid_struct.cli.main import main
 
     model = _window_identifier().save(tmp_path / "window.aeid")
     assert main(["track", "--model", str(model), "--seconds", "10", "--hop", "100",
@@ -170,7 +170,7 @@ def test_only_watched_parameters_raise_the_alarm():
 
 @pytest.mark.slow
 def test_shipped_window_identifier_tracks_a_wearing_leg():
-    from aeid_struct.online import wear_study
+    from aeid_struct.online.tracker import wear_study
 
     ident = ae.load_pretrained("leg-stable-window")
     assert ident.initial == "fitted" and ident.inputs
@@ -184,7 +184,7 @@ def test_shipped_window_identifier_tracks_a_wearing_leg():
 
 def test_onnx_and_identifier_engines_give_the_same_updates():
     # onnxruntime comes with the dev extra: a missing one fails here rather than skipping
-    from aeid_struct.data import records
+    from aeid_struct.training.families import records
 
     ident = ae.load_pretrained("leg-stable-window")
     rec = records(ae.LegFamily(subsystem="stable"), 1, steps=600, dt=0.01,
@@ -320,7 +320,7 @@ def test_a_refused_window_leaves_the_tracking_state_as_it_was():
 
 
 def test_an_engine_failure_says_how_many_samples_were_consumed():
-    from aeid_struct.online import PushError
+    from aeid_struct.online.tracker import PushError
 
     class _Failing(_Stub):
         def identify(self, y, u):

@@ -8,10 +8,10 @@ import re
 import numpy as np
 import pytest
 
-from aeid_struct import plots
-from aeid_struct.metrics import FREQUENCIES
-from aeid_struct.online import TrackerConfig, WearResult
-from aeid_struct.scorecard import Score
+from aeid_struct.evaluation import plots as plots
+from aeid_struct.evaluation.metrics import FREQUENCIES
+from aeid_struct.evaluation.scorecard import Score
+from aeid_struct.online.tracker import TrackerConfig, WearResult
 
 UNIT = re.compile(r"\[[^\]]+\]")          # "[m]", "[N s/m]", "[dB re 1 m/N]"
 
@@ -242,8 +242,8 @@ def test_fig3_without_units_says_so_and_bad_arguments_are_named():
 def test_study_figure3_titles_the_scenario_and_the_shipped_identifiers(tmp_path):
     import matplotlib.pyplot as plt
 
-    from aeid_struct import study
-    from aeid_struct.identify import load_pretrained
+    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.studies import leg_paper as study
 
     idents = {s: load_pretrained(f"leg-{s}") for s in ("stable", "unstable")}
     path = tmp_path / "fig3.png"
@@ -262,8 +262,8 @@ def test_study_figure3_titles_the_scenario_and_the_shipped_identifiers(tmp_path)
 @pytest.mark.parametrize("pretrained", [True, False])
 def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, monkeypatch,
                                                                     pretrained):
-    from aeid_struct import study
-    from aeid_struct.identify import load_pretrained
+    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.studies import leg_paper as study
 
     titles = []
     real = plots.fig3
@@ -345,7 +345,7 @@ def test_wear_draws_units_the_alarm_threshold_and_the_alarm(tmp_path):
 
 
 def test_track_command_draws_its_own_threshold(tmp_path, monkeypatch):
-    from aeid_struct.cli import main
+    from aeid_struct.cli.main import main
 
     drawn = {}
     real = plots.wear

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.data import LegFamily
-from aeid_struct.metrics import step_error
+from aeid_struct.evaluation.metrics import step_error
+from aeid_struct.training.families import LegFamily
 
 # Stated tolerances (the study measures the means on 500 systems; these bound single systems).
 TOL = {"stable": {"k": 0.5, "d": 1.5, "m": 1.5, "step": 2e-3},
@@ -30,7 +30,7 @@ def test_record_format_and_provenance(sub, variant):
 
 @pytest.mark.parametrize("sub", ["stable", "unstable"])
 def test_noise_trained_beats_clean_trained_on_noisy_records(sub):
-    from aeid_struct.data import records
+    from aeid_struct.training.families import records
 
     dt, steps = RECORD[sub]
     rec = records(LegFamily(subsystem=sub), 100, steps=steps, dt=dt, noise=0.05, seed=7)
@@ -126,8 +126,8 @@ UNSTABLE_ANY_STEP_ERROR = 0.03
 ])
 def test_arbitrary_input_identifiers_recover_known_legs(kind, name, subsystem, warmup, dt, steps,
                                                        bound):
-    from aeid_struct.data import records
-    from aeid_struct.metrics import step_error
+    from aeid_struct.evaluation.metrics import step_error
+    from aeid_struct.training.families import records
 
     ident = ae.load_pretrained(name)
     assert ident.inputs and ident.steps == steps and ident.dt == dt
@@ -151,7 +151,7 @@ def test_arbitrary_input_identifiers_recover_known_legs(kind, name, subsystem, w
 def test_window_identifier_flags_on_both_sides_of_its_range():
     # Stated: at most 10 % false flags inside the range and at least 80 % flagged 30 % beyond
     # it (measured on 300 windows each: 2.7-3.7 % and 98.3-98.7 %, pretrained/README.md).
-    from aeid_struct.bench_online import bench_flags
+    from aeid_struct.studies.bench_online import bench_flags
 
     ident = ae.load_pretrained("leg-stable-window")
     rows = bench_flags(ident, {"k": (19.0, 27.0), "d": (1.5, 5.5), "m": (0.5, 1.5)},

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 import aeid_struct
-from aeid_struct import study
-from aeid_struct.cli import main
-from aeid_struct.training import UndertrainedWarning
+from aeid_struct.cli.main import main
+from aeid_struct.studies import leg_paper as study
+from aeid_struct.training.loop import UndertrainedWarning
 
 SHIPPED = Path(aeid_struct.__file__).parent / "pretrained"
 

@@ -12,10 +12,10 @@ import pytest
 import torch
 
 import aeid_struct as ae
-from aeid_struct.data import PoleFamily
-from aeid_struct.decoder import simulate
-from aeid_struct.encoder import EncoderConfig
-from aeid_struct.training import TrainConfig, train
+from aeid_struct.encoder.network import EncoderConfig
+from aeid_struct.simulation.foh import simulate
+from aeid_struct.training.families import PoleFamily
+from aeid_struct.training.loop import TrainConfig, train
 
 FAMILY = PoleFamily(real=1, pairs=0, decay=(1.0, 4.0), gain=(0.5, 2.0))
 SMALL = EncoderConfig(width=4, kernel=3, dense=(16,))
@@ -42,7 +42,7 @@ def test_training_lowers_the_loss_and_identifies():
 
 
 def test_training_noise_has_the_stated_level():
-    from aeid_struct.training import _add_noise
+    from aeid_struct.training.loop import _add_noise
 
     g = torch.Generator().manual_seed(0)
     y = torch.ones(2000, 400, dtype=torch.float64)
@@ -70,9 +70,9 @@ _SCRIPT = """
 import os, signal, sys
 sys.path.insert(0, {root!r})
 import aeid_struct as ae
-from aeid_struct.data import PoleFamily
-from aeid_struct.encoder import EncoderConfig
-from aeid_struct.training import TrainConfig, train
+from aeid_struct.training.families import PoleFamily
+from aeid_struct.encoder.network import EncoderConfig
+from aeid_struct.training.loop import TrainConfig, train
 fam = PoleFamily(real=1, pairs=0, decay=(1.0, 4.0), gain=(0.5, 2.0))
 cfg = TrainConfig(dt=0.05, steps=40, count=400, epochs=int(sys.argv[1]), batch=50, lr=1e-2,
                   seed=0, progress=False, checkpoint=sys.argv[2], noise=(0.0, 0.05),
@@ -330,7 +330,7 @@ def test_history_records_gradient_norms_before_clipping():
 
 
 def test_non_finite_batches_are_skipped_not_stepped_on(monkeypatch):
-    import aeid_struct.training as training
+    import aeid_struct.training.loop as training
 
     real = training._batch_loss
     calls = {"n": 0}
@@ -366,8 +366,8 @@ def test_joint_training_reads_both_records_and_lowers_the_loss():
 
 
 def test_windows_mid_motion_train_with_a_fitted_initial_state():
-    from aeid_struct.data import records
-    from aeid_struct.decoder import initial_state
+    from aeid_struct.simulation.foh import initial_state
+    from aeid_struct.training.families import records
 
     # gamma = 0: the stationary-value term of Eq. 14 is a step-response term
     config = _config(epochs=10, count=600, excitation="mix", warmup=30, initial="fitted",
@@ -397,7 +397,7 @@ def test_stationary_weight_defaults_to_the_paper_for_steps_only():
 
 
 def test_fresh_records_every_epoch_are_new_and_reproducible(monkeypatch):
-    import aeid_struct.training as training
+    import aeid_struct.training.loop as training
 
     drawn = []
     real = training._redraw
@@ -436,7 +436,7 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
     calibrated = ident.meta["training_range"]
     ident.meta["training_range"] = {k: v for k, v in calibrated.items() if k != "excess"}
     assert ident.identify(inside).outside is None
-    from aeid_struct.training import recalibrate
+    from aeid_struct.training.loop import recalibrate
 
     assert recalibrate(ident, FAMILY).meta["training_range"] == calibrated
     assert ident.identify(np.stack([inside, far])).outside.tolist() == [False, True]
@@ -445,8 +445,8 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
 
 
 def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_square():
-    from aeid_struct.data import records
-    from aeid_struct.training import _batch_loss, _theta
+    from aeid_struct.training.families import records
+    from aeid_struct.training.loop import _batch_loss, _theta
 
     structure = ae.CCF(2, descartes=True)
     fam = ae.LegFamily(subsystem="stable")
@@ -471,8 +471,8 @@ def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_squa
 
 
 def test_supervised_training_steers_the_parameters_and_ends_on_the_paper_loss():
-    from aeid_struct.data import records
-    from aeid_struct.training import _theta
+    from aeid_struct.training.families import records
+    from aeid_struct.training.loop import _theta
 
     val = records(FAMILY, 200, steps=40, dt=0.05, excitation_kind="mix", seed=77, warmup=30)
     gain = np.abs(val.y_clean).max(axis=1) / np.abs(val.u).max(axis=1)
@@ -497,7 +497,7 @@ def test_supervised_training_steers_the_parameters_and_ends_on_the_paper_loss():
 
 
 def test_tiny_time_budget_trains_min_epochs_and_warns_with_the_numbers():
-    from aeid_struct.training import UndertrainedWarning, _learning_rate
+    from aeid_struct.training.loop import UndertrainedWarning, _learning_rate
 
     # 1 ms cannot hold one epoch: the budget alone would stop after the first one
     config = _config(epochs=100, seconds=1e-3, min_epochs=3)
@@ -521,7 +521,7 @@ def test_tiny_time_budget_trains_min_epochs_and_warns_with_the_numbers():
 def test_held_out_loss_above_the_target_warns_and_a_run_that_reaches_it_does_not():
     import warnings
 
-    from aeid_struct.training import UndertrainedWarning
+    from aeid_struct.training.loop import UndertrainedWarning
 
     quiet = train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL)
     best = quiet.meta["train"]["best_holdout_loss"]
@@ -547,7 +547,7 @@ def test_held_out_loss_above_the_target_warns_and_a_run_that_reaches_it_does_not
 
 
 def test_progress_line_shows_the_budget_that_applies_and_an_eta():
-    from aeid_struct.training import _eta, _progress_line
+    from aeid_struct.training.loop import _eta, _progress_line
 
     timed = _config(epochs=100_000, seconds=150.0, min_epochs=60)
     # 10 epochs in 50 s: 5 s each; the time budget has 100 s left, the floor 50 epochs (250 s)

@@ -48,9 +48,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .encoder import Encoder, EncoderConfig
-from .records import as_array, check_records, normalise, require_finite
-from .structures import Structure, System
+from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.records import as_array, check_records, normalise, require_finite
+from aeid_struct.structures.base import Structure, System
 
 #: The file format written: maps are references (``aeid_struct.maps``), never code.
 FORMAT = "aeid-struct/identifier/2"
@@ -129,7 +129,7 @@ class Estimate:
     def y_hat(self):
         """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y`` (a
         tuple of ``R`` responses for a several-record estimate)."""
-        from .decoder import simulate
+        from aeid_struct.simulation.foh import simulate
 
         x0 = self._x0()
         if self.records == 1:
@@ -247,7 +247,7 @@ class Estimate:
         if self.initial != "fitted":
             return None
         if "_x0_fitted" not in self.__dict__:
-            from .decoder import initial_state
+            from aeid_struct.simulation.foh import initial_state
 
             if self.records == 1:
                 value = self._on_good(
@@ -268,7 +268,7 @@ class Estimate:
         ``(batch,)``, or with several records ``(R,)`` / ``(batch, R)``); NaN where it is
         undefined: a constant record (``||y - mean(y)|| = 0``), or one set aside by
         ``errors="collect"``. Such records are flagged ``outside``."""
-        from .metrics import nrmse_fit
+        from aeid_struct.evaluation.metrics import nrmse_fit
 
         if self.records == 1:
             fit = nrmse_fit(self.y, self.y_hat)
@@ -284,7 +284,7 @@ class Estimate:
         with a CasADi inverse map (e.g. the leg's CCF -> k, d, m) they are that map's outputs.
         Empty otherwise.
         """
-        from .structures import CCF
+        from aeid_struct.structures.base import CCF
 
         inverse = self._inverse
         if inverse is None:
@@ -355,7 +355,7 @@ def _apply_inverse(inverse, A: np.ndarray, b: np.ndarray, c: np.ndarray,
     d (N,)``: ``name -> (N,)``. One model goes through the Function's buffer (0.016 ms, against
     0.11 ms for its Python call and 0.4 ms for a map: the tracker's hot path); a batch, one map
     over all."""
-    from .refine import _Numeric
+    from aeid_struct.refinement.nlp import _Numeric
 
     count, n = A.shape[0], A.shape[-1]
     if count == 1 and list(inverse.name_in()) == ["A", "B", "C", "D"]:
@@ -383,7 +383,7 @@ def _through_ccf(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
     ``Structure.elements_of`` does), then mapped; NaN for non-finite models. Returns
     ``name -> (N,)``.
     """
-    from .structures import _ccf_coefficients, _ccf_matrices
+    from aeid_struct.structures.base import _ccf_coefficients, _ccf_matrices
 
     finite = (np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
               & np.all(np.isfinite(c), axis=1) & np.isfinite(d))
@@ -812,7 +812,7 @@ class Identifier:
                            initial=self.initial, training_range=self.training_range,
                            errors=errors)
         if refine:
-            from .refine import refine as _refine
+            from aeid_struct.refinement.nlp import refine as _refine
 
             if refine == "auto":
                 return self._refine_flagged(est, _refine)
@@ -856,7 +856,7 @@ class Identifier:
             info={**est.info, "refined_rows": mask, "refine": sub.info})
 
     def _physical_source(self):
-        from .structures import Physical
+        from aeid_struct.structures.base import Physical
 
         if isinstance(self.structure, Physical):
             return ("elements", tuple(self.structure.element_names))
@@ -868,7 +868,7 @@ class Identifier:
         Physical structure's maps) as references to named factories (``aeid_struct.maps``), a
         user's own map as its name and SHA-256 (with its serialisation, read only under
         ``trust=True``)."""
-        from . import maps
+        from aeid_struct.structures import maps as maps
 
         return {
             "format": FORMAT,
@@ -917,7 +917,7 @@ class Identifier:
         """
         from safetensors import safe_open
 
-        from . import maps as _maps
+        from aeid_struct.structures import maps as _maps
 
         path = Path(path)
         if not path.is_file():
@@ -943,7 +943,7 @@ class Identifier:
                     maps: dict | None = None, trust: bool = False) -> Identifier:
         """The identifier of a parsed header and its tensors; one ValueError naming ``source``
         and what is wrong for anything malformed."""
-        from . import maps as _maps
+        from aeid_struct.structures import maps as _maps
 
         _check_header(header, source)
         try:
@@ -994,7 +994,7 @@ def _numbers(value, finite: bool = True) -> bool:
 
 def _check_header(header: dict, source: str) -> None:
     """Entries and JSON types of an identifier header (one ValueError naming ``source``)."""
-    from .encoder import EncoderConfig as _Config
+    from aeid_struct.encoder.network import EncoderConfig as _Config
 
     unknown = sorted(set(header) - set(_HEADER_REQUIRED) - set(_HEADER_OPTIONAL))
     if unknown:
@@ -1088,7 +1088,7 @@ class _Batch1:
     def __init__(self, ident: Identifier):
         import warnings
 
-        from .structures import Physical
+        from aeid_struct.structures.base import Physical
 
         enc = ident.encoder
         cfg = enc.config

@@ -29,7 +29,7 @@ from functools import partial
 import numpy as np
 import torch
 
-from .decoder import _simulate, _simulate_fft, _simulate_loop, _simulate_scan
+from aeid_struct.simulation.foh import _simulate, _simulate_fft, _simulate_loop, _simulate_scan
 
 __all__ = ["DecoderTiming", "IDENTIFICATION_LEGEND", "bench_decoder", "bench_identification",
            "format_decoder_table", "format_identification_table"]
@@ -188,8 +188,8 @@ def _baseline(method, y, *, dt, **kw):
 
 def _run_method(call, y, y_clean, params_true, structure):
     """Time ``call`` on every record back to back, then score the estimates (see the caller)."""
-    from .baselines import failure
-    from .metrics import step_error
+    from aeid_struct.baselines.classical import failure
+    from aeid_struct.evaluation.metrics import step_error
 
     times, steps, fails = [], [], []
     perr = {k: [] for k in params_true}
@@ -266,10 +266,10 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
     """
     from threadpoolctl import threadpool_limits
 
-    from . import baselines
-    from .data import LegFamily, records
-    from .identify import load_pretrained
-    from .study import RECORDS
+    from aeid_struct.baselines import classical as baselines
+    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.studies.leg_paper import RECORDS
+    from aeid_struct.training.families import LegFamily, records
 
     results, throughput = [], {}
     for sub in subsystems:

@@ -99,7 +99,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .casadi_torch import CasadiOp
+from aeid_struct.structures.casadi_torch import CasadiOp
 
 __all__ = ["CCF", "MCF", "Physical", "Structure", "System"]
 
@@ -711,7 +711,7 @@ class Structure(abc.ABC):
             For an unknown type, unknown or missing entries, values of the wrong type, and map
             entries that cannot be resolved (``aeid_struct.maps.from_entry``).
         """
-        from .maps import check_maps
+        from aeid_struct.structures.maps import check_maps
 
         check_maps(maps, trust)
         if not isinstance(config, dict) or not isinstance(config.get("type"), str):
@@ -1093,7 +1093,7 @@ class Physical(Structure):
         return {k: (m.lo, m.hi) for k, m in self._maps.items()}
 
     def _config(self) -> dict:
-        from . import maps
+        from aeid_struct.structures import maps as maps
 
         return {
             "function": maps.to_entry(self.function),
@@ -1103,7 +1103,7 @@ class Physical(Structure):
 
     @classmethod
     def _from_config(cls, args: dict, *, maps=None, trust: bool = False) -> Physical:
-        from . import maps as _maps
+        from aeid_struct.structures import maps as _maps
 
         unknown = sorted(set(args) - {"function", "bounds", "inverse"})
         if unknown or "function" not in args or "bounds" not in args:

@@ -44,9 +44,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import Records
-from .decoder import OverflowWarning, simulate
-from .metrics import FREQUENCIES, bode_errors, nrmse_fit, parameter_errors, step_error
+from aeid_struct.evaluation.metrics import (
+    FREQUENCIES,
+    bode_errors,
+    nrmse_fit,
+    parameter_errors,
+    step_error,
+)
+from aeid_struct.simulation.foh import OverflowWarning, simulate
+from aeid_struct.training.families import Records
 
 __all__ = ["Score", "pool", "score", "table", "training_summary", "training_table"]
 
@@ -279,7 +285,7 @@ def _physical(est, model: tuple, inverse) -> dict[str, np.ndarray]:
     if inverse is None:
         return {k: np.atleast_1d(np.asarray(v, dtype=np.float64))
                 for k, v in (est.physical or {}).items()}
-    from .identify import _through_ccf
+    from aeid_struct.identification.identifier import _through_ccf
 
     return _through_ccf(*model, inverse)
 

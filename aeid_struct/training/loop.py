@@ -62,8 +62,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data import EXCITATIONS, Records, records
-from .decoder import (
+from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.identification.identifier import (
+    FLAG_FALSE_RATE,
+    INITIAL_STATES,
+    Identifier,
+    _excess,
+)
+from aeid_struct.simulation.foh import (
     _free_fit,
     _loss,
     _record_scale,
@@ -71,9 +77,8 @@ from .decoder import (
     _stationary_value,
     stationary_value,
 )
-from .encoder import Encoder, EncoderConfig
-from .identify import FLAG_FALSE_RATE, INITIAL_STATES, Identifier, _excess
-from .structures import Physical, Structure
+from aeid_struct.structures.base import Physical, Structure
+from aeid_struct.training.families import EXCITATIONS, Records, records
 
 
 class UndertrainedWarning(UserWarning):

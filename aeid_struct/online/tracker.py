@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .records import RecordError, as_array
+from aeid_struct.records import RecordError, as_array
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -163,8 +163,8 @@ class Tracker:
 
     def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
                  *, engine: str = "auto") -> None:
-        from .export import OnnxIdentifier
-        from .identify import Identifier
+        from aeid_struct.identification.identifier import Identifier
+        from aeid_struct.online.export import OnnxIdentifier
 
         if not isinstance(config, TrackerConfig):
             raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
@@ -321,7 +321,7 @@ def _onnx_runner(identifier, required: bool):
             raise ValueError("engine='onnx' needs onnxruntime: pip install "
                              "\"aeid-struct[onnx]\"") from None
         return None
-    from .export import OnnxIdentifier, onnx_bytes
+    from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
 
     inverse = identifier.inverse       # the caller's own map, passed again (aeid_struct.maps)
     try:
@@ -345,7 +345,7 @@ def wearing_leg(k, d, m, u, dt: float) -> np.ndarray:
     """
     import torch
 
-    from .decoder import _discretise
+    from aeid_struct.simulation.foh import _discretise
 
     k, d, m, u = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (k, d, m, u))
     N = u.shape[0]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .metrics import FREQUENCIES, frequency_response
+from aeid_struct.evaluation.metrics import FREQUENCIES, frequency_response
 
 #: Input and output of the robot-leg subsystems (``symbolic/leg.py``), as ``Comparison``
 #: keywords: the translational leg is driven by the force F along the leg and its output is the
@@ -156,7 +156,7 @@ def fig3(comparisons: list[Comparison], path=None, omega=FREQUENCIES, *, title=N
         title: what produced the figure, e.g. the scenario and whether the identifiers were
             trained in this run or shipped.
     """
-    from .decoder import simulate
+    from aeid_struct.simulation.foh import simulate
 
     comparisons = list(comparisons)
     if not comparisons or not all(isinstance(c, Comparison) for c in comparisons):
@@ -420,7 +420,7 @@ def wear(result, path=None, *, config=None, title=None):
             one, as ``wear_study`` uses by default).
         title: what produced the figure (identifier, noise, seed, engine).
     """
-    from .online import TrackerConfig
+    from aeid_struct.online.tracker import TrackerConfig
 
     names = list(result.true)
     if not names:

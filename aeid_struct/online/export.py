@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .records import check_records, normalise
+from aeid_struct.records import check_records, normalise
 
 #: The metadata format written: the inverse map as a reference (``aeid_struct.maps``).
 ONNX_FORMAT = "aeid-struct-onnx-2"
@@ -65,8 +65,8 @@ class _OneRecord(torch.nn.Module):
 
 
 def _exportable(ident) -> None:
-    from .identify import Identifier
-    from .structures import Physical
+    from aeid_struct.identification.identifier import Identifier
+    from aeid_struct.structures.base import Physical
 
     if not isinstance(ident, Identifier):
         raise ValueError(f"ident must be an Identifier; got {type(ident).__name__}")
@@ -128,8 +128,8 @@ def onnx_bytes(ident) -> bytes:
 
     import onnx
 
-    from . import maps
-    from .structures import CCF
+    from aeid_struct.structures import maps as maps
+    from aeid_struct.structures.base import CCF
 
     _exportable(ident)
     module = _OneRecord(ident).eval()
@@ -237,7 +237,7 @@ class OnnxIdentifier:
                  trust: bool = False) -> None:
         import onnxruntime as ort
 
-        from . import maps as _maps
+        from aeid_struct.structures import maps as _maps
 
         if not (isinstance(threads, int) and threads >= 1):
             raise ValueError(f"threads must be a positive integer; got {threads!r}")
@@ -348,7 +348,7 @@ class OnnxIdentifier:
         elif self._inverse is None:
             return {}
         else:
-            from .identify import _inverse_of_models
+            from aeid_struct.identification.identifier import _inverse_of_models
 
             A = np.asarray(model["A"], dtype=np.float64)
             n = A.shape[-1]

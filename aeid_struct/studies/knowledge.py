@@ -34,8 +34,8 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from .data import LegFamily
-from .structures import CCF, Physical, Structure
+from aeid_struct.structures.base import CCF, Physical, Structure
+from aeid_struct.training.families import LegFamily
 
 #: The known mass of the "m known" variants, kg (the paper's scenario).
 KNOWN_MASS = 1.01
@@ -127,9 +127,9 @@ def train_variant(variant: Variant, *, noisy: bool, count: int, epochs: int, see
             instead of retrained next time (the file name holds every setting).
         progress: print training progress.
     """
-    from .identify import Identifier
-    from .study import leg_encoder, training_config
-    from .training import train
+    from aeid_struct.identification.identifier import Identifier
+    from aeid_struct.studies.leg_paper import leg_encoder, training_config
+    from aeid_struct.training.loop import train
 
     if not isinstance(variant, Variant):
         raise ValueError(f"variant must be a Variant (knowledge.variants()); "
@@ -158,8 +158,8 @@ def validation(count: int, *, noise: float = 0.0, known_mass: bool = False,
     Single-subsystem identifiers are scored on ``.record(0)`` / ``.record(1)`` of the same set,
     so every variant sees the same legs. ``known_mass``: legs of mass ``KNOWN_MASS``.
     """
-    from .data import records
-    from .study import RECORDS
+    from aeid_struct.studies.leg_paper import RECORDS
+    from aeid_struct.training.families import records
 
     ranges = {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)}
     if known_mass:
@@ -174,7 +174,7 @@ def evaluate(variant: Variant, ident, val, *, label: str = "") -> list:
     counterpart) on a :func:`validation` set: one for a single-subsystem identifier (on its
     record), one per record for a joint one (each with the same k, d, m errors: one parameter
     set is identified from both records). ``label`` prefixes the scores' names."""
-    from .scorecard import score
+    from aeid_struct.evaluation.scorecard import score
 
     name = f"{label}, {variant.name}" if label else variant.name
     if variant.subsystem == "joint":
@@ -193,8 +193,8 @@ def least_squares(variant: Variant):
     record behind an identifier's interface (``baselines.Classical``), to score side by side."""
     from functools import partial
 
-    from . import baselines
-    from .study import RECORDS
+    from aeid_struct.baselines import classical as baselines
+    from aeid_struct.studies.leg_paper import RECORDS
 
     if variant.subsystem not in RECORDS:
         raise ValueError(f"variant must identify one subsystem (least squares fits one record); "

@@ -1,0 +1,3 @@
+"""Evaluation: paper Table I metrics, scorecards and figures.
+"""
+
