@@ -22,7 +22,6 @@ ALIASES = {
     "data": "training.families",
     "identify": "identification.identifier",
     "refine": "refinement.nlp",
-    "metrics": "evaluation.metrics",
     "scorecard": "evaluation.scorecard",
     "plots": "evaluation.plots",
     "export": "online.export",

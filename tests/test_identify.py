@@ -8,8 +8,8 @@ import torch
 
 import aeid_struct as ae
 from aeid_struct.encoder.network import Encoder, EncoderConfig
-from aeid_struct.evaluation.metrics import nrmse_fit
 from aeid_struct.identification.identifier import Identifier
+from aeid_struct.metrics import nrmse_fit
 from symbolic import leg
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.evaluation.metrics import step_error
+from aeid_struct.metrics import step_error
 from aeid_struct.structures.base import Physical
 from aeid_struct.studies import knowledge as knowledge
 

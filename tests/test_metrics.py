@@ -4,7 +4,7 @@ import control
 import numpy as np
 import pytest
 
-from aeid_struct.evaluation.metrics import (
+from aeid_struct.metrics import (
     FREQUENCIES,
     bode_errors,
     frequency_response,

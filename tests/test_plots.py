@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from aeid_struct.evaluation import plots as plots
-from aeid_struct.evaluation.metrics import FREQUENCIES
 from aeid_struct.evaluation.scorecard import Score
+from aeid_struct.metrics import FREQUENCIES
 from aeid_struct.online.tracker import TrackerConfig, WearResult
 
 UNIT = re.compile(r"\[[^\]]+\]")          # "[m]", "[N s/m]", "[dB re 1 m/N]"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.evaluation.metrics import step_error
+from aeid_struct.metrics import step_error
 from aeid_struct.training.families import LegFamily
 
 # Stated tolerances (the study measures the means on 500 systems; these bound single systems).
@@ -126,7 +126,7 @@ UNSTABLE_ANY_STEP_ERROR = 0.03
 ])
 def test_arbitrary_input_identifiers_recover_known_legs(kind, name, subsystem, warmup, dt, steps,
                                                        bound):
-    from aeid_struct.evaluation.metrics import step_error
+    from aeid_struct.metrics import step_error
     from aeid_struct.training.families import records
 
     ident = ae.load_pretrained(name)

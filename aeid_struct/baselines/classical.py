@@ -906,7 +906,7 @@ def failure(estimate: Estimate, *, structure=None, truth_y=None, step_tol: float
 
 
 def _failure_one(A, b, c, d, info, structure, physical, truth, dt, step_tol) -> str:
-    from aeid_struct.evaluation.metrics import step_error
+    from aeid_struct.metrics import step_error
 
     if info.get("failed"):
         return info.get("reason") or "the method failed"

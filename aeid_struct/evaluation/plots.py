@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeid_struct.evaluation.metrics import FREQUENCIES, frequency_response
+from aeid_struct.metrics import FREQUENCIES, frequency_response
 
 #: Input and output of the robot-leg subsystems (``symbolic/leg.py``), as ``Comparison``
 #: keywords: the translational leg is driven by the force F along the leg and its output is the

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeid_struct.evaluation.metrics import (
+from aeid_struct.metrics import (
     FREQUENCIES,
     bode_errors,
     nrmse_fit,

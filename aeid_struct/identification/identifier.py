@@ -268,7 +268,7 @@ class Estimate:
         ``(batch,)``, or with several records ``(R,)`` / ``(batch, R)``); NaN where it is
         undefined: a constant record (``||y - mean(y)|| = 0``), or one set aside by
         ``errors="collect"``. Such records are flagged ``outside``."""
-        from aeid_struct.evaluation.metrics import nrmse_fit
+        from aeid_struct.metrics import nrmse_fit
 
         if self.records == 1:
             fit = nrmse_fit(self.y, self.y_hat)

@@ -189,7 +189,7 @@ def _baseline(method, y, *, dt, **kw):
 def _run_method(call, y, y_clean, params_true, structure):
     """Time ``call`` on every record back to back, then score the estimates (see the caller)."""
     from aeid_struct.baselines.classical import failure
-    from aeid_struct.evaluation.metrics import step_error
+    from aeid_struct.metrics import step_error
 
     times, steps, fails = [], [], []
     perr = {k: [] for k in params_true}

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeid_struct.evaluation.metrics import FREQUENCIES, bode_errors, parameter_errors, step_error
+from aeid_struct.metrics import FREQUENCIES, bode_errors, parameter_errors, step_error
 from aeid_struct.simulation.foh import simulate
 from aeid_struct.training.families import LegFamily, records
 
