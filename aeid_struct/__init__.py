@@ -23,45 +23,47 @@ from aeid_struct import _compat
 _compat.install()      # old module paths (aeid_struct.decoder, .refine, ...) keep working
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
-    from aeid_struct.encoder.network import EncoderConfig as EncoderConfig
-    from aeid_struct.identification.identifier import Estimate as Estimate
-    from aeid_struct.identification.identifier import Identifier as Identifier
-    from aeid_struct.identification.identifier import load_pretrained as load_pretrained
-    from aeid_struct.refinement.nlp import RefineConfig as RefineConfig
-    from aeid_struct.simulation.foh import discretise as discretise
-    from aeid_struct.simulation.foh import initial_state as initial_state
-    from aeid_struct.simulation.foh import simulate as simulate
-    from aeid_struct.simulation.foh import stationary_value as stationary_value
-    from aeid_struct.structures.base import CCF as CCF
-    from aeid_struct.structures.base import MCF as MCF
-    from aeid_struct.structures.base import Physical as Physical
-    from aeid_struct.structures.base import Structure as Structure
-    from aeid_struct.structures.base import System as System
-    from aeid_struct.training.families import LegFamily as LegFamily
-    from aeid_struct.training.families import PoleFamily as PoleFamily
-    from aeid_struct.training.loop import TrainConfig as TrainConfig
-    from aeid_struct.training.loop import train as train
+    from aeid_struct.encoder import EncoderConfig as EncoderConfig
+    from aeid_struct.identification import Estimate as Estimate
+    from aeid_struct.identification import Identifier as Identifier
+    from aeid_struct.identification import load_pretrained as load_pretrained
+    from aeid_struct.refinement import RefineConfig as RefineConfig
+    from aeid_struct.simulation import discretise as discretise
+    from aeid_struct.simulation import initial_state as initial_state
+    from aeid_struct.simulation import simulate as simulate
+    from aeid_struct.simulation import stationary_value as stationary_value
+    from aeid_struct.structures import CCF as CCF
+    from aeid_struct.structures import MCF as MCF
+    from aeid_struct.structures import Physical as Physical
+    from aeid_struct.structures import Structure as Structure
+    from aeid_struct.structures import System as System
+    from aeid_struct.training import LegFamily as LegFamily
+    from aeid_struct.training import PoleFamily as PoleFamily
+    from aeid_struct.training import TrainConfig as TrainConfig
+    from aeid_struct.training import UndertrainedWarning as UndertrainedWarning
+    from aeid_struct.training import train as train
 
-#: public name -> the submodule that defines it
+#: public name -> the sub-package that exports it
 _SOURCES = {
-    "LegFamily": "training.families",
-    "PoleFamily": "training.families",
-    "discretise": "simulation.foh",
-    "initial_state": "simulation.foh",
-    "simulate": "simulation.foh",
-    "stationary_value": "simulation.foh",
-    "EncoderConfig": "encoder.network",
-    "Estimate": "identification.identifier",
-    "Identifier": "identification.identifier",
-    "load_pretrained": "identification.identifier",
-    "RefineConfig": "refinement.nlp",
-    "CCF": "structures.base",
-    "MCF": "structures.base",
-    "Physical": "structures.base",
-    "Structure": "structures.base",
-    "System": "structures.base",
-    "TrainConfig": "training.loop",
-    "train": "training.loop",
+    "LegFamily": "training",
+    "PoleFamily": "training",
+    "discretise": "simulation",
+    "initial_state": "simulation",
+    "simulate": "simulation",
+    "stationary_value": "simulation",
+    "EncoderConfig": "encoder",
+    "Estimate": "identification",
+    "Identifier": "identification",
+    "load_pretrained": "identification",
+    "RefineConfig": "refinement",
+    "CCF": "structures",
+    "MCF": "structures",
+    "Physical": "structures",
+    "Structure": "structures",
+    "System": "structures",
+    "TrainConfig": "training",
+    "UndertrainedWarning": "training",
+    "train": "training",
 }
 
 __all__ = [
@@ -77,6 +79,7 @@ __all__ = [
     "Structure",
     "System",
     "TrainConfig",
+    "UndertrainedWarning",
     "discretise",
     "initial_state",
     "load_pretrained",
