@@ -117,7 +117,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from aeid_struct.identification.identifier import Estimate
+from aeid_struct.identification import Estimate
 from aeid_struct.records import as_array, require_finite
 from aeid_struct.simulation.foh import _check_dt
 
@@ -280,7 +280,7 @@ def _records(y, u) -> tuple[np.ndarray, np.ndarray]:
 
 def _physical_source(structure, inverse):
     """What ``Estimate.physical`` maps: the elements of a Physical structure, or the inverse."""
-    from aeid_struct.structures.base import CCF, Physical
+    from aeid_struct.structures import CCF, Physical
 
     if isinstance(structure, Physical):
         return ("elements", tuple(structure.element_names))
@@ -370,7 +370,7 @@ def n4sid(y, u, dt: float, *, order: int, structure=None, inverse=None,
             raise ValueError(f"feedthrough=True but structure {structure!r} has no element d")
         feedthrough = feedthrough_s
     elif inverse is not None:
-        from aeid_struct.structures.base import CCF
+        from aeid_struct.structures import CCF
 
         structure = CCF(order, feedthrough=feedthrough)
     source = _physical_source(structure, inverse)
@@ -559,7 +559,7 @@ def _fixed_vector(structure) -> np.ndarray:
 
 
 def _check_structure(structure) -> None:
-    from aeid_struct.structures.base import Structure
+    from aeid_struct.structures import Structure
 
     if not isinstance(structure, Structure):
         raise ValueError(f"structure must be a CCF, MCF or Physical; got "
@@ -567,7 +567,7 @@ def _check_structure(structure) -> None:
 
 
 def _model(structure, free: np.ndarray):
-    from aeid_struct.structures.base import CCF, MCF, Physical, Structure
+    from aeid_struct.structures import CCF, MCF, Physical, Structure
 
     if isinstance(structure, (CCF, MCF)):
         return _AffineModel(structure, free)
@@ -591,7 +591,7 @@ def _bounds(structure) -> tuple[np.ndarray, np.ndarray]:
 
 def _linear_names(structure) -> list[str]:
     """Free elements the response is linear in: ``c_i`` and ``d`` of CCF and MCF."""
-    from aeid_struct.structures.base import Physical
+    from aeid_struct.structures import Physical
 
     if isinstance(structure, Physical):
         return []
@@ -627,7 +627,7 @@ def _free(structure) -> np.ndarray:
 
 
 def _generic_start(structure, model, y, u, dt) -> dict[str, float]:
-    from aeid_struct.structures.base import CCF, MCF, Physical
+    from aeid_struct.structures import CCF, MCF, Physical
 
     names = structure.element_names
     x = {}
@@ -950,7 +950,7 @@ def casadi_cold(y, u, dt: float, *, structure, start: dict | None = None, invers
     ``info`` (iterations, success, status, loss, loss_start); a solver that does not converge
     keeps its best point and is judged by :func:`failure` like any other estimate.
     """
-    from aeid_struct.refinement.nlp import RefineConfig, refine_elements
+    from aeid_struct.refinement import RefineConfig, refine_elements
 
     start_time = time.perf_counter()
     y, u = _records(y, u)
@@ -1023,7 +1023,7 @@ class Classical:
         for y_i, u_i in zip(Y, U, strict=True):
             est = self.method(y_i, u_i, self.dt)
             if refine and not est.info.get("failed") and est.structure is not None:
-                from aeid_struct.refinement.nlp import refine as _refine
+                from aeid_struct.refinement import refine as _refine
 
                 est = _refine(est, y_i, u_i, self.dt)
             parts.append(est)

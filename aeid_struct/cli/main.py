@@ -236,7 +236,7 @@ def _leg(args: argparse.Namespace) -> int:
           + f", {args.validation} validation systems, seed {args.seed}", flush=True)
     import warnings
 
-    from aeid_struct.training.loop import UndertrainedWarning
+    from aeid_struct.training import UndertrainedWarning
 
     with warnings.catch_warnings():   # printed below, beside the table they qualify
         warnings.simplefilter("ignore", UndertrainedWarning)
@@ -281,7 +281,7 @@ def _structure(spec: str):
             real, pairs = (int(v) for v in parts[1].split(","))
             return structures.MCF(real=real, pairs=pairs)
         if parts[0] in ("leg-stable", "leg-unstable"):
-            from aeid_struct.training.families import LegFamily
+            from aeid_struct.training import LegFamily
 
             family = LegFamily(subsystem=parts[0].split("-")[1])
             return structures.Physical(family.map(), bounds=dict(family.ranges),
@@ -296,7 +296,7 @@ def _structure(spec: str):
 
 def _family(spec: str):
     """Parse a family spec: leg-stable, leg-unstable, poles:REAL,PAIRS."""
-    from aeid_struct.training.families import LegFamily, PoleFamily
+    from aeid_struct.training import LegFamily, PoleFamily
 
     if spec in ("leg-stable", "leg-unstable"):
         return LegFamily(subsystem=spec.split("-")[1])
@@ -317,10 +317,9 @@ def _train(args: argparse.Namespace) -> int:
                           "to write (e.g. model.aeid)")
     structure = _structure(args.structure)
     family = _family(args.family)
-    from aeid_struct.encoder.network import EncoderConfig
-    from aeid_struct.structures.base import CCF
-    from aeid_struct.training.families import LegFamily
-    from aeid_struct.training.loop import TrainConfig, train
+    from aeid_struct.encoder import EncoderConfig
+    from aeid_struct.structures import CCF
+    from aeid_struct.training import LegFamily, TrainConfig, train
 
     noise = args.noise[0] if len(args.noise) == 1 else tuple(args.noise)
     try:
@@ -368,7 +367,7 @@ def _load_identifier(model: str, option: str):
     names = ", ".join(shipped_names())
     path = Path(model)
     if path.is_file():
-        from aeid_struct.identification.identifier import Identifier
+        from aeid_struct.identification import Identifier
 
         try:
             return Identifier.load(path)
@@ -378,7 +377,7 @@ def _load_identifier(model: str, option: str):
         raise _InputError(f"{option}: {model!r} is a folder; expected an identifier file (.aeid) "
                           f"or a shipped name: {names}")
     if model in names.split(", "):
-        from aeid_struct.identification.identifier import load_pretrained
+        from aeid_struct.identification import load_pretrained
 
         return load_pretrained(model)
     raise _InputError(f"{option}: file not found: {model!r} (and it is not a shipped name: "
@@ -675,8 +674,8 @@ def _write_json(file: str, data: dict) -> None:
 
 def _track(args: argparse.Namespace) -> int:
     ident = _load_identifier(args.model, "--model")
-    from aeid_struct.evaluation.plots import wear
-    from aeid_struct.online.tracker import TrackerConfig, wear_study
+    from aeid_struct.evaluation import wear
+    from aeid_struct.online import TrackerConfig, wear_study
 
     try:
         config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, median=args.median,
@@ -784,7 +783,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The command's parser; building it and printing its help import neither torch nor CasADi.
     Every option carries help text (a test checks)."""
     # light (numpy only): the tracker's defaults are the CLI's
-    from aeid_struct.online.tracker import TrackerConfig
+    from aeid_struct.online import TrackerConfig
 
     names = ", ".join(shipped_names())
     parser = _Parser(

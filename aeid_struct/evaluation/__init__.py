@@ -1,3 +1,40 @@
 """Evaluation: paper Table I metrics, scorecards and figures.
 """
 
+from aeid_struct.evaluation.plots import LEG_SIGNALS as LEG_SIGNALS
+from aeid_struct.evaluation.plots import METRIC_UNITS as METRIC_UNITS
+from aeid_struct.evaluation.plots import PARAMETER_UNITS as PARAMETER_UNITS
+from aeid_struct.evaluation.plots import Comparison as Comparison
+from aeid_struct.evaluation.plots import error_cdf as error_cdf
+from aeid_struct.evaluation.plots import fig3 as fig3
+from aeid_struct.evaluation.plots import fig4 as fig4
+from aeid_struct.evaluation.plots import knowledge_bars as knowledge_bars
+from aeid_struct.evaluation.plots import pole_map as pole_map
+from aeid_struct.evaluation.plots import training_curves as training_curves
+from aeid_struct.evaluation.plots import wear as wear
+from aeid_struct.evaluation.scorecard import Score as Score
+from aeid_struct.evaluation.scorecard import pool as pool
+from aeid_struct.evaluation.scorecard import score as score
+from aeid_struct.evaluation.scorecard import table as table
+from aeid_struct.evaluation.scorecard import training_summary as training_summary
+from aeid_struct.evaluation.scorecard import training_table as training_table
+
+__all__ = [
+    "Comparison",
+    "LEG_SIGNALS",
+    "METRIC_UNITS",
+    "PARAMETER_UNITS",
+    "Score",
+    "error_cdf",
+    "fig3",
+    "fig4",
+    "knowledge_bars",
+    "pole_map",
+    "pool",
+    "score",
+    "table",
+    "training_curves",
+    "training_summary",
+    "training_table",
+    "wear",
+]

@@ -156,7 +156,7 @@ def fig3(comparisons: list[Comparison], path=None, omega=FREQUENCIES, *, title=N
         title: what produced the figure, e.g. the scenario and whether the identifiers were
             trained in this run or shipped.
     """
-    from aeid_struct.simulation.foh import simulate
+    from aeid_struct.simulation import simulate
 
     comparisons = list(comparisons)
     if not comparisons or not all(isinstance(c, Comparison) for c in comparisons):
@@ -420,7 +420,7 @@ def wear(result, path=None, *, config=None, title=None):
             one, as ``wear_study`` uses by default).
         title: what produced the figure (identifier, noise, seed, engine).
     """
-    from aeid_struct.online.tracker import TrackerConfig
+    from aeid_struct.online import TrackerConfig
 
     names = list(result.true)
     if not names:

@@ -52,7 +52,7 @@ from aeid_struct.metrics import (
     step_error,
 )
 from aeid_struct.simulation.foh import OverflowWarning, simulate
-from aeid_struct.training.families import Records
+from aeid_struct.training import Records
 
 __all__ = ["Score", "pool", "score", "table", "training_summary", "training_table"]
 

@@ -48,9 +48,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.records import as_array, check_records, normalise, require_finite
-from aeid_struct.structures.base import Structure, System
+from aeid_struct.structures import Structure, System
 
 #: The file format written: maps are references (``aeid_struct.maps``), never code.
 FORMAT = "aeid-struct/identifier/2"
@@ -129,7 +129,7 @@ class Estimate:
     def y_hat(self):
         """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y`` (a
         tuple of ``R`` responses for a several-record estimate)."""
-        from aeid_struct.simulation.foh import simulate
+        from aeid_struct.simulation import simulate
 
         x0 = self._x0()
         if self.records == 1:
@@ -247,7 +247,7 @@ class Estimate:
         if self.initial != "fitted":
             return None
         if "_x0_fitted" not in self.__dict__:
-            from aeid_struct.simulation.foh import initial_state
+            from aeid_struct.simulation import initial_state
 
             if self.records == 1:
                 value = self._on_good(
@@ -284,7 +284,7 @@ class Estimate:
         with a CasADi inverse map (e.g. the leg's CCF -> k, d, m) they are that map's outputs.
         Empty otherwise.
         """
-        from aeid_struct.structures.base import CCF
+        from aeid_struct.structures import CCF
 
         inverse = self._inverse
         if inverse is None:
@@ -812,7 +812,7 @@ class Identifier:
                            initial=self.initial, training_range=self.training_range,
                            errors=errors)
         if refine:
-            from aeid_struct.refinement.nlp import refine as _refine
+            from aeid_struct.refinement import refine as _refine
 
             if refine == "auto":
                 return self._refine_flagged(est, _refine)
@@ -856,7 +856,7 @@ class Identifier:
             info={**est.info, "refined_rows": mask, "refine": sub.info})
 
     def _physical_source(self):
-        from aeid_struct.structures.base import Physical
+        from aeid_struct.structures import Physical
 
         if isinstance(self.structure, Physical):
             return ("elements", tuple(self.structure.element_names))
@@ -994,7 +994,7 @@ def _numbers(value, finite: bool = True) -> bool:
 
 def _check_header(header: dict, source: str) -> None:
     """Entries and JSON types of an identifier header (one ValueError naming ``source``)."""
-    from aeid_struct.encoder.network import EncoderConfig as _Config
+    from aeid_struct.encoder import EncoderConfig as _Config
 
     unknown = sorted(set(header) - set(_HEADER_REQUIRED) - set(_HEADER_OPTIONAL))
     if unknown:
@@ -1088,7 +1088,7 @@ class _Batch1:
     def __init__(self, ident: Identifier):
         import warnings
 
-        from aeid_struct.structures.base import Physical
+        from aeid_struct.structures import Physical
 
         enc = ident.encoder
         cfg = enc.config

@@ -65,8 +65,8 @@ class _OneRecord(torch.nn.Module):
 
 
 def _exportable(ident) -> None:
-    from aeid_struct.identification.identifier import Identifier
-    from aeid_struct.structures.base import Physical
+    from aeid_struct.identification import Identifier
+    from aeid_struct.structures import Physical
 
     if not isinstance(ident, Identifier):
         raise ValueError(f"ident must be an Identifier; got {type(ident).__name__}")
@@ -128,8 +128,8 @@ def onnx_bytes(ident) -> bytes:
 
     import onnx
 
+    from aeid_struct.structures import CCF
     from aeid_struct.structures import maps as maps
-    from aeid_struct.structures.base import CCF
 
     _exportable(ident)
     module = _OneRecord(ident).eval()

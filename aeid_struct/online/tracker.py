@@ -163,7 +163,7 @@ class Tracker:
 
     def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
                  *, engine: str = "auto") -> None:
-        from aeid_struct.identification.identifier import Identifier
+        from aeid_struct.identification import Identifier
         from aeid_struct.online.export import OnnxIdentifier
 
         if not isinstance(config, TrackerConfig):

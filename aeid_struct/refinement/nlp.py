@@ -124,10 +124,10 @@ from dataclasses import dataclass
 import casadi
 import numpy as np
 
-from aeid_struct.identification.identifier import Estimate
+from aeid_struct.identification import Estimate
 from aeid_struct.records import as_array, require_finite
 from aeid_struct.simulation.foh import _check_dt
-from aeid_struct.structures.base import Structure
+from aeid_struct.structures import Structure
 
 __all__ = [
     "CacheInfo",

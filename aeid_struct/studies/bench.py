@@ -188,7 +188,7 @@ def _baseline(method, y, *, dt, **kw):
 
 def _run_method(call, y, y_clean, params_true, structure):
     """Time ``call`` on every record back to back, then score the estimates (see the caller)."""
-    from aeid_struct.baselines.classical import failure
+    from aeid_struct.baselines import failure
     from aeid_struct.metrics import step_error
 
     times, steps, fails = [], [], []
@@ -267,9 +267,9 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
     from threadpoolctl import threadpool_limits
 
     from aeid_struct.baselines import classical as baselines
-    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.identification import load_pretrained
     from aeid_struct.studies.leg_paper import RECORDS
-    from aeid_struct.training.families import LegFamily, records
+    from aeid_struct.training import LegFamily, records
 
     results, throughput = [], {}
     for sub in subsystems:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.training.families import LegFamily, Systems, records
+from aeid_struct.training import LegFamily, Systems, records
 
 KINDS = ("steps", "prbs", "multisine", "noise")
 
@@ -42,7 +42,7 @@ def bench_tracker(ident, *, seconds: float = 120.0, noise: float = 0.01, seeds=(
                   engines=("onnx", "identifier"), config=None) -> list[dict]:
     """One row per engine and seed: ``rms`` (k, d, m %), ``drift_time``, ``alarm_time``,
     ``delay`` (s) and ``latency_ms`` (median update)."""
-    from aeid_struct.online.tracker import TrackerConfig, wear_study
+    from aeid_struct.online import TrackerConfig, wear_study
 
     config = config or TrackerConfig(watch=("k",))
     rows = []
@@ -66,7 +66,7 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
 
     import torch
 
-    from aeid_struct.online.export import to_torchscript
+    from aeid_struct.online import to_torchscript
 
     before = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -89,7 +89,7 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
 
         paths["TorchScript file"] = script
         try:
-            from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
+            from aeid_struct.online import OnnxIdentifier, onnx_bytes
 
             inverse = ident.inverse    # the caller's own map, passed again (aeid_struct.maps)
             runner = OnnxIdentifier(onnx_bytes(ident), maps=None if inverse is None
@@ -121,7 +121,7 @@ def bench_excitation(ident, family, *, kinds=KINDS, noises=(0.0, 0.01, 0.05), co
     parameters or step error > 0.05) and the milliseconds per record. Records have the
     identifier's format; windows start mid-motion when it was trained on such (its
     ``warmup``)."""
-    from aeid_struct.evaluation.scorecard import score
+    from aeid_struct.evaluation import score
 
     warmup = int(ident.meta.get("train", {}).get("config", {}).get("warmup", 0))
     rows = []
@@ -298,7 +298,7 @@ def bench_online(*, quick: bool = False, seconds: float = 120.0, noise: float = 
                  progress: bool = True) -> dict:
     """The whole benchmark on the shipped identifiers (module docstring); ``quick``: fewer
     records, one seed, a shorter scenario (for tests)."""
-    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.identification import load_pretrained
 
     def say(text):
         if progress:

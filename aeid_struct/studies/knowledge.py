@@ -34,8 +34,8 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from aeid_struct.structures.base import CCF, Physical, Structure
-from aeid_struct.training.families import LegFamily
+from aeid_struct.structures import CCF, Physical, Structure
+from aeid_struct.training import LegFamily
 
 #: The known mass of the "m known" variants, kg (the paper's scenario).
 KNOWN_MASS = 1.01
@@ -127,9 +127,9 @@ def train_variant(variant: Variant, *, noisy: bool, count: int, epochs: int, see
             instead of retrained next time (the file name holds every setting).
         progress: print training progress.
     """
-    from aeid_struct.identification.identifier import Identifier
+    from aeid_struct.identification import Identifier
     from aeid_struct.studies.leg_paper import leg_encoder, training_config
-    from aeid_struct.training.loop import train
+    from aeid_struct.training import train
 
     if not isinstance(variant, Variant):
         raise ValueError(f"variant must be a Variant (knowledge.variants()); "
@@ -159,7 +159,7 @@ def validation(count: int, *, noise: float = 0.0, known_mass: bool = False,
     so every variant sees the same legs. ``known_mass``: legs of mass ``KNOWN_MASS``.
     """
     from aeid_struct.studies.leg_paper import RECORDS
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     ranges = {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)}
     if known_mass:
@@ -174,7 +174,7 @@ def evaluate(variant: Variant, ident, val, *, label: str = "") -> list:
     counterpart) on a :func:`validation` set: one for a single-subsystem identifier (on its
     record), one per record for a joint one (each with the same k, d, m errors: one parameter
     set is identified from both records). ``label`` prefixes the scores' names."""
-    from aeid_struct.evaluation.scorecard import score
+    from aeid_struct.evaluation import score
 
     name = f"{label}, {variant.name}" if label else variant.name
     if variant.subsystem == "joint":

@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from aeid_struct.metrics import FREQUENCIES, bode_errors, parameter_errors, step_error
-from aeid_struct.simulation.foh import simulate
-from aeid_struct.training.families import LegFamily, records
+from aeid_struct.simulation import simulate
+from aeid_struct.training import LegFamily, records
 
 #: Record grid per subsystem: (dt, steps).
 RECORDS = {"stable": (0.01, 300), "unstable": (0.005, 100)}
@@ -104,7 +104,7 @@ def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
     core (measured on the unstable leg beside other work: 16-75 s per epoch on two threads,
     2.6-4.3 s on one).
     """
-    from aeid_struct.training.loop import TrainConfig
+    from aeid_struct.training import TrainConfig
 
     dt, steps = _grid(subsystem)
     if epochs is not None:
@@ -126,7 +126,7 @@ def _grid(subsystem: str):
 def leg_structure(subsystem: str):
     """The paper's structure: CCF of order 2 (Descartes' constraint for the stable subsystem;
     the unstable one has a0 = -g/L < 0, so the constraint would exclude the truth)."""
-    from aeid_struct.structures.base import CCF
+    from aeid_struct.structures import CCF
 
     return CCF(2, descartes=(subsystem == "stable"))
 
@@ -136,7 +136,7 @@ def leg_encoder(subsystem: str):
     and a shortcut, then two dense layers), 12 convolution and 48 dense neurons instead of 8 and
     10, on the record average-pooled to 50 samples (pool 6 for 300 samples, 2 for 100): the
     responses are smooth, and pooling divides the convolution cost for batch throughput."""
-    from aeid_struct.encoder.network import EncoderConfig
+    from aeid_struct.encoder import EncoderConfig
 
     pool = tuple(s // 50 for s in _grid(subsystem)[1]) if subsystem == "joint" \
         else RECORDS[subsystem][1] // 50
@@ -149,7 +149,7 @@ def train_leg(subsystem: str, *, seconds: float | None, seed: int = 0, count: in
               epochs: int | None = None, min_epochs: int = 1,
               target_loss: float | None = None):
     """Train one leg identifier with the study's settings (``training_config``)."""
-    from aeid_struct.training.loop import train
+    from aeid_struct.training import train
 
     inverse = LegFamily(subsystem=subsystem).inverse()
     config = training_config(subsystem, seconds=seconds, seed=seed, count=count, noise=noise,
@@ -243,7 +243,7 @@ def figure3(idents: dict, path, source: str = "identifiers given",
     into the figure's title with the scenario; ``sources``: subsystem -> which identifier it is
     (e.g. "shipped leg-stable", "trained 138 epochs"), in the panel titles.
     """
-    from aeid_struct.evaluation.plots import LEG_SIGNALS, Comparison, fig3
+    from aeid_struct.evaluation import LEG_SIGNALS, Comparison, fig3
 
     comparisons = []
     for subsystem, ident in idents.items():
@@ -267,7 +267,7 @@ def figure3(idents: dict, path, source: str = "identifiers given",
 def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
             validation: int = 200):
     """Paper Fig. 4: step error vs training-set size; each size trains for ``seconds_each``."""
-    from aeid_struct.evaluation.plots import fig4
+    from aeid_struct.evaluation import fig4
 
     errors = {}
     for subsystem in ("stable", "unstable"):
@@ -310,8 +310,8 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
     short (``training.UndertrainedWarning``: a budget that fit fewer than ``MIN_EPOCHS``
     epochs, a held-out loss above ``TARGET_LOSS``).
     """
-    from aeid_struct.identification.identifier import load_pretrained
-    from aeid_struct.training.loop import UndertrainedWarning
+    from aeid_struct.identification import load_pretrained
+    from aeid_struct.training import UndertrainedWarning
 
     folder = Path(out) / ("pretrained" if pretrained else "trained")
     folder.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeid_struct.simulation.foh import simulate, states
+from aeid_struct.simulation import simulate, states
 
 EXCITATIONS = ("step", "ramp", "prbs", "multisine", "noise", "steps", "mix")
 

@@ -62,7 +62,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.identification.identifier import (
     FLAG_FALSE_RATE,
     INITIAL_STATES,
@@ -77,7 +77,7 @@ from aeid_struct.simulation.foh import (
     _stationary_value,
     stationary_value,
 )
-from aeid_struct.structures.base import Physical, Structure
+from aeid_struct.structures import Physical, Structure
 from aeid_struct.training.families import EXCITATIONS, Records, records
 
 
