@@ -280,8 +280,13 @@ def _records(y, u) -> tuple[np.ndarray, np.ndarray]:
 
 def _physical_source(structure, inverse):
     """What ``Estimate.physical`` maps: the elements of a Physical structure, or the inverse."""
+    import casadi
+
     from .structures import CCF, Physical
 
+    if inverse is not None and not isinstance(inverse, casadi.Function):
+        raise ValueError(f"inverse must be a casadi.Function (e.g. "
+                         f"symbolic.leg.stable_inverse()); got {type(inverse).__name__}")
     if isinstance(structure, Physical):
         return ("elements", tuple(structure.element_names))
     if inverse is not None and not isinstance(structure, CCF):
