@@ -79,6 +79,14 @@ def _count(name: str, value) -> int:
     return int(value)
 
 
+def _check_sample(count, rng) -> None:
+    """The arguments of a family's ``sample``: a positive integer and a numpy Generator."""
+    _count("count", count)
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)); "
+                         f"got {type(rng).__name__}")
+
+
 def _check_range(name: str, value) -> tuple[float, float]:
     try:
         if isinstance(value, (str, bytes)):
@@ -198,6 +206,7 @@ class LegFamily:
 
     def sample(self, count: int, rng: np.random.Generator) -> Systems:
         """``count`` systems with (k, d, m) uniform in ``ranges``."""
+        _check_sample(count, rng)
         draws = {n: rng.uniform(*self.ranges[n], size=count) for n in ("k", "d", "m")}
         return self.systems(**draws)
 
@@ -235,6 +244,8 @@ class PoleFamily:
         return self.real + 2 * self.pairs
 
     def sample(self, count: int, rng: np.random.Generator) -> Systems:
+        """``count`` systems of the family."""
+        _check_sample(count, rng)
         n = self.n
         poles = [-rng.uniform(*self.decay, size=count) + 0j for _ in range(self.real)]
         for _ in range(self.pairs):

@@ -71,6 +71,9 @@ def as_array(name: str, value) -> np.ndarray:
     if arr.dtype.kind == "c":
         raise ValueError(f"{name} must be real; got a complex array (dtype {arr.dtype}): pass "
                          f"{name}.real or abs({name}) explicitly if that is what you mean")
+    if arr.dtype.kind in "mM":     # numpy casts dates and durations to numbers silently
+        raise ValueError(f"{name} must be an array of real numbers; got an array of dtype "
+                         f"{arr.dtype} (times, not measurements)")
     if arr.dtype.kind == "b":
         raise ValueError(f"{name} must be an array of real numbers; got an array of dtype bool "
                          f"(pass {name}.astype(float) if 0/1 is what you mean)")

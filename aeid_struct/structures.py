@@ -114,6 +114,12 @@ _MAX_PERMUTATIONS = 5040
 # ---------------------------------------------------------------------------------------------
 # The assembled model
 # ---------------------------------------------------------------------------------------------
+def _tensor(name: str, value) -> None:
+    if not isinstance(value, (torch.Tensor, np.ndarray)):
+        raise ValueError(f"{name} must be a torch tensor (or a numpy array); got "
+                         f"{type(value).__name__}")
+
+
 @dataclass(frozen=True, eq=False)
 class System:
     """A batch of continuous-time SISO models ``xdot = A x + b u``, ``y = c^T x + d u``.
@@ -137,11 +143,13 @@ class System:
 
     def __post_init__(self) -> None:
         A, b, c, d = self.A, self.b, self.c, self.d
+        _tensor("A", A)
         if A.ndim not in (2, 3, 4) or A.shape[-1] != A.shape[-2]:
             raise ValueError(f"A must have shape (batch, n, n) or (n, n) (or (batch, records, "
                              f"n, n)); got {tuple(A.shape)}")
         lead, n = tuple(A.shape[:-2]), A.shape[-1]
         for name, x, shape in (("b", b, (*lead, n)), ("c", c, (*lead, n)), ("d", d, lead)):
+            _tensor(name, x)
             if tuple(x.shape) != shape:
                 raise ValueError(
                     f"{name} must have shape {shape} to match A {tuple(A.shape)}; "
