@@ -730,6 +730,9 @@ def _records(name: str, value, count: int, batched: bool) -> np.ndarray:
     ok = arr.ndim == 1 or (batched and arr.ndim == 2 and arr.shape[0] in (1, count))
     if not ok or arr.shape[-1] < 1:
         raise ValueError(f"{name} must have shape {want}; got {arr.shape}")
+    if arr.shape[-1] < 2:
+        # one sample holds no dynamics: the FOH response needs two to interpolate between
+        raise ValueError(f"{name} must have steps >= 2 samples; got {arr.shape}")
     arr = np.broadcast_to(np.atleast_2d(arr), (count, arr.shape[-1]))
     require_finite(name, arr)
     return arr
