@@ -629,7 +629,8 @@ def refine_elements(structure: Structure, x0, y, u, dt: float,
     """
     start = time.perf_counter()
     if not isinstance(structure, Structure):
-        raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
+        raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
+                         f"got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):
         raise ValueError(f"config must be a RefineConfig; got {type(config).__name__}")
     if initial not in ("rest", "fitted"):
@@ -774,7 +775,8 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure | None =
             raise ValueError("structure must be given: this estimate does not carry one (only "
                              "estimates from an Identifier do)")
     if not isinstance(structure, Structure):
-        raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
+        raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
+                         f"got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):
         raise ValueError(f"config must be a RefineConfig; got {type(config).__name__}")
     if structure.records > 1:
