@@ -14,19 +14,48 @@ Table I (paper Sec. IV), as DESIGN.md pins them down:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: The frequency grid of the Bode metrics, rad/s.
 FREQUENCIES = np.logspace(-1, 2, 200)
 
 
+def _real(name: str, value) -> np.ndarray:
+    """``value`` as a float64 array, or a ValueError naming ``name``."""
+    try:
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biuf":
+            raise TypeError
+        return arr.astype(np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an array of real numbers; got "
+                         f"{type(value).__name__}") from None
+
+
 def _batch(A, b, c, d):
-    A = np.asarray(A, dtype=np.float64)
+    """``A (batch, n, n)``, ``b, c (batch, n)``, ``d (batch,)`` of one system or a batch, checked:
+    shapes that agree and finite entries (a ValueError naming the argument)."""
+    A = _real("A", A)
+    if A.ndim not in (2, 3) or A.shape[-1] != A.shape[-2] or A.shape[-1] == 0:
+        raise ValueError(f"A must be square with shape (batch, n, n) or (n, n); got {A.shape}")
     single = A.ndim == 2
-    A = np.atleast_3d(A) if not single else A[None]
-    b = np.asarray(b, dtype=np.float64).reshape(A.shape[0], -1)
-    c = np.asarray(c, dtype=np.float64).reshape(A.shape[0], -1)
-    d = np.asarray(d, dtype=np.float64).reshape(A.shape[0])
+    A = A[None] if single else A
+    count, n = A.shape[0], A.shape[-1]
+    out = [A]
+    for name, v, core in (("b", b, (n,)), ("c", c, (n,)), ("d", d, ())):
+        arr = _real(name, v)
+        # any layout of count * n (count) numbers, as the reshape always read them
+        if arr.size != count * math.prod(core):
+            want = core if single else (count, *core)
+            raise ValueError(f"{name} must have shape {want} to match A "
+                             f"{A.shape[1:] if single else A.shape}; got {arr.shape}")
+        out.append(arr.reshape(count, *core))
+    for name, arr in zip("Abcd", out, strict=True):
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite; got nan or inf")
+    A, b, c, d = out
     return A, b, c, d, single
 
 
@@ -46,7 +75,10 @@ def frequency_response(A, b, c, d, omega=FREQUENCIES) -> np.ndarray:
     """
     A, b, c, d, single = _batch(A, b, c, d)
     n = A.shape[-1]
-    omega = np.asarray(omega, dtype=np.float64)
+    omega = _real("omega", omega)
+    if omega.ndim != 1 or not np.all(np.isfinite(omega)):
+        raise ValueError(f"omega must be a (f,) array of finite frequencies in rad/s; got shape "
+                         f"{omega.shape}")
     M = 1j * omega[None, :, None, None] * np.eye(n) - A[:, None]        # (batch, f, n, n)
     rhs = np.broadcast_to(b[:, None, :, None], M.shape[:-1] + (1,)).astype(complex)
     x = np.linalg.solve(M, rhs)[..., 0]                                   # (batch, f, n)
@@ -62,12 +94,19 @@ def step_error(y_true, y_hat) -> np.ndarray:
         y_true, y_hat: ``(batch, steps)`` or ``(steps,)`` step responses on the same grid.
 
     Returns:
-        ``(batch,)`` (``(1,)`` for single records).
+        ``(batch,)`` (``(1,)`` for single records); inf or NaN for a record whose ``y_hat`` is
+        not finite (an overflowing or failed estimate).
     """
-    y_true = np.atleast_2d(np.asarray(y_true, dtype=np.float64))
-    y_hat = np.atleast_2d(np.asarray(y_hat, dtype=np.float64))
+    y_true = np.atleast_2d(_real("y_true", y_true))
+    y_hat = np.atleast_2d(_real("y_hat", y_hat))
     if y_true.shape != y_hat.shape:
         raise ValueError(f"y_hat must have the shape of y_true {y_true.shape}; got {y_hat.shape}")
+    # The truth must be finite (it scales the error); an estimate's response may not be: an
+    # unstable or failed estimate has an infinite (inf) or undefined (NaN) error, which the
+    # scorecard counts as such.
+    if not np.all(np.isfinite(y_true)):
+        r, k = np.argwhere(~np.isfinite(y_true))[0]
+        raise ValueError(f"y_true must be finite; got {y_true[r, k]} at record {r}, sample {k}")
     lo = y_true.min(axis=1, keepdims=True)
     span = y_true.max(axis=1, keepdims=True) - lo
     if np.any(span <= 0):
@@ -86,6 +125,9 @@ def bode_errors(true, est, omega=FREQUENCIES) -> tuple[np.ndarray, np.ndarray]:
     """
     G = np.atleast_2d(frequency_response(*true, omega=omega))
     H = np.atleast_2d(frequency_response(*est, omega=omega))
+    if G.shape != H.shape:
+        raise ValueError(f"est must hold as many systems as true ({G.shape[0]}); got "
+                         f"{H.shape[0]}")
     with np.errstate(divide="ignore", invalid="ignore"):
         mag = np.mean(np.abs(20 * np.log10(np.abs(H)) - 20 * np.log10(np.abs(G))), axis=1)
         phase = np.mean(np.abs(np.angle(H / G)), axis=1)
@@ -98,8 +140,16 @@ def parameter_errors(true: dict, est: dict) -> dict[str, np.ndarray]:
     for name, value in est.items():
         if name not in true:
             continue
-        p = np.asarray(true[name], dtype=np.float64)
-        out[name] = 100.0 * np.abs(np.asarray(value, dtype=np.float64) - p) / np.abs(p)
+        p = _real(f"true[{name!r}]", true[name])
+        v = _real(f"est[{name!r}]", value)
+        if v.shape != p.shape and p.size != 1:
+            raise ValueError(f"est[{name!r}] must have the shape of true[{name!r}] {p.shape}; "
+                             f"got {v.shape}")
+        if np.any(p == 0) or not np.all(np.isfinite(p)):
+            # the relative error of a parameter whose true value is 0 is undefined
+            raise ValueError(f"true[{name!r}] must be non-zero and finite (the error is relative "
+                             f"to it); got {p if p.size <= 4 else 'an array with 0 or nan'}")
+        out[name] = 100.0 * np.abs(v - p) / np.abs(p)
     return out
 
 
@@ -114,8 +164,8 @@ def nrmse_fit(y, y_hat) -> np.ndarray:
         undefined (``||y - mean(y)|| = 0``: no model explains it better than its mean, and
         reporting 100 % would call any model perfect).
     """
-    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
-    y_hat = np.atleast_2d(np.asarray(y_hat, dtype=np.float64))
+    y = np.atleast_2d(_real("y", y))
+    y_hat = np.atleast_2d(_real("y_hat", y_hat))
     if y.shape != y_hat.shape:
         raise ValueError(f"y_hat must have the shape of y {y.shape}; got {y_hat.shape}")
     # Constant: all samples equal (max == min). Not den == 0: the mean of 60 samples of 0.7

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Checked", "RecordError", "as_array", "as_records", "check_records", "normalise",
-           "record_problems", "require_finite"]
+           "overflow_problem", "record_problems", "require_finite"]
 
 
 class RecordError(ValueError):
@@ -48,11 +48,21 @@ def as_array(name: str, value) -> np.ndarray:
     """``value`` as a float64 array of real numbers, or a ValueError naming ``name``.
 
     A complex array is refused, whatever its imaginary part: numpy's cast would drop it
-    silently, and a model identified from half of the data looks like a good one."""
+    silently, and a model identified from half of the data looks like a good one. So are a
+    boolean array (0/1 flags are not a measurement), a masked array with masked samples (numpy
+    would read the values under the mask) and a missing sample (None, which numpy's cast
+    turns into NaN)."""
     if value is None:
         raise ValueError(f"{name} must be an array of real numbers; got None")
     if hasattr(value, "detach") and hasattr(value, "cpu"):   # a torch tensor, grad or GPU
         value = value.detach().cpu()
+    if isinstance(value, np.ma.MaskedArray):
+        masked = int(np.ma.count_masked(value))
+        if masked:
+            raise ValueError(f"{name} is a masked array with {masked} masked sample"
+                             f"{'s' if masked > 1 else ''}: fill them ({name}.filled(value)) or "
+                             f"cut them out; the values under a mask are not measurements")
+        value = value.data
     try:
         arr = np.asarray(value)
     except (TypeError, ValueError, RuntimeError):
@@ -61,6 +71,15 @@ def as_array(name: str, value) -> np.ndarray:
     if arr.dtype.kind == "c":
         raise ValueError(f"{name} must be real; got a complex array (dtype {arr.dtype}): pass "
                          f"{name}.real or abs({name}) explicitly if that is what you mean")
+    if arr.dtype.kind in "mM":     # numpy casts dates and durations to numbers silently
+        raise ValueError(f"{name} must be an array of real numbers; got an array of dtype "
+                         f"{arr.dtype} (times, not measurements)")
+    if arr.dtype.kind == "b":
+        raise ValueError(f"{name} must be an array of real numbers; got an array of dtype bool "
+                         f"(pass {name}.astype(float) if 0/1 is what you mean)")
+    if arr.dtype.kind == "O" and any(v is None for v in arr.flat):
+        raise ValueError(f"{name} must be an array of real numbers; got {type(value).__name__} "
+                         "of dtype object with a missing value (None)")
     try:
         return arr.astype(np.float64, copy=False)
     except (TypeError, ValueError):   # strings, objects (a complex number among them, ...)
@@ -217,6 +236,15 @@ def _problem(r: int, count: int, y: np.ndarray, u: np.ndarray | None, reads_u: b
     return (f"{yname} and {uname} must have a scale ratio max|{yname}| / max|{uname}| that "
             f"float64 holds (the model is de-normalised by it, Eq. 15); got {y_bar:.3g} / "
             f"{u_bar:.3g} at record {r}")
+
+
+def overflow_problem(r: int, gain: float, yname: str = "y") -> str:
+    """The reason of a good record ``r`` whose identified model is not finite: the
+    de-normalisation multiplies ``c, d`` by ``gain = max|y| / max|u|`` (Eq. 15 and linearity),
+    and for a record of 1e308 the product lies beyond float64."""
+    return (f"{yname} must have a scale the identified model can hold in float64: de-normalised "
+            f"by max|{yname}| / max|u| = {gain:.3g} (Eq. 15), its c or d at record {r} lies "
+            f"beyond float64's range; rescale {yname} (e.g. to other units)")
 
 
 def normalise(y2: np.ndarray, u2: np.ndarray | None):

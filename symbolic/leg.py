@@ -671,8 +671,10 @@ def generate_c(
         The C file, self-contained (CasADi's runtime inlined), with the functions' names and their
         input/output names as symbols.
     """
-    if not name.isidentifier():
+    if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"name must be a C identifier (the file stem); got {name!r}")
+    if not isinstance(directory, (str, pathlib.PurePath)) or not str(directory):
+        raise ValueError(f"directory must be a folder path (str or Path); got {directory!r}")
     directory = pathlib.Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     builders = {

@@ -434,7 +434,7 @@ def test_refine_elements_errors():
         refine_elements(structure, [1.0, 1.0, 1.0, 0.0], np.zeros(20), None, 0.1)
     with pytest.raises(ValueError, match="y must be finite; got inf at sample 3"):
         refine_elements(structure, [1.0, 1.0, 1.0, 0.0], np.r_[1, 1, 1, np.inf], None, 0.1)
-    with pytest.raises(ValueError, match="structure must be a Structure; got str"):
+    with pytest.raises(ValueError, match=r"structure must be a Structure \(CCF.*got str"):
         refine_elements("CCF", [1.0], y, None, 0.1)
     with pytest.raises(ValueError, match="config must be a RefineConfig; got dict"):
         refine_elements(structure, [1.0, 1.0, 1.0, 0.0], y, None, 0.1, {"max_iter": 3})
@@ -463,7 +463,7 @@ def test_refine_errors():
         refine(est, y, None, -1, structure=ident.structure)
     with pytest.raises(ValueError, match="estimate.elements must hold every element of MCF"):
         refine(est, y, None, 0.05, structure=ae.MCF(real=0, pairs=1))
-    with pytest.raises(ValueError, match="structure must be a Structure; got str"):
+    with pytest.raises(ValueError, match=r"structure must be a Structure \(CCF.*got str"):
         refine(est, y, None, 0.05, structure="CCF(2)")
 
 

@@ -299,7 +299,7 @@ def test_bad_checkpoint_is_refused_with_its_path_and_never_run(tmp_path, case):
         ({"count": 2, "holdout": 0.2}, "count=2 is too small to hold out 20%"),
         ({"seconds": -1.0}, "seconds must be positive or None"),
         ({"gamma": -1.0}, "gamma must be >= 0"),
-        ({"noise": (0.1, 0.0)}, "noise must be a level >= 0 or a"),
+        ({"noise": (0.1, 0.0)}, "noise must be a finite level >= 0 or a"),
         ({"excitation": "chirp"}, "excitation must be one of"),
         ({"supervised": -1.0}, "supervised must be a finite weight >= 0"),
         ({"threads": 0}, "threads must be a positive integer or None; got 0"),

@@ -280,8 +280,13 @@ def _records(y, u) -> tuple[np.ndarray, np.ndarray]:
 
 def _physical_source(structure, inverse):
     """What ``Estimate.physical`` maps: the elements of a Physical structure, or the inverse."""
+    import casadi
+
     from aeid_struct.structures import CCF, Physical
 
+    if inverse is not None and not isinstance(inverse, casadi.Function):
+        raise ValueError(f"inverse must be a casadi.Function (e.g. "
+                         f"symbolic.leg.stable_inverse()); got {type(inverse).__name__}")
     if isinstance(structure, Physical):
         return ("elements", tuple(structure.element_names))
     if inverse is not None and not isinstance(structure, CCF):
@@ -874,6 +879,8 @@ def failure(estimate: Estimate, *, structure=None, truth_y=None, step_tol: float
     -------
     str for a single estimate, a list of str for a batched one.
     """
+    if not isinstance(estimate, Estimate):
+        raise ValueError(f"estimate must be an Estimate; got {type(estimate).__name__}")
     if not (isinstance(step_tol, (int, float)) and step_tol > 0):
         raise ValueError(f"step_tol must be a positive number; got {step_tol!r}")
     count = estimate.A.shape[0] if estimate.batched else 1
@@ -1017,8 +1024,11 @@ class Classical:
         if Y.ndim != 2 or Y.shape[1] != self.steps:
             raise ValueError(f"y must have shape ({self.steps},) or (batch, {self.steps}); "
                              f"got {np.shape(y)}")
-        U = np.ones_like(Y) if u is None else np.broadcast_to(
-            np.atleast_2d(as_array("u", u)), Y.shape)
+        U = np.ones_like(Y) if u is None else np.atleast_2d(as_array("u", u))
+        if U.ndim != 2 or U.shape[1] != self.steps or U.shape[0] not in (1, len(Y)):
+            raise ValueError(f"u must have shape ({self.steps},) or ({len(Y)}, {self.steps}) "
+                             f"like y; got {np.shape(u)}")
+        U = np.broadcast_to(U, Y.shape)
         parts = []
         for y_i, u_i in zip(Y, U, strict=True):
             est = self.method(y_i, u_i, self.dt)

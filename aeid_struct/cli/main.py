@@ -317,10 +317,18 @@ def _train(args: argparse.Namespace) -> int:
                           "to write (e.g. model.aeid)")
     structure = _structure(args.structure)
     family = _family(args.family)
+    order = getattr(family, "n", 2)          # a leg subsystem is of order 2
+    if structure.n != order:
+        raise _InputError(f"train: --structure {args.structure!r} has order {structure.n} but "
+                          f"--family {args.family!r} has systems of order {order}; they must "
+                          "agree")
     from aeid_struct.encoder import EncoderConfig
     from aeid_struct.structures import CCF
     from aeid_struct.training import LegFamily, TrainConfig, train
 
+    if len(args.noise) > 2:
+        raise _InputError(f"train: --noise takes one level or LO HI; got {len(args.noise)} "
+                          f"values {args.noise}")
     noise = args.noise[0] if len(args.noise) == 1 else tuple(args.noise)
     try:
         config = TrainConfig(dt=args.dt, steps=args.steps, count=args.count, epochs=args.epochs,
@@ -469,6 +477,8 @@ def _is_number(cell: str) -> bool:
 def _read_record(file: str, option: str, channel: str) -> _Record:
     """Read one record file given to ``option`` (--y or --u) for ``channel`` (y or u)."""
     path = Path(file)
+    if path.is_dir():
+        raise _InputError(f"{option}: {file!r} is a folder; expected a .npy or .csv record file")
     if not path.is_file():
         raise _InputError(f"{option}: file not found: {file!r}; expected a .npy or .csv record "
                           "file")
@@ -828,7 +838,7 @@ def build_parser() -> argparse.ArgumentParser:
     legp.add_argument("--epochs", type=_POSITIVE_INT, default=None,
                       help="train each identifier for this many epochs instead of a time "
                            "budget (reproducible on a busy machine)")
-    legp.add_argument("--seed", type=int, default=0,
+    legp.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
                       help="seed of the training data and the validation systems (default 0)")
     legp.add_argument("--validation", type=_POSITIVE_INT, default=500,
                       help="fresh validation systems (default 500)")
@@ -864,12 +874,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="simulated training records, a share held out (default 10000)")
     tr.add_argument("--epochs", type=int, default=200,
                     help="epochs to train (default 200; --seconds stops earlier)")
-    tr.add_argument("--seconds", type=float, default=None,
+    tr.add_argument("--seconds", type=_POSITIVE, default=None,
                     help="wall-clock training budget [s] (default: none, --epochs decides)")
     tr.add_argument("--batch", type=int, default=128, help="records per gradient step "
                                                            "(default 128)")
-    tr.add_argument("--lr", type=float, default=3e-3, help="Adam learning rate (default 3e-3)")
-    tr.add_argument("--gamma", type=float, default=None,
+    tr.add_argument("--lr", type=_POSITIVE, default=3e-3, help="Adam learning rate (default 3e-3)")
+    tr.add_argument("--gamma", type=_number(float, 0, strict=False), default=None,
                     help="weight of Eq. 14's stationary-value term (default: 1 for steps, else 0)")
     tr.add_argument("--noise", type=float, nargs="+", default=[0.0],
                     help="a level, or LO HI drawn per record (std relative to max|y|)")
@@ -884,7 +894,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="widths of the encoder's dense layers (default 48 48)")
     tr.add_argument("--pool", type=int, default=1,
                     help="average-pooling factor of the record before the encoder (default 1)")
-    tr.add_argument("--seed", type=int, default=0,
+    tr.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
                     help="seed of the records, the initial weights and the batches (default 0)")
     tr.add_argument("--checkpoint", default=None, help="checkpoint file to resume from")
     tr.add_argument("--out", required=True, help="identifier file to write (.aeid)")
@@ -912,7 +922,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help=f"{text} (default {getattr(tracker, name)})")
     trk.add_argument("--watch", nargs="*", default=["k"],
                      help="parameters whose drift raises the alarm (default: k, the spring)")
-    trk.add_argument("--seed", type=int, default=0, help="seed of the scenario (default 0)")
+    trk.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
+                     help="seed of the scenario (default 0)")
     trk.add_argument("--engine", choices=("auto", "onnx", "identifier"), default="auto",
                      help="onnx: the exported encoder under onnxruntime (auto: when installed)")
     trk.add_argument("--out", default="out/track", help="folder for the PNG and JSON")

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -96,7 +97,7 @@ class EncoderConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"{name} must be a positive integer; got {value!r}")
-        if not isinstance(self.features, int) or self.features < 0:
+        if not integer(self.features, 0):
             raise ValueError(f"features must be a non-negative integer; got {self.features!r}")
         if self.kernel % 2 == 0:
             raise ValueError(f"kernel must be odd (symmetric 'same' padding); got {self.kernel}")
@@ -110,11 +111,15 @@ class EncoderConfig:
                     "every record must pool to the same positive length: steps "
                     f"{self.record_steps} // pool {self.record_pools} = {lengths}; choose pool "
                     "factors that make them equal")
-        dense = tuple(self.dense)
-        if not all(isinstance(w, int) and w >= 1 for w in dense):
+        dense = tuple(self.dense) if isinstance(self.dense, (tuple, list)) else None
+        if dense is None or not all(integer(w, 1) for w in dense):
             raise ValueError(f"dense must be a tuple of positive integers; got {self.dense!r}")
         object.__setattr__(self, "dense", dense)
-        if self.activation not in _ACTIVATIONS:
+        if not isinstance(self.inputs, (bool, np.bool_)):
+            # bool("no") is True: a string would silently add the input channel
+            raise ValueError(f"inputs must be True or False; got {self.inputs!r}")
+        object.__setattr__(self, "inputs", bool(self.inputs))
+        if not isinstance(self.activation, str) or self.activation not in _ACTIVATIONS:
             raise ValueError(
                 f"activation must be one of {sorted(_ACTIVATIONS)}; got {self.activation!r}"
             )

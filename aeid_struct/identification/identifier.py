@@ -40,6 +40,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -49,7 +50,14 @@ import numpy as np
 import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
-from aeid_struct.records import as_array, check_records, normalise, require_finite
+from aeid_struct.records import (
+    Checked,
+    as_array,
+    check_records,
+    normalise,
+    overflow_problem,
+    require_finite,
+)
 from aeid_struct.structures import Structure, System
 
 #: The file format written: maps are references (``aeid_struct.maps``), never code.
@@ -167,9 +175,15 @@ class Estimate:
         """The estimates of the records ``index`` (an int array, slice or mask) of a batch."""
         if not self.batched or self.records != 1:
             raise ValueError("take needs a batched estimate of one record per system")
+        count = len(self.A)
+        try:
+            rows = np.atleast_1d(np.arange(count)[index])
+        except (IndexError, TypeError, ValueError) as err:
+            raise ValueError(f"index must select records of this batch of {count} records (an "
+                             f"int, an int array, a slice or a ({count},) bool mask); got "
+                             f"{index!r}: {err}") from None
         errors = self.errors
         if errors is not None:
-            rows = np.atleast_1d(np.arange(len(errors))[index])
             errors = tuple(errors[i] for i in rows)
         return dataclasses.replace(
             self, A=self.A[index], b=self.b[index], c=self.c[index], d=self.d[index],
@@ -400,6 +414,42 @@ def _through_ccf(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
 _as_array, _require_finite = as_array, require_finite
 
 
+def _features(name: str, value, records: int) -> np.ndarray:
+    """``(records,)`` float64 from a number or one finite number per record."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.array([np.nan])
+    if arr.ndim > 1 or arr.size not in (1, records) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be a finite number or {records} of them (one per "
+                         f"record); got {value!r}")
+    return np.broadcast_to(arr.reshape(-1), (records,)).copy()
+
+
+def _overflowed(problems: tuple, good: np.ndarray, model: tuple, y2: np.ndarray,
+                u2: np.ndarray | None) -> tuple:
+    """``problems`` with a reason added for each good record whose identified model is not
+    finite, and its model rows set to NaN (in place).
+
+    Why: the de-normalisation multiplies ``c, d`` by ``max|y| / max|u|`` (Eq. 15 and
+    linearity); a record of 1e308 has a model whose ``c`` lies beyond float64 (inf), which
+    must not come back as an estimate."""
+    finite = np.ones(len(problems), dtype=bool)
+    for part in model:
+        finite &= np.isfinite(part.reshape(len(problems), -1)).all(axis=1)
+    bad = good & ~finite
+    if not bad.any():
+        return problems
+    out = list(problems)
+    u_bar = np.ones(len(y2)) if u2 is None else np.abs(u2).max(axis=1)
+    for r in np.flatnonzero(bad):
+        gain = np.abs(y2[r]).max() / u_bar[r]
+        out[r] = overflow_problem(r, gain)
+        for part in model:
+            part[r] = math.nan
+    return tuple(out)
+
+
 def _same_dt(dt, dts: tuple[float, ...]) -> bool:
     """Whether a user's ``dt`` (a number, or a sequence for several records) is ``dts``."""
     given = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
@@ -435,6 +485,11 @@ class Identifier:
             raise ValueError(f"scale must be one of {SCALE_MODES}; got {scale!r}")
         if initial not in INITIAL_STATES:
             raise ValueError(f"initial must be one of {INITIAL_STATES}; got {initial!r}")
+        if not isinstance(encoder, Encoder):
+            raise ValueError(f"encoder must be an Encoder; got {type(encoder).__name__}")
+        if not isinstance(structure, Structure):
+            raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); got "
+                             f"{type(structure).__name__}")
         R = encoder.config.records
         if structure.records != R:
             raise ValueError(f"the encoder reads {R} record(s) but {structure!r} describes "
@@ -468,10 +523,18 @@ class Identifier:
             raise ValueError(f"theta_mean and theta_scale must have shape ({structure.p},); "
                              f"got {tuple(self.theta_mean.shape)}, "
                              f"{tuple(self.theta_scale.shape)}")
+        if not bool(torch.isfinite(self.theta_mean).all() & torch.isfinite(self.theta_scale)
+                    .all()):
+            raise ValueError("theta_mean and theta_scale must be finite: every estimate would be "
+                             "NaN")
         self.scale = scale
         self.initial = initial
-        fm, fs = (np.broadcast_to(np.asarray(v, dtype=np.float64), (R,)).copy()
-                  for v in (feature_mean, feature_scale))
+        fm, fs = (_features(name, v, R) for name, v in (("feature_mean", feature_mean),
+                                                        ("feature_scale", feature_scale)))
+        if not np.all(fs > 0):
+            # the scale feature is divided by it: 0 gives inf features and NaN estimates
+            raise ValueError(f"feature_scale must be positive (one per record); got "
+                             f"{feature_scale!r}")
         self.feature_mean = float(fm[0]) if R == 1 else tuple(fm.tolist())
         self.feature_scale = float(fs[0]) if R == 1 else tuple(fs.tolist())
         self._features = (torch.from_numpy(fm), torch.from_numpy(fs))   # (R,) each
@@ -661,19 +724,23 @@ class Identifier:
             checked.raise_first()
         good = checked.good
         y2, u2 = checked.y, checked.u
-        if good.all():
-            A, b, c, d, el = self._encode(y2, u2)
-        else:
-            rows = np.flatnonzero(good)
-            n, q = self.structure.n, len(self.structure.element_names)
-            A, b, c, d, el = (np.full((checked.count, *shape), math.nan)
-                              for shape in ((n, n), (n,), (n,), (), (q,)))
-            if rows.size:
-                parts = self._encode(y2[rows], None if u2 is None else u2[rows])
-                for whole, part in zip((A, b, c, d, el), parts, strict=True):
-                    whole[rows] = part
+        with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
+            if good.all():
+                A, b, c, d, el = self._encode(y2, u2)
+            else:
+                rows = np.flatnonzero(good)
+                n, q = self.structure.n, len(self.structure.element_names)
+                A, b, c, d, el = (np.full((checked.count, *shape), math.nan)
+                                  for shape in ((n, n), (n,), (n,), (), (q,)))
+                if rows.size:
+                    parts = self._encode(y2[rows], None if u2 is None else u2[rows])
+                    for whole, part in zip((A, b, c, d, el), parts, strict=True):
+                        whole[rows] = part
+        problems = _overflowed(checked.problems, good, (A, b, c, d, el), y2, u2)
+        if errors == "raise":
+            Checked(y2, u2, checked.batched, problems).raise_first()
         return self._estimate(A, b, c, d, el, y2, u2, checked.batched, start, refine,
-                              None if errors == "raise" else checked.problems)
+                              None if errors == "raise" else problems)
 
     def _encode(self, y2: np.ndarray, u2: np.ndarray | None):
         """Float64 ``A (count, n, n), b, c (count, n), d (count,), elements (count, q)`` of
@@ -887,10 +954,7 @@ class Identifier:
         """Write the identifier to ``path`` (safetensors: weights + JSON header)."""
         from safetensors.torch import save_file
 
-        path = Path(path)
-        if path.is_dir():
-            raise ValueError(f"path must be a file to write; {str(path)!r} is a directory")
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path = writable_file(path)
         tensors = {f"encoder.{k}": v.detach().contiguous()
                    for k, v in self.encoder.state_dict().items()}
         tensors["theta_mean"] = self.theta_mean.contiguous()
@@ -919,6 +983,9 @@ class Identifier:
 
         from aeid_struct.structures import maps as _maps
 
+        if not isinstance(path, (str, os.PathLike)) or not str(path):
+            raise ValueError(f"path must be an existing identifier file (str or Path); got "
+                             f"{path!r}")
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"path must be an existing identifier file; got {str(path)!r}")
@@ -952,10 +1019,18 @@ class Identifier:
             raise ValueError(f"{source}: 'encoder' is not a valid encoder configuration: "
                              f"{err}") from None
         try:
-            encoder = Encoder(config)
+            # First on the meta device, which allocates nothing: a header that describes a huge
+            # network (width 1e8) is refused by the shapes of the weights the file really holds,
+            # before any memory is taken for it.
+            with torch.device("meta"):
+                expected = {f"encoder.{k}": tuple(v.shape)
+                            for k, v in Encoder(config).state_dict().items()}
         except ValueError as err:
             raise ValueError(f"{source}: 'encoder': {err}") from None
+        _check_weights(expected, tensors, source)
+        encoder = Encoder(config)
         _load_weights(encoder, tensors, source)
+        _check_structure_size(header["structure"], config.outputs, source)
         try:
             structure = Structure.from_config(header["structure"], maps=maps, trust=trust)
             inverse = header.get("inverse")
@@ -977,6 +1052,23 @@ class Identifier:
         except ValueError as err:
             raise ValueError(f"{source}: {err}") from None
         return ident
+
+
+def writable_file(path) -> Path:
+    """``path`` (str or PathLike) as a Path to a file that can be written, its folder created;
+    a ValueError naming ``path`` for anything else (not a path, a directory, a file where its
+    folder should be)."""
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ValueError(f"path must be a file name (str or Path); got {path!r}")
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"path must be a file to write; {str(path)!r} is a directory")
+    folder = next((p for p in path.parents if p.exists()), None)
+    if folder is not None and not folder.is_dir():
+        raise ValueError(f"path must be a file to write; {str(path)!r} lies below "
+                         f"{str(folder)!r}, which is a file")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 #: Header entries: required ones, and optional ones with the JSON types they may have.
@@ -1043,6 +1135,43 @@ def _check_header(header: dict, source: str) -> None:
     if not isinstance(header["encoder"].get("inputs", False), bool):
         raise ValueError(f"{source}: 'encoder' entry 'inputs' must be true or false; got "
                          f"{header['encoder']['inputs']!r}")
+
+
+def _check_structure_size(config, outputs: int, source: str) -> None:
+    """A canonical structure's size against the encoder's outputs, before it is built: a header
+    with ``{"type": "CCF", "n": 100000000}`` would otherwise spend minutes and gigabytes on its
+    element maps before any later check refused it. Every element is a raw parameter
+    (``outputs`` of them) or fixed (listed in the config)."""
+    kind = config.get("type")
+    if kind not in ("CCF", "MCF"):
+        return            # Physical: one element per input of a map from the allow-list
+    sizes = [config.get(k, 0) for k in (("n",) if kind == "CCF" else ("real", "pairs"))]
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in sizes):
+        return            # from_config names the bad entry
+    n = sizes[0] if kind == "CCF" else sizes[0] + 2 * sizes[1]
+    fixed = config.get("fixed") or {}
+    elements = 2 * n + (1 if config.get("feedthrough") else 0)
+    if elements > outputs + (len(fixed) if isinstance(fixed, dict) else 0):
+        raise ValueError(f"{source}: 'structure' {kind} of order {n} has {elements} elements, "
+                         f"more than the encoder's {outputs} outputs and "
+                         f"{len(fixed) if isinstance(fixed, dict) else 0} fixed elements")
+
+
+def _check_weights(expected: dict, tensors: dict, source: str) -> None:
+    """The file's tensors against ``expected`` (name -> shape of the encoder the header
+    describes): every one there, none more, each of its shape."""
+    missing = [k for k in (*expected, "theta_mean", "theta_scale") if k not in tensors]
+    if missing:
+        raise ValueError(f"{source}: weights {missing} are missing (the header's 'encoder' "
+                         "describes them)")
+    unknown = sorted(set(tensors) - set(expected) - {"theta_mean", "theta_scale"})
+    if unknown:
+        raise ValueError(f"{source}: unknown weights {unknown} (not in the encoder the header "
+                         "describes)")
+    for key, shape in expected.items():
+        if tuple(tensors[key].shape) != shape:
+            raise ValueError(f"{source}: weight {key!r} has shape {tuple(tensors[key].shape)}; "
+                             f"the header's 'encoder' needs {shape}")
 
 
 def _load_weights(encoder: Encoder, tensors: dict, source: str) -> None:

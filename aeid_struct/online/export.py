@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from aeid_struct.records import check_records, normalise
+from aeid_struct.records import RecordError, check_records, normalise, overflow_problem
 
 #: The metadata format written: the inverse map as a reference (``aeid_struct.maps``).
 ONNX_FORMAT = "aeid-struct-onnx-2"
@@ -87,14 +87,10 @@ def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _file_to_write(path) -> Path:
-    """``path`` as a Path to a file that can be written (its folder created), or a ValueError."""
-    if not isinstance(path, (str, Path)) or not str(path):
-        raise ValueError(f"path must be a file name (str or Path); got {path!r}")
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"path must be a file to write; {str(path)!r} is a directory")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path
+    """``path`` as a Path to a file that can be written (``identify.writable_file``)."""
+    from aeid_struct.identification.identifier import writable_file
+
+    return writable_file(path)
 
 
 def to_torchscript(ident, path) -> Path:
@@ -270,6 +266,13 @@ class OnnxIdentifier:
             source += f" (format {ONNX_FORMAT_1!r}, which stored its inverse map as code)"
         _check_onnx_header(header, source)
         self.steps, self.dt = int(header["steps"]), float(header["dt"])
+        graph = {i.name: i.shape for i in self.session.get_inputs()}
+        if set(graph) != {"y", "u"} or any(shape != [self.steps] for shape in graph.values()):
+            # the metadata and the graph must describe the same record, or every call fails
+            # inside onnxruntime (or, for a looser graph, reads another record format)
+            raise ValueError(f"{source}: its 'aeid' metadata says steps={self.steps} but its "
+                             f"graph reads inputs {graph}; expected y and u of shape "
+                             f"[{self.steps}]")
         self.inputs, self.initial = bool(header["inputs"]), header["initial"]
         self.element_names = tuple(header["elements"])
         self.records = 1
@@ -330,10 +333,15 @@ class OnnxIdentifier:
         if self._scale == "denormalise":
             # Exact de-normalisation (linearity), in float64: c, d and the elements c_i, d
             # scale with the output (Identifier._output_mask).
-            c, d = c * gain[:, None], d * gain
             scaled = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
                                for k in self.element_names])
-            el = np.where(scaled, el * gain[:, None], el)
+            with np.errstate(over="ignore", invalid="ignore"):   # overflow: refused below
+                c, d = c * gain[:, None], d * gain
+                el = np.where(scaled, el * gain[:, None], el)
+        finite = np.isfinite(c).all(axis=1) & np.isfinite(d.reshape(len(d), -1)).all(axis=1)
+        if not finite.all():          # as Identifier.identify refuses it (identify._overflowed)
+            r = int(np.argmin(finite))
+            raise RecordError(overflow_problem(r, float(gain[r])), r)
         out = dict(zip(("A", "b", "c", "d", "elements"), (A, b, c, d, el), strict=True))
         return out if checked.batched else {k: v[0] for k, v in out.items()}
 
@@ -341,7 +349,21 @@ class OnnxIdentifier:
         """Physical parameters of a model returned by ``__call__`` (through the stored inverse
         map, or elements that are physical parameters): floats, or ``(batch,)`` arrays for a
         batched model; empty when the export has none."""
-        el = np.asarray(model["elements"], dtype=np.float64)
+        need = ("elements",) if self._physical_elements or self._inverse is None \
+            else ("A", "b", "c", "d", "elements")
+        if not isinstance(model, dict) or any(k not in model for k in need):
+            got = sorted(model) if isinstance(model, dict) else type(model).__name__
+            raise ValueError(f"model must be a dict with {', '.join(need)} as __call__ returns "
+                             f"it; got keys {got}" if isinstance(model, dict) else
+                             f"model must be the dict __call__ returns; got {got}")
+        try:
+            el = np.asarray(model["elements"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("model['elements'] must be an array of real numbers, as __call__ "
+                             f"returns it; got {model['elements']!r}") from None
+        if el.ndim not in (1, 2) or el.shape[-1] != len(self.element_names):
+            raise ValueError(f"model['elements'] must have shape ({len(self.element_names)},) "
+                             f"or (batch, {len(self.element_names)}); got {el.shape}")
         batched = el.ndim == 2
         if self._physical_elements:
             out = {k: el[..., self.element_names.index(k)] for k in self._physical_elements}

@@ -83,12 +83,21 @@ class TrackerConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
-        if not (isinstance(self.smoothing, (int, float)) and 0 < self.smoothing <= 1):
+        def number(v) -> bool:
+            return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+        if not (number(self.smoothing) and 0 < self.smoothing <= 1):
             raise ValueError(f"smoothing must be in (0, 1]; got {self.smoothing!r}")
-        if not (isinstance(self.threshold, (int, float)) and self.threshold > 0):
-            raise ValueError(f"threshold must be positive; got {self.threshold!r}")
-        object.__setattr__(self, "parameters", tuple(self.parameters))
-        object.__setattr__(self, "watch", tuple(self.watch))
+        if not (number(self.threshold) and math.isfinite(self.threshold)
+                and self.threshold > 0):
+            raise ValueError(f"threshold must be a finite number > 0; got {self.threshold!r}")
+        for name in ("parameters", "watch"):
+            v = getattr(self, name)
+            # a string is a sequence of letters: parameters="kd" would track 'k' and 'd'
+            if isinstance(v, str) or not isinstance(v, (tuple, list)) \
+                    or not all(isinstance(p, str) and p for p in v):
+                raise ValueError(f"{name} must be a tuple of parameter names; got {v!r}")
+            object.__setattr__(self, name, tuple(v))
         stray = [p for p in self.watch if self.parameters and p not in self.parameters]
         if stray:
             raise ValueError(f"watch must name tracked parameters {self.parameters}; got {stray}")
@@ -182,6 +191,7 @@ class Tracker:
             raise ValueError("identifier must be trained on windows that start mid-motion "
                              "(TrainConfig(warmup=..., initial='fitted')); this one assumes "
                              "records from rest")
+        _check_names(identifier, config)
         self.identifier, self.config = identifier, config
         self.steps, self.dt = identifier.steps, identifier.dt
         self.runner = identifier if isinstance(identifier, OnnxIdentifier) else None
@@ -309,6 +319,42 @@ class Tracker:
                      else math.nan) for k in s.smoothed}
         return Update(s.samples * self.dt - self.dt, {k: math.nan for k in names},
                       dict(s.smoothed), drift, s.alarm, seconds, error=reason)
+
+
+def _physical_names(identifier) -> tuple[str, ...] | None:
+    """The physical parameters the identifier's estimates carry (an inverse map's outputs, or a
+    Physical structure's elements), or None where that cannot be told without identifying."""
+    from aeid_struct.online.export import OnnxIdentifier
+
+    if isinstance(identifier, OnnxIdentifier):
+        if identifier._physical_elements:
+            return tuple(identifier._physical_elements)
+        inverse = identifier._inverse
+    else:
+        source = identifier._physical_source() if hasattr(identifier, "_physical_source") \
+            else None
+        if isinstance(source, tuple):
+            return tuple(source[1])
+        inverse = source
+    if inverse is None:
+        return ()
+    try:
+        return tuple(inverse.name_out())
+    except AttributeError:
+        return None
+
+
+def _check_names(identifier, config: TrackerConfig) -> None:
+    """``config.parameters`` and ``config.watch`` must name parameters the identifier gives:
+    a watched name it never gives would never raise the alarm, silently."""
+    names = _physical_names(identifier)
+    if not names:
+        return      # none at all: the first window says so (Tracker._identify)
+    for field_name in ("parameters", "watch"):
+        stray = [p for p in getattr(config, field_name) if p not in names]
+        if stray:
+            raise ValueError(f"config.{field_name} must name physical parameters of the "
+                             f"identifier ({', '.join(names)}); got {stray}")
 
 
 def _onnx_runner(identifier, required: bool):

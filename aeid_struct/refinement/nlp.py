@@ -629,7 +629,8 @@ def refine_elements(structure: Structure, x0, y, u, dt: float,
     """
     start = time.perf_counter()
     if not isinstance(structure, Structure):
-        raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
+        raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
+                         f"got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):
         raise ValueError(f"config must be a RefineConfig; got {type(config).__name__}")
     if initial not in ("rest", "fitted"):
@@ -730,6 +731,9 @@ def _records(name: str, value, count: int, batched: bool) -> np.ndarray:
     ok = arr.ndim == 1 or (batched and arr.ndim == 2 and arr.shape[0] in (1, count))
     if not ok or arr.shape[-1] < 1:
         raise ValueError(f"{name} must have shape {want}; got {arr.shape}")
+    if arr.shape[-1] < 2:
+        # one sample holds no dynamics: the FOH response needs two to interpolate between
+        raise ValueError(f"{name} must have steps >= 2 samples; got {arr.shape}")
     arr = np.broadcast_to(np.atleast_2d(arr), (count, arr.shape[-1]))
     require_finite(name, arr)
     return arr
@@ -771,7 +775,8 @@ def refine(estimate: Estimate, y, u, dt: float, *, structure: Structure | None =
             raise ValueError("structure must be given: this estimate does not carry one (only "
                              "estimates from an Identifier do)")
     if not isinstance(structure, Structure):
-        raise ValueError(f"structure must be a Structure; got {type(structure).__name__}")
+        raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
+                         f"got {type(structure).__name__}")
     if not isinstance(config, RefineConfig):
         raise ValueError(f"config must be a RefineConfig; got {type(config).__name__}")
     if structure.records > 1:

@@ -393,8 +393,15 @@ def _loss(y_hat, y, yinf_hat=None, yinf=None, gamma: float = 0.0) -> torch.Tenso
 # ----------------------------------------------------------------------------------------------
 
 
+#: Arguments that may be None (absent); every other one must be given.
+_OPTIONAL = frozenset({"x0", "yinf_hat", "yinf"})
+
+
 def _prepare(named: dict[str, object]) -> tuple[dict[str, torch.Tensor | None], bool]:
     """Array-likes -> tensors of one floating dtype on one device; True when torch came in."""
+    for name, v in named.items():
+        if v is None and name not in _OPTIONAL:
+            raise ValueError(f"{name} must be a real array; got None")
     tensors = [v for v in named.values() if isinstance(v, torch.Tensor)]
     dtype, device = torch.float64, torch.device("cpu")
     if tensors:

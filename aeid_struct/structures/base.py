@@ -87,6 +87,7 @@ from __future__ import annotations
 
 import abc
 import copy
+import inspect
 import itertools
 import json
 import math
@@ -113,6 +114,12 @@ _MAX_PERMUTATIONS = 5040
 # ---------------------------------------------------------------------------------------------
 # The assembled model
 # ---------------------------------------------------------------------------------------------
+def _tensor(name: str, value) -> None:
+    if not isinstance(value, (torch.Tensor, np.ndarray)):
+        raise ValueError(f"{name} must be a torch tensor (or a numpy array); got "
+                         f"{type(value).__name__}")
+
+
 @dataclass(frozen=True, eq=False)
 class System:
     """A batch of continuous-time SISO models ``xdot = A x + b u``, ``y = c^T x + d u``.
@@ -136,11 +143,13 @@ class System:
 
     def __post_init__(self) -> None:
         A, b, c, d = self.A, self.b, self.c, self.d
+        _tensor("A", A)
         if A.ndim not in (2, 3, 4) or A.shape[-1] != A.shape[-2]:
             raise ValueError(f"A must have shape (batch, n, n) or (n, n) (or (batch, records, "
                              f"n, n)); got {tuple(A.shape)}")
         lead, n = tuple(A.shape[:-2]), A.shape[-1]
         for name, x, shape in (("b", b, (*lead, n)), ("c", c, (*lead, n)), ("d", d, lead)):
+            _tensor(name, x)
             if tuple(x.shape) != shape:
                 raise ValueError(
                     f"{name} must have shape {shape} to match A {tuple(A.shape)}; "
@@ -284,6 +293,14 @@ def _numpy(x: Any) -> np.ndarray:
         x = x.detach().cpu()
         return x.numpy().astype(np.float64) if x.is_floating_point() else x.double().numpy()
     return np.asarray(x, dtype=np.float64)
+
+
+def _flag(name: str, value) -> bool:
+    """A constructor's switch: True or False only. Why: ``bool("no")`` is True, so a string or
+    None would otherwise silently turn a constraint on or off."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False; got {value!r}")
+    return bool(value)
 
 
 def _model_dtype(A: Any) -> torch.dtype:
@@ -465,6 +482,8 @@ class Structure(abc.ABC):
                 raise ValueError(f"element {name!r} of {self!r} is already fixed at "
                                  f"{self._fixed[name]!r}")
             try:
+                if isinstance(v, (bool, np.bool_, str, bytes)):
+                    raise TypeError   # float(True) is 1.0 and float("2") is 2.0: not numbers
                 v = float(v)
             except (TypeError, ValueError):
                 raise ValueError(f"{name} must be a real number; got {v!r}") from None
@@ -478,7 +497,11 @@ class Structure(abc.ABC):
 
     # -- theta <-> elements ---------------------------------------------------------------------
     def _as_batch(self, x: Any, width: int, what: str) -> tuple[torch.Tensor, bool]:
-        t = torch.as_tensor(x)
+        try:
+            t = torch.as_tensor(x)
+        except (TypeError, ValueError, RuntimeError):   # strings, ragged lists, objects
+            raise ValueError(f"{what} must be a float32 or float64 tensor of shape (batch, "
+                             f"{width}) for {self!r}; got {type(x).__name__}") from None
         if not t.is_floating_point():
             raise ValueError(f"{what} must be a float32 or float64 tensor; got {t.dtype}")
         if t.ndim not in (1, 2) or t.shape[-1] != width:
@@ -734,6 +757,12 @@ class Structure(abc.ABC):
 
     @classmethod
     def _from_config(cls, args: dict, *, maps=None, trust: bool = False) -> Structure:
+        switches = {k for k, v in inspect.signature(cls.__init__).parameters.items()
+                    if isinstance(v.default, bool)}
+        for key in switches & set(args):
+            if not isinstance(args[key], bool):     # JSON "yes" for a switch
+                raise ValueError(f"invalid config for {cls.__name__}: {key!r} must be a bool; "
+                                 f"got {args[key]!r}")
         structure = cls(**args)
         # JSON of the wrong type that the constructor would coerce ("descartes": "yes")
         for key, value in structure._config().items():
@@ -792,7 +821,8 @@ class CCF(Structure):
     def __init__(self, n: int, *, descartes: bool = False, feedthrough: bool = False) -> None:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"n must be an integer >= 1; got {n!r}")
-        self.descartes, self.feedthrough = bool(descartes), bool(feedthrough)
+        self.descartes = _flag("descartes", descartes)
+        self.feedthrough = _flag("feedthrough", feedthrough)
         a_map = _Map("nonneg", note="Descartes") if self.descartes else _Map("real")
         maps = {f"a{i}": a_map for i in range(n)}
         maps |= {f"c{i}": _Map("real") for i in range(n)}
@@ -854,7 +884,8 @@ class MCF(Structure):
                 raise ValueError(f"{name} must be an integer >= 0; got {v!r}")
         if real == 0 and pairs == 0:
             raise ValueError("MCF needs at least one mode; got real=0 and pairs=0")
-        self.real, self.pairs, self.feedthrough = int(real), int(pairs), bool(feedthrough)
+        self.real, self.pairs = int(real), int(pairs)
+        self.feedthrough = _flag("feedthrough", feedthrough)
         n = self.real + 2 * self.pairs
         hurwitz = "poles in the open left half-plane"
         maps = {f"lambda{i}": _Map("neg", note=hurwitz) for i in range(self.real)}

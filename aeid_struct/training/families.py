@@ -14,6 +14,7 @@ different gains. Every random draw comes from an explicit seed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -62,8 +63,34 @@ class Systems:
         )
 
 
+def _positive(name: str, value) -> float:
+    """A positive finite number (not a bool, not a string), or a ValueError naming it."""
+    if not (isinstance(value, (int, float, np.integer, np.floating))
+            and not isinstance(value, (bool, np.bool_)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number; got {value!r}")
+    return float(value)
+
+
+def _count(name: str, value) -> int:
+    """A positive integer (not a bool), or a ValueError naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or value < 1:
+        raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    return int(value)
+
+
+def _check_sample(count, rng) -> None:
+    """The arguments of a family's ``sample``: a positive integer and a numpy Generator."""
+    _count("count", count)
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)); "
+                         f"got {type(rng).__name__}")
+
+
 def _check_range(name: str, value) -> tuple[float, float]:
     try:
+        if isinstance(value, (str, bytes)):
+            raise TypeError    # "12" would unpack to (1.0, 2.0)
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a (lo, hi) pair of numbers; got {value!r}") from None
@@ -94,6 +121,11 @@ class LegFamily:
             raise ValueError(
                 f"subsystem must be 'stable', 'unstable' or 'joint'; got {self.subsystem!r}"
             )
+        if not isinstance(self.ranges, dict):
+            raise ValueError(f"ranges must be a dict name -> (lo, hi) for k, d, m; got "
+                             f"{type(self.ranges).__name__}")
+        object.__setattr__(self, "l0", _positive("l0", self.l0))
+        object.__setattr__(self, "g", _positive("g", self.g))
         if set(self.ranges) != {"k", "d", "m"}:
             raise ValueError(f"ranges must name exactly k, d, m; got {sorted(self.ranges)}")
         ranges = {}
@@ -134,7 +166,28 @@ class LegFamily:
         return f(l0=self.l0, g=self.g)
 
     def systems(self, k, d, m) -> Systems:
-        """The subsystems of given parameter arrays ``(N,)`` (vectorised through ``f.map``)."""
+        """The subsystems of given parameter arrays ``(N,)`` (vectorised through ``f.map``):
+        positive, finite, one length, and for the rotational subsystem a leg not compressed
+        past zero length (``m g / k < l0``)."""
+        arrays = {}
+        for name, v in (("k", k), ("d", d), ("m", m)):
+            try:
+                arr = np.atleast_1d(np.asarray(v, dtype=np.float64))
+            except (TypeError, ValueError):
+                raise ValueError(f"{name} must be a positive number or a (N,) array of them; "
+                                 f"got {type(v).__name__}") from None
+            if arr.ndim != 1 or not np.all(np.isfinite(arr) & (arr > 0)):
+                raise ValueError(f"{name} must be a positive finite number or a (N,) array of "
+                                 f"them; got {v!r}")
+            arrays[name] = arr
+        if len({a.shape for a in arrays.values()}) > 1:
+            raise ValueError(f"k, d and m must have one length; got "
+                             f"{', '.join(f'{n} {a.shape}' for n, a in arrays.items())}")
+        if self.subsystem != "stable" and np.any(arrays["m"] * self.g / arrays["k"] >= self.l0):
+            # the rotational subsystem's length L = l0 - m g / k must be positive
+            raise ValueError(f"k and m give a leg compressed past zero length (m g / k >= l0 = "
+                             f"{self.l0})")
+        k, d, m = arrays["k"], arrays["d"], arrays["m"]
         if self.subsystem == "joint":
             parts = [LegFamily(subsystem=s, ranges=self.ranges, l0=self.l0, g=self.g)
                      .systems(k, d, m) for s in ("stable", "unstable")]
@@ -153,6 +206,7 @@ class LegFamily:
 
     def sample(self, count: int, rng: np.random.Generator) -> Systems:
         """``count`` systems with (k, d, m) uniform in ``ranges``."""
+        _check_sample(count, rng)
         draws = {n: rng.uniform(*self.ranges[n], size=count) for n in ("k", "d", "m")}
         return self.systems(**draws)
 
@@ -175,7 +229,7 @@ class PoleFamily:
     def __post_init__(self) -> None:
         for name in ("real", "pairs"):
             v = getattr(self, name)
-            if not isinstance(v, int) or v < 0:
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ValueError(f"{name} must be a non-negative integer; got {v!r}")
         if self.real + self.pairs == 0:
             raise ValueError("real + pairs must be at least 1; got 0 poles")
@@ -190,6 +244,8 @@ class PoleFamily:
         return self.real + 2 * self.pairs
 
     def sample(self, count: int, rng: np.random.Generator) -> Systems:
+        """``count`` systems of the family."""
+        _check_sample(count, rng)
         n = self.n
         poles = [-rng.uniform(*self.decay, size=count) + 0j for _ in range(self.real)]
         for _ in range(self.pairs):
@@ -228,6 +284,9 @@ def excitation(kind: str, count: int, steps: int, dt: float,
     """
     if kind not in EXCITATIONS:
         raise ValueError(f"kind must be one of {EXCITATIONS}; got {kind!r}")
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)); "
+                         f"got {type(rng).__name__}")
     t = np.arange(steps) * dt
     if kind == "step":
         return np.ones((count, steps))
@@ -335,8 +394,27 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
             begins, so that records start mid-motion, like windows cut from a running system;
             their initial states are ``Records.x0``. 0: records from rest (the paper).
     """
-    if not isinstance(count, int) or count < 1:
-        raise ValueError(f"count must be a positive integer; got {count!r}")
+    count = _count("count", count)
+    if not callable(getattr(family, "sample", None)):
+        raise ValueError(f"family must sample systems (LegFamily, PoleFamily: a "
+                         f"sample(count, rng) method); got {type(family).__name__}")
+    if excitation_kind not in EXCITATIONS:
+        raise ValueError(f"excitation_kind must be one of {EXCITATIONS}; got "
+                         f"{excitation_kind!r}")
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) \
+            or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer; got {seed!r}")
+    if np.ndim(noise) == 0:
+        if isinstance(noise, (bool, str, bytes)) or not (
+                isinstance(noise, (int, float, np.integer, np.floating))
+                and math.isfinite(noise) and noise >= 0):
+            raise ValueError(f"noise must be a finite level >= 0 or a (lo, hi) range; got "
+                             f"{noise!r}")
+    else:
+        lo, hi = _check_range("noise", noise)
+        if lo < 0:
+            raise ValueError(f"noise must be a finite level >= 0 or a (lo, hi) range; got "
+                             f"{noise!r}")
     R = getattr(family, "records", 1)
     grids = _grids(steps, dt, R)
     if not isinstance(warmup, int) or isinstance(warmup, bool) or warmup < 0:

@@ -88,6 +88,17 @@ class UndertrainedWarning(UserWarning):
     and the losses."""
 
 
+
+def _real(name: str, value, what: str, test: Callable[[float], bool]) -> float:
+    """``value`` as a float when it is a finite real number passing ``test``; else a ValueError
+    "<name> must be <what>; got <value>" (strings, bools, NaN and inf included)."""
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+    v = float(value) if ok else math.nan
+    if not (math.isfinite(v) and test(v)):
+        raise ValueError(f"{name} must be {what}; got {value!r}")
+    return v
+
+
 @dataclass(frozen=True, kw_only=True)
 class TrainConfig:
     """How to train; validates itself.
@@ -184,12 +195,11 @@ class TrainConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
-        if not 0.0 < self.holdout < 1.0:
-            raise ValueError(f"holdout must be in (0, 1); got {self.holdout!r}")
+        _real("holdout", self.holdout, "in (0, 1)", lambda v: 0.0 < v < 1.0)
         if int(self.count * self.holdout) < 1 or self.count - int(self.count * self.holdout) < 1:
             raise ValueError(f"count={self.count} is too small to hold out {self.holdout:.0%}")
-        if self.seconds is not None and not self.seconds > 0:
-            raise ValueError(f"seconds must be positive or None; got {self.seconds!r}")
+        if self.seconds is not None:
+            _real("seconds", self.seconds, "positive or None", lambda v: v > 0)
         if (not isinstance(self.min_epochs, int) or isinstance(self.min_epochs, bool)
                 or not 1 <= self.min_epochs <= self.epochs):
             raise ValueError(f"min_epochs must be an integer in [1, epochs={self.epochs}]; "
@@ -197,22 +207,32 @@ class TrainConfig:
         if self.threads is not None and (not isinstance(self.threads, int)
                                          or isinstance(self.threads, bool) or self.threads < 1):
             raise ValueError(f"threads must be a positive integer or None; got {self.threads!r}")
-        if self.target_loss is not None and not (
-                isinstance(self.target_loss, (int, float)) and math.isfinite(self.target_loss)
-                and self.target_loss > 0):
-            raise ValueError(f"target_loss must be a positive finite held-out loss or None; "
-                             f"got {self.target_loss!r}")
-        for name in ("lr", "clip"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive; got {getattr(self, name)!r}")
-        if not (isinstance(self.supervised, (int, float)) and math.isfinite(self.supervised)
-                and self.supervised >= 0):
-            raise ValueError(f"supervised must be a finite weight >= 0; got {self.supervised!r}")
-        if self.gamma is not None and not self.gamma >= 0:
-            raise ValueError(f"gamma must be >= 0 or None; got {self.gamma!r}")
-        lo, hi = (self.noise, self.noise) if np.ndim(self.noise) == 0 else tuple(self.noise)
-        if not (0 <= lo <= hi):
-            raise ValueError(f"noise must be a level >= 0 or a (lo, hi) range; got {self.noise!r}")
+        if self.target_loss is not None:
+            _real("target_loss", self.target_loss, "a positive finite held-out loss or None",
+                  lambda v: v > 0)
+        _real("lr", self.lr, "positive and finite", lambda v: v > 0)
+        _real("clip", self.clip, "positive and finite", lambda v: v > 0)
+        _real("supervised", self.supervised, "a finite weight >= 0", lambda v: v >= 0)
+        if self.gamma is not None:
+            _real("gamma", self.gamma, ">= 0 or None", lambda v: v >= 0)
+        noise, what = self.noise, "a finite level >= 0 or a (lo, hi) range"
+        if isinstance(noise, (tuple, list)):
+            if len(noise) != 2:
+                raise ValueError(f"noise must be {what}; got {noise!r}")
+            lo, hi = (_real("noise", v, what, lambda v: v >= 0) for v in noise)
+            if lo > hi:
+                raise ValueError(f"noise must be {what} with lo <= hi; got {noise!r}")
+            object.__setattr__(self, "noise", (lo, hi))
+        else:
+            _real("noise", noise, what, lambda v: v >= 0)
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer; got {self.seed!r}")
+        for name in ("fresh", "progress"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False; got {getattr(self, name)!r}")
+        if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
+            raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
+                             f"got {self.checkpoint!r}")
         if self.excitation not in EXCITATIONS:
             raise ValueError(f"excitation must be one of {EXCITATIONS}; got {self.excitation!r}")
         if not isinstance(self.warmup, int) or isinstance(self.warmup, bool) or self.warmup < 0:
@@ -434,6 +454,16 @@ def train(structure: Structure, family, config: TrainConfig, *,
     if not isinstance(structure, Structure):
         raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); "
                          f"got {type(structure).__name__}")
+    if not isinstance(config, TrainConfig):
+        raise ValueError(f"config must be a TrainConfig (ae.TrainConfig(dt=..., steps=...)); "
+                         f"got {type(config).__name__}")
+    if not callable(getattr(family, "sample", None)):
+        raise ValueError(f"family must be a system family with a sample(count, rng) method "
+                         f"(LegFamily, PoleFamily); got {type(family).__name__}")
+    order = getattr(family, "n", None)
+    if isinstance(order, int) and order != structure.n:
+        raise ValueError(f"family gives systems of order {order}, but {structure!r} has order "
+                         f"{structure.n}: they must agree")
     R = structure.records
     if len(config.grids) != R or getattr(family, "records", 1) != R:
         raise ValueError(
@@ -659,6 +689,9 @@ def recalibrate(ident: Identifier, family) -> Identifier:
     split are re-created from the settings it recorded (``meta["train"]["config"]``) and
     ``family``, which must be the family it was trained on. The weights are untouched; returns
     ``ident`` with ``meta["training_range"]`` replaced."""
+    if not isinstance(ident, Identifier):
+        raise ValueError(f"ident must be an Identifier (ae.Identifier.load(path)); "
+                         f"got {type(ident).__name__}")
     cfg = ident.meta.get("train", {}).get("config")
     if not cfg:
         raise ValueError("ident must carry its training settings (meta['train']['config'])")
