@@ -271,7 +271,7 @@ def test_every_option_has_help():
 
 
 def test_excitations_in_help_are_the_libraries():
-    from aeid_struct.cli import main as cli
+    import aeid_struct.cli.main as cli
     from aeid_struct.training.families import EXCITATIONS
 
     assert cli._EXCITATIONS == EXCITATIONS
@@ -590,7 +590,7 @@ def test_named_columns_and_header_rows_are_read(tmp_path, capsys):
 def test_demo_figure_labels_and_curves(tmp_path, monkeypatch):
     from PIL import Image
 
-    from aeid_struct.cli import main as cli
+    import aeid_struct.cli.main as cli
     from symbolic import leg
 
     figures = []

@@ -267,7 +267,10 @@ def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, mo
 
     titles = []
     real = plots.fig3
-    monkeypatch.setattr(plots, "fig3", lambda rows, path=None, **kw:
+    import aeid_struct.evaluation as evaluation
+
+    # callers take the figure through the package (its public API): spy there
+    monkeypatch.setattr(evaluation, "fig3", lambda rows, path=None, **kw:
                         titles.append(kw["title"]) or real(rows, path, **kw))
 
     def trained(subsystem, **kw):
@@ -355,7 +358,9 @@ def test_track_command_draws_its_own_threshold(tmp_path, monkeypatch):
         drawn["config"] = kw.get("config")
         return drawn["fig"]
 
-    monkeypatch.setattr(plots, "wear", spy)
+    import aeid_struct.evaluation as evaluation
+
+    monkeypatch.setattr(evaluation, "wear", spy)
     assert main(["track", "--seconds", "8", "--threshold", "0.08", "--engine", "identifier",
                  "--out", str(tmp_path)]) == 0
     assert drawn["config"].threshold == 0.08 and drawn["config"].watch == ("k",)
