@@ -998,7 +998,7 @@ def _configs() -> list[Case]:
         Case(area, "TrainConfig lr string", lambda x: tc(lr="3e-3"),
              match=r"lr must be .*got '3e-3'"),
         Case(area, "TrainConfig clip NaN", lambda x: tc(clip=math.nan),
-             match=r"clip must be positive and finite; got nan"),
+             match=r"clip must be positive \(inf: no clipping\); got nan"),
         Case(area, "TrainConfig gamma -1", lambda x: tc(gamma=-1.0),
              match=r"gamma must be >= 0 or None; got -1.0"),
         Case(area, "TrainConfig gamma NaN", lambda x: tc(gamma=math.nan),

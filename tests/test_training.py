@@ -1,5 +1,6 @@
 """Unsupervised training: the loss falls, checkpoints resume after a kill, configs validate."""
 
+import math
 import os
 import pickle
 import re
@@ -584,3 +585,10 @@ def test_threads_apply_to_the_run_and_are_restored_after_it():
           on_epoch=lambda epoch, history: inside.append(torch.get_num_threads()))
     assert inside == [before + 1] and torch.get_num_threads() == before
 
+
+
+def test_clip_inf_means_no_clipping_and_other_fields_refuse_inf():
+    # notebook 03 trains without clipping (clip = inf) to measure raw gradient norms
+    assert TrainConfig(dt=0.01, steps=20, clip=math.inf).clip == math.inf
+    with pytest.raises(ValueError, match=r"lr must be positive and finite; got inf"):
+        TrainConfig(dt=0.01, steps=20, lr=math.inf)

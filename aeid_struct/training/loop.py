@@ -211,7 +211,10 @@ class TrainConfig:
             _real("target_loss", self.target_loss, "a positive finite held-out loss or None",
                   lambda v: v > 0)
         _real("lr", self.lr, "positive and finite", lambda v: v > 0)
-        _real("clip", self.clip, "positive and finite", lambda v: v > 0)
+        # clip = inf is "no clipping" (notebook 03 measures gradient norms without it)
+        if not (isinstance(self.clip, (int, float)) and not isinstance(self.clip, bool)
+                and self.clip > 0):
+            raise ValueError(f"clip must be positive (inf: no clipping); got {self.clip!r}")
         _real("supervised", self.supervised, "a finite weight >= 0", lambda v: v >= 0)
         if self.gamma is not None:
             _real("gamma", self.gamma, ">= 0 or None", lambda v: v >= 0)
