@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from aeid_struct.structures.base import CCF, MCF, Physical, Structure, System
+from aeid_struct.structures import CCF, MCF, Physical, Structure, System
 
 # -- test systems ---------------------------------------------------------------------------------
 

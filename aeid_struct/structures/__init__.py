@@ -1,12 +1,16 @@
 """Structures: raw encoder output ``theta (batch, p)`` -> ``(A, b, c, d)`` with constraints by
 construction (CCF, MCF, fixed elements, physical parameters through a CasADi map).
+
+Modules: ``system`` (the assembled model), ``constraints`` (elementwise maps), ``elements``
+(``theta`` <-> elements), ``config`` (a structure as data), ``base`` (``Structure``),
+``canonical`` (``CCF``, ``MCF``), ``physical`` (``Physical``), ``realisation`` (a model in any
+realisation -> CCF coefficients), ``casadi_torch`` (a CasADi Function as a torch operation),
+``maps`` (named CasADi maps in model files).
 """
 
-from aeid_struct.structures.base import CCF as CCF
-from aeid_struct.structures.base import MCF as MCF
-from aeid_struct.structures.base import Physical as Physical
 from aeid_struct.structures.base import Structure as Structure
-from aeid_struct.structures.base import System as System
+from aeid_struct.structures.canonical import CCF as CCF
+from aeid_struct.structures.canonical import MCF as MCF
 from aeid_struct.structures.casadi_torch import CasadiOp as CasadiOp
 from aeid_struct.structures.maps import check_maps as check_maps
 from aeid_struct.structures.maps import factory as factory
@@ -15,6 +19,10 @@ from aeid_struct.structures.maps import reference as reference
 from aeid_struct.structures.maps import resolve as resolve
 from aeid_struct.structures.maps import sha256 as sha256
 from aeid_struct.structures.maps import to_entry as to_entry
+from aeid_struct.structures.physical import Physical as Physical
+from aeid_struct.structures.realisation import ccf_coefficients as ccf_coefficients
+from aeid_struct.structures.realisation import ccf_matrices as ccf_matrices
+from aeid_struct.structures.system import System as System
 
 __all__ = [
     "CCF",
@@ -23,6 +31,8 @@ __all__ = [
     "Physical",
     "Structure",
     "System",
+    "ccf_coefficients",
+    "ccf_matrices",
     "check_maps",
     "factory",
     "from_entry",
