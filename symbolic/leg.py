@@ -80,10 +80,24 @@ def stable_map(l0: float = L0, g: float = G) -> casadi.Function:
     ``c_1 = 0``, ``D = 0``. ``G1`` depends on neither ``l0`` nor ``g``; they are accepted (and
     validated) so that both maps are built alike.
 
+    Parameters
+    ----------
+    l0 : float
+        Rest length of the leg spring, m (finite, positive).
+    g : float
+        Gravitational acceleration, m/s^2 (finite, positive).
+
     Returns
     -------
     casadi.Function
         ``'stable_map'``: scalars ``k, d, m`` -> ``A (2, 2), B (2, 1), C (1, 2), D (1, 1)``.
+
+    Raises
+    ------
+    TypeError
+        If a constant is not a real number.
+    ValueError
+        If a constant is not finite and positive.
     """
     return _subsystem_map("stable_map", 1, l0, g)
 
@@ -97,10 +111,24 @@ def unstable_map(l0: float = L0, g: float = G) -> casadi.Function:
     acts along the leg only, so ``d`` is unidentifiable from the rotational subsystem. The input is
     kept so that both maps share the signature ``(k, d, m)``.
 
+    Parameters
+    ----------
+    l0 : float
+        Rest length of the leg spring, m (finite, positive).
+    g : float
+        Gravitational acceleration, m/s^2 (finite, positive).
+
     Returns
     -------
     casadi.Function
         ``'unstable_map'``: scalars ``k, d, m`` -> ``A (2, 2), B (2, 1), C (1, 2), D (1, 1)``.
+
+    Raises
+    ------
+    TypeError
+        If a constant is not a real number.
+    ValueError
+        If a constant is not finite and positive.
     """
     return _subsystem_map("unstable_map", 2, l0, g)
 
@@ -113,11 +141,25 @@ def joint_map(l0: float = L0, g: float = G) -> casadi.Function:
     outputs one ``(k, d, m)``): ``stable_map`` and ``unstable_map`` side by side, outputs numbered
     by record (1 = translational ``G1``, 2 = rotational ``G2``), as ``joint_inverse`` reads them.
 
+    Parameters
+    ----------
+    l0 : float
+        Rest length of the leg spring, m (finite, positive).
+    g : float
+        Gravitational acceleration, m/s^2 (finite, positive).
+
     Returns
     -------
     casadi.Function
         ``'joint_map'``: scalars ``k, d, m`` -> ``A1 (2, 2), B1 (2, 1), C1 (1, 2), D1 (1, 1),
         A2, B2, C2, D2``.
+
+    Raises
+    ------
+    TypeError
+        If a constant is not a real number.
+    ValueError
+        If a constant is not finite and positive.
     """
     k, d, m = (casadi.SX.sym(s) for s in ("k", "d", "m"))
     outs = [*stable_map(l0, g)(k, d, m), *unstable_map(l0, g)(k, d, m)]
@@ -145,10 +187,24 @@ def stable_inverse(l0: float = L0, g: float = G) -> casadi.Function:
     ``a_0 = -A[1, 0]``, ``a_1 = -A[1, 1]``, ``c_0 = C[0, 0]``; ``B``, ``D`` and ``c_1`` are ignored.
     ``l0`` and ``g`` do not enter (validated only, for a uniform signature).
 
+    Parameters
+    ----------
+    l0 : float
+        Rest length of the leg spring, m (finite, positive).
+    g : float
+        Gravitational acceleration, m/s^2 (finite, positive).
+
     Returns
     -------
     casadi.Function
         ``'stable_inverse'``: ``A (2, 2), B (2, 1), C (1, 2), D (1, 1)`` -> scalars ``k, d, m``.
+
+    Raises
+    ------
+    TypeError
+        If a constant is not a real number.
+    ValueError
+        If a constant is not finite and positive.
     """
     check_constant("l0", l0)
     check_constant("g", g)
@@ -167,10 +223,24 @@ def unstable_inverse(l0: float = L0, g: float = G) -> casadi.Function:
     ``a_0 = -A[1, 0]``, ``c_0 = C[0, 0]``; ``a_1``, ``c_1``, ``B`` and ``D`` are ignored. ``d`` has
     no output: ``G2`` does not depend on it.
 
+    Parameters
+    ----------
+    l0 : float
+        Rest length of the leg spring, m (finite, positive).
+    g : float
+        Gravitational acceleration, m/s^2 (finite, positive).
+
     Returns
     -------
     casadi.Function
         ``'unstable_inverse'``: ``A (2, 2), B (2, 1), C (1, 2), D (1, 1)`` -> scalars ``k, m``.
+
+    Raises
+    ------
+    TypeError
+        If a constant is not a real number.
+    ValueError
+        If a constant is not finite and positive.
     """
     l0, g = check_constant("l0", l0), check_constant("g", g)
     (A, B, C, D), names = _ccf_symbols()
@@ -219,9 +289,13 @@ def joint_inverse(l0: float = L0, g: float = G, *, unstable_noise: float = 1.0) 
 
     Parameters
     ----------
-    l0, g : the constants of the maps that produced the data.
-    unstable_noise : relative error of the unstable coefficients over that of the stable ones
-        (positive); 1.0 trusts both alike.
+    l0 : float
+        Rest length of the leg spring of the maps that produced the data, m.
+    g : float
+        Gravitational acceleration of those maps, m/s^2.
+    unstable_noise : float
+        Relative error of the unstable coefficients over that of the stable ones (positive);
+        1.0 trusts both alike.
 
     Returns
     -------
@@ -229,6 +303,13 @@ def joint_inverse(l0: float = L0, g: float = G, *, unstable_noise: float = 1.0) 
         ``'joint_inverse'``: ``A1 (2, 2), B1 (2, 1), C1 (1, 2), D1 (1, 1), A2, B2, C2, D2`` ->
         scalars ``k, d, m``. Needs ``L = -g/a_0^{(2)}`` with ``L < l0``, ``L != 0``, and positive
         ``a_0^{(1)}, c_0^{(1)}, c_0^{(2)}`` (NaN otherwise).
+
+    Raises
+    ------
+    TypeError
+        If a constant is not a real number.
+    ValueError
+        If a constant is not finite and positive.
     """
     l0, g = check_constant("l0", l0), check_constant("g", g)
     unstable_noise = check_constant("unstable_noise", unstable_noise)

@@ -38,8 +38,10 @@ def remember(function, name: str, args: dict[str, float]) -> None:
     Parameters
     ----------
     function : casadi.Function
-    name : the factory's registered name, e.g. ``"symbolic.leg.stable_map"``.
-    args : keyword -> finite number: every keyword argument of the factory.
+    name : str
+        The factory's registered name, e.g. ``"symbolic.leg.stable_map"``.
+    args : dict str -> float
+        Every keyword argument of the factory, as finite numbers.
     """
     key = id(function)
     ref = weakref.ref(function, lambda r, key=key: _forget(key, r))
@@ -47,8 +49,18 @@ def remember(function, name: str, args: dict[str, float]) -> None:
 
 
 def reference(function) -> dict | None:
-    """``{"map": name, "args": {keyword: number}}`` for a Function built by a :func:`named`
-    factory (or passed to :func:`remember`), else None."""
+    """The reference of a Function built by a :func:`named` factory (or passed to
+    :func:`remember`).
+
+    Parameters
+    ----------
+    function : casadi.Function
+
+    Returns
+    -------
+    dict or None
+        ``{"map": name, "args": {keyword: number}}``, or None for any other Function.
+    """
     hit = _BUILT.get(id(function))
     if hit is None or hit[0]() is not function:
         return None
@@ -62,6 +74,17 @@ def named(name: str) -> Callable[[Callable], Callable]:
 
     A factory call with a constant that is not a real number (the factory validates its own
     arguments first) returns a Function without a reference.
+
+    Parameters
+    ----------
+    name : str
+        The name a file uses for the factory, e.g. ``"symbolic.leg.stable_map"``.
+
+    Returns
+    -------
+    callable
+        The decorator: factory -> the same factory, whose Functions remember their reference
+        (its attribute ``map_name`` is ``name``).
     """
 
     def decorate(factory: Callable) -> Callable:

@@ -568,13 +568,38 @@ def test_compile_c_without_a_compiler_says_so(tmp_path, monkeypatch):
         leg.compile_c(c_file, compiler=str(tmp_path / "no-such-cc"))
 
 
-def test_module_self_check_runs():
+@pytest.mark.parametrize("module", ["symbolic.leg", "symbolic.slip", "symbolic.realisation"])
+def test_module_self_check_runs(module):
     done = subprocess.run(
-        [sys.executable, "-m", "symbolic.leg"], capture_output=True, text=True, timeout=120,
+        [sys.executable, "-m", module], capture_output=True, text=True, timeout=120,
         cwd=pathlib.Path(__file__).resolve().parents[1],
     )
     assert done.returncode == 0, done.stderr
     assert "All checks passed." in done.stdout
+
+
+def test_leg_keeps_every_name_of_the_model_it_re_exports():
+    # symbolic.leg was one module; the model moved to symbolic.slip, the CCF to
+    # symbolic.realisation: the old names are the same objects.
+    from symbolic import realisation, slip
+
+    for name in ("L0", "G", "RANGES", "SCENARIO", "PARAMETERS", "lagrangian", "dynamics",
+                 "equilibrium", "linearisation", "eq16", "subsystems"):
+        assert getattr(leg, name) is getattr(slip, name), name
+    assert leg.ccf is realisation.ccf and leg.CCFRealisation is realisation.CCFRealisation
+
+
+def test_codegen_compiles_any_function(tmp_path):
+    from symbolic import codegen
+
+    x = casadi.SX.sym("x", 2)
+    f = casadi.Function("square_sum", [x], [casadi.sumsqr(x)], ["x"], ["s"])
+    c_file = codegen.generate_c(tmp_path, [f], name="mine")
+    assert c_file == tmp_path / "mine.c" and "square_sum" in c_file.read_text()
+    with pytest.raises(ValueError, match="name must be a C identifier"):
+        codegen.generate_c(tmp_path, [f], name="no-dash")
+    loaded = codegen.compile_c(c_file, ["square_sum"])["square_sum"]
+    assert float(loaded(np.array([3.0, 4.0]))) == 25.0
 
 
 @pytest.mark.parametrize("point", [leg.SCENARIO, {"k": 20.0, "d": 5.0, "m": 1.5}])

@@ -15,7 +15,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from aeid_struct.structures import CCF, MCF, Physical, Structure, System
+from aeid_struct.structures import (
+    CCF,
+    MCF,
+    Physical,
+    Structure,
+    System,
+    ccf_coefficients,
+    ccf_matrices,
+)
 
 # -- test systems ---------------------------------------------------------------------------------
 
@@ -753,3 +761,84 @@ def test_joint_physical_is_differentiable_and_serialisable():
 
         Physical(leg.joint_map(), bounds={"k": (20, 25), "d": (2, 5), "m": (0.5, 1.5)},
                  inverse=leg.stable_inverse())
+
+
+# -- the one model -> CCF conversion (issue 13 item 4) ----------------------------------------
+
+
+def _hidden_ccf(n: int, rng: np.random.Generator, batch: int):
+    """Batches of known CCF coefficients and the same systems in random bases with cond <= 10:
+    an exact oracle for the conversion."""
+    a = np.stack([np.poly(-rng.uniform(0.5, 3.0, n))[1:][::-1] for _ in range(batch)])
+    num = rng.normal(size=(batch, n))
+    A_c, b_c, _ = ccf_matrices(a, num)
+    A, b, c = np.empty_like(A_c), np.empty_like(b_c), np.empty_like(num)
+    for i in range(batch):
+        Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        T = Q @ np.diag(rng.uniform(0.3, 3.0, n))
+        Ti = np.linalg.inv(T)
+        A[i], b[i], c[i] = T @ A_c[i] @ Ti, T @ b_c[i], num[i] @ Ti
+    return a, num, A, b, c
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
+def test_ccf_coefficients_agree_with_symbolic_ccf_and_python_control(n):
+    # structures' batched numpy conversion evaluates symbolic.realisation.ccf: per row it must
+    # give what leg.ccf gives, the coefficients the systems were built from, and python-control's
+    # transfer function.
+    import symbolic.leg as leg
+
+    rng = np.random.default_rng(100 + n)
+    a, num, A, b, c = _hidden_ccf(n, rng, batch=6)
+    a_got, num_got = ccf_coefficients(A, b, c)
+    assert a_got.shape == num_got.shape == (6, n)
+    np.testing.assert_allclose(a_got, a, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(num_got, num, rtol=1e-10, atol=1e-10)
+    for i in range(6):
+        one = leg.ccf(A[i], b[i], c[i], 0.0)
+        np.testing.assert_allclose(-np.array(one.A)[-1], a_got[i], rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(np.array(one.c)[0], num_got[i], rtol=1e-13, atol=1e-13)
+        num_tf, den_tf = tf_coeffs(A[i], b[i], c[i])
+        scale = 1 + np.abs(np.r_[num_tf, den_tf]).max()
+        np.testing.assert_allclose(a_got[i], den_tf[1:][::-1], rtol=0, atol=1e-9 * scale)
+        np.testing.assert_allclose(num_got[i], num_tf[1:][::-1], rtol=0, atol=1e-9 * scale)
+
+
+def test_ccf_matrices_and_coefficients_round_trip_and_take_an_empty_batch():
+    a, num = np.array([[6.0, 11.0, 6.0]]), np.array([[4.0, 3.0, 2.0]])
+    A, b, c = ccf_matrices(a, num)
+    np.testing.assert_array_equal(A[0], [[0, 1, 0], [0, 0, 1], [-6, -11, -6]])
+    np.testing.assert_array_equal(b[0], [0, 0, 1])
+    a2, num2 = ccf_coefficients(A, b, c)
+    np.testing.assert_allclose(a2, a, rtol=1e-14)
+    np.testing.assert_allclose(num2, num, rtol=1e-14)
+    empty = ccf_coefficients(np.zeros((0, 2, 2)), np.zeros((0, 2)), np.zeros((0, 2)))
+    assert [x.shape for x in empty] == [(0, 2), (0, 2)]
+
+
+def test_coefficients_function_rejects_a_bad_order():
+    from symbolic.realisation import coefficients_function
+
+    assert coefficients_function(np.int64(2)) is coefficients_function(2)   # cached per order
+    for bad in (0, -1, 2.0, True, "3"):
+        with pytest.raises(ValueError, match=r"n must be an integer >= 1; got"):
+            coefficients_function(bad)
+
+
+def test_element_map_rejects_an_unknown_kind():
+    from aeid_struct.structures.constraints import ElementMap
+
+    with pytest.raises(ValueError, match=r"kind must be one of real, nonneg, pos, neg, interval; "
+                                         r"got 'positive'"):
+        ElementMap("positive")
+
+
+def test_old_module_paths_still_resolve():
+    # base.py held every structure before the split; code that imported them from there (and
+    # the private converters identification used) keeps working until it imports the package.
+    from aeid_struct.structures import base
+
+    assert (base.CCF, base.MCF, base.Physical, base.System) == (CCF, MCF, Physical, System)
+    assert base._ccf_coefficients is ccf_coefficients and base._ccf_matrices is ccf_matrices
+    with pytest.raises(AttributeError, match="has no attribute 'Nope'"):
+        base.Nope  # noqa: B018

@@ -85,6 +85,8 @@ def _matrix(entries: dict[tuple[int, int], torch.Tensor], n: int, like: torch.Te
 class CCF(Structure):
     """Bottom-row controllable canonical form (paper Eq. 5), see the module docstring.
 
+    Elements: ``a0..a{n-1}, c0..c{n-1}`` (+ ``d``); ``p = 2n`` (+1).
+
     Parameters
     ----------
     n : int
@@ -95,7 +97,10 @@ class CCF(Structure):
     feedthrough : bool
         Estimate ``d`` (element ``"d"``); otherwise ``d = 0``.
 
-    Elements: ``a0..a{n-1}, c0..c{n-1}`` (+ ``d``); ``p = 2n`` (+1).
+    Raises
+    ------
+    ValueError
+        If ``n`` is not an integer ``>= 1`` or a switch is not a bool.
     """
 
     def __init__(self, n: int, *, descartes: bool = False, feedthrough: bool = False) -> None:
@@ -145,6 +150,9 @@ class CCF(Structure):
 class MCF(Structure):
     """Modal canonical form (paper Eq. 6), stable by construction; see the module docstring.
 
+    Order ``n = real + 2 pairs``; ``b`` is fixed (1 per real mode, ``(0, 1)`` per pair) and ``c``
+    estimated: ``p = 2n`` (+1) raw parameters, where the paper counts ``3n``.
+
     Parameters
     ----------
     real : int
@@ -154,8 +162,11 @@ class MCF(Structure):
     feedthrough : bool
         Estimate ``d``; otherwise ``d = 0``.
 
-    Order ``n = real + 2 pairs``; ``b`` is fixed (1 per real mode, ``(0, 1)`` per pair) and ``c``
-    estimated: ``p = 2n`` (+1) raw parameters, where the paper counts ``3n``.
+    Raises
+    ------
+    ValueError
+        If ``real`` or ``pairs`` is not an integer ``>= 0``, both are 0, or a switch is not a
+        bool.
     """
 
     def __init__(self, *, real: int = 0, pairs: int = 1, feedthrough: bool = False) -> None:

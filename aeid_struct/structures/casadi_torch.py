@@ -29,11 +29,9 @@ Batching uses ``f.map(batch)``: the mapped function takes the samples side by si
 Precision: CasADi computes in float64. Inputs may be float32 or float64 tensors (mixed dtypes are
 promoted); outputs and gradients come back in that dtype and on the inputs' device.
 
-Parallelisation: the mapped functions are evaluated ``"serial"`` by default. Measured on a
-2-core machine (CasADi 3.8) for a mass-spring-damper map ``(k, d, m) -> (A, B, C, D)``: batch
-256, serial 0.3 ms vs ``"thread"`` 3.4 ms (2 threads) or 14 ms (default thread count); batch
-4096, serial 3.3 ms vs thread 4.0 ms. Thread start-up dominates for the small maps this library
-wraps; pass ``parallelization="thread"`` for expensive functions.
+Parallelisation: the mapped functions are evaluated ``"serial"`` by default: for the small
+maps this library wraps, starting threads costs more than it saves; pass
+``parallelization="thread"`` for expensive functions.
 
 Only first derivatives are supported (``backward`` is ``once_differentiable``): enough for
 training and for ``torch.autograd.gradcheck``.
@@ -82,6 +80,9 @@ def _from_casadi(X: np.ndarray, batch: int, rows: int, cols: int) -> np.ndarray:
 class CasadiOp:
     """A ``casadi.Function`` as a batched torch operation with CasADi's reverse-mode gradients.
 
+    Calling ``op(*tensors)`` (positional, in the function's input order) or ``op(**named)`` returns
+    a ``dict`` output name -> tensor ``(batch, ...)``, with shapes as in the module docstring.
+
     Parameters
     ----------
     function : casadi.Function
@@ -89,8 +90,12 @@ class CasadiOp:
     parallelization : {"serial", "thread"}
         How ``function.map(batch, ...)`` evaluates the batch (see the module docstring).
 
-    Calling ``op(*tensors)`` (positional, in the function's input order) or ``op(**named)`` returns
-    a ``dict`` output name -> tensor ``(batch, ...)``, with shapes as in the module docstring.
+    Raises
+    ------
+    TypeError
+        If ``function`` is not a casadi.Function.
+    ValueError
+        If it has no inputs, or ``parallelization`` is not one of the two.
 
     Examples
     --------
@@ -238,7 +243,26 @@ class CasadiOp:
         return dict(zip(self.name_out, outputs, strict=True))
 
     def evaluate(self, *args, **kwargs) -> dict[str, np.ndarray]:
-        """Float64 numpy outputs, no autograd; same layout, arguments and checks as a call."""
+        """Float64 numpy outputs, no autograd; same layout, arguments and checks as a call.
+
+        Parameters
+        ----------
+        *args : (batch, ...) tensors
+            The inputs in the function's order, or
+        **kwargs : (batch, ...) tensors
+            the inputs by name.
+
+        Returns
+        -------
+        dict str -> numpy.ndarray
+            Output name -> ``(batch, ...)`` float64 array.
+
+        Raises
+        ------
+        ValueError
+            For missing, unknown or extra inputs, non-float tensors, wrong shapes, and batch
+            sizes that differ.
+        """
         arrays = [t.detach().to("cpu", torch.float64).numpy() for t in self._collect(args, kwargs)]
         return dict(zip(self.name_out, self._forward_numpy(arrays), strict=True))
 

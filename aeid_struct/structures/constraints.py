@@ -60,8 +60,10 @@ class ElementMap:
     ----------
     kind : {"real", "nonneg", "pos", "neg", "interval"}
         The set the element lies in.
-    lo, hi : float
-        The bounds of an ``"interval"`` (``lo < hi``, finite); unused otherwise.
+    lo : float
+        The lower bound of an ``"interval"`` (finite, ``< hi``); unused otherwise.
+    hi : float
+        The upper bound of an ``"interval"``; unused otherwise.
     note : str
         Why the constraint holds, for error messages (e.g. ``"Descartes"``).
     """

@@ -46,8 +46,23 @@ _USER_KEYS = {"map", "user", "sha256", "serialized"}
 
 
 def factory(name: str):
-    """The factory registered as ``name`` in :data:`MAPS` (a ValueError listing the valid names
-    otherwise)."""
+    """The factory registered as ``name`` in :data:`MAPS`.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`MAPS`, e.g. ``"symbolic.leg.stable_map"``.
+
+    Returns
+    -------
+    callable
+        The factory: keyword constants -> casadi.Function.
+
+    Raises
+    ------
+    ValueError
+        For a name that is not registered (the message lists the valid names).
+    """
     if not isinstance(name, str) or name not in MAPS:
         raise ValueError(f"unknown map {name!r}; a file may name only {', '.join(MAPS)}")
     module, attribute = MAPS[name]
@@ -55,8 +70,17 @@ def factory(name: str):
 
 
 def reference(function) -> dict | None:
-    """``{"map": name, "args": {keyword: number}}`` of a Function built by a factory of
-    :data:`MAPS`, or None for any other Function."""
+    """The reference of a Function built by a factory of :data:`MAPS`.
+
+    Parameters
+    ----------
+    function : casadi.Function
+
+    Returns
+    -------
+    dict or None
+        ``{"map": name, "args": {keyword: number}}``, or None for any other Function.
+    """
     from symbolic.named import reference as _reference
 
     ref = _reference(function)
@@ -64,13 +88,38 @@ def reference(function) -> dict | None:
 
 
 def sha256(function: casadi.Function) -> str:
-    """The SHA-256 (hex) of ``function.serialize()``: what a user map entry records."""
+    """The SHA-256 of ``function.serialize()``: what a user map entry records.
+
+    Parameters
+    ----------
+    function : casadi.Function
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
     return hashlib.sha256(function.serialize().encode()).hexdigest()
 
 
 def to_entry(function: casadi.Function) -> dict:
-    """What a file holds for ``function``: its reference (a factory of :data:`MAPS`), else a
-    user map entry ``{"map", "user", "sha256", "serialized"}`` (module docstring)."""
+    """What a file holds for ``function`` (module docstring).
+
+    Parameters
+    ----------
+    function : casadi.Function
+
+    Returns
+    -------
+    dict
+        Its reference (a factory of :data:`MAPS`), else a user map entry
+        ``{"map", "user", "sha256", "serialized"}``.
+
+    Raises
+    ------
+    ValueError
+        If ``function`` is not a casadi.Function.
+    """
     if not isinstance(function, casadi.Function):
         raise ValueError(f"function must be a casadi.Function; got {type(function).__name__}")
     ref = reference(function)
@@ -93,7 +142,8 @@ def _short(value) -> str:
 
 @functools.lru_cache(maxsize=64)
 def _build(name: str, args: tuple[tuple[str, float], ...]) -> casadi.Function:
-    """The factory's Function for these constants, built once (``joint_map`` takes ~10 ms)."""
+    """The factory's Function for these constants, built once (a factory derives its model
+    symbolically, which is worth caching)."""
     return factory(name)(**dict(args))
 
 
@@ -102,8 +152,10 @@ def resolve(ref: dict, what: str = "map") -> casadi.Function:
 
     Parameters
     ----------
-    ref : the reference (:func:`reference`); ``"args"`` may omit keywords (their defaults).
-    what : how error messages name the reference (e.g. ``"'inverse'"``).
+    ref : dict
+        The reference (:func:`reference`); ``"args"`` may omit keywords (their defaults).
+    what : str
+        How error messages name the reference (e.g. ``"'inverse'"``).
 
     Returns
     -------
@@ -147,8 +199,24 @@ def resolve(ref: dict, what: str = "map") -> casadi.Function:
 
 
 def check_maps(maps, trust: bool = False) -> dict:
-    """Validate the ``maps=`` and ``trust=`` arguments of a reader: None or a dict name ->
-    casadi.Function (returned as a dict), and True or False."""
+    """Validate the ``maps=`` and ``trust=`` arguments of a reader.
+
+    Parameters
+    ----------
+    maps : dict str -> casadi.Function or None
+        The user maps a caller passes again.
+    trust : bool
+
+    Returns
+    -------
+    dict str -> casadi.Function
+        ``maps`` as a new dict (empty for None).
+
+    Raises
+    ------
+    ValueError
+        If ``maps`` is not None or such a dict, or ``trust`` is not a bool.
+    """
     if not isinstance(trust, bool):
         raise ValueError(f"trust must be True or False; got {_short(trust)}")
     if maps is None:
@@ -188,12 +256,20 @@ def from_entry(entry, what: str = "map", *, maps=None, trust: bool = False) -> c
 
     Parameters
     ----------
-    entry : a reference dict, a user map dict, or (files before named maps) serialised text.
-    what : how error messages name the entry (e.g. ``"'inverse'"``).
-    maps : name -> casadi.Function: the user maps, passed again by the caller; each must have
-        the SHA-256 the file recorded.
-    trust : deserialise user maps and old serialised text from the file. A serialised CasADi
+    entry : dict or str
+        A reference dict, a user map dict, or (files before named maps) serialised text.
+    what : str
+        How error messages name the entry (e.g. ``"'inverse'"``).
+    maps : dict str -> casadi.Function, optional
+        The user maps, passed again by the caller; each must have the SHA-256 the file
+        recorded.
+    trust : bool
+        Deserialise user maps and old serialised text from the file. A serialised CasADi
         Function can run shell commands when it is read: only for files you trust.
+
+    Returns
+    -------
+    casadi.Function
 
     Raises
     ------

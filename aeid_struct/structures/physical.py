@@ -31,6 +31,9 @@ __all__ = ["Physical"]
 class Physical(Structure):
     """Physical parameters in bounds, mapped to a state space by a CasADi function.
 
+    ``elements_of`` (strict) also checks that the parameters rebuild the model: the CCF
+    coefficients of ``function(parameters)`` must match the model's to ``1e-6`` relative.
+
     Parameters
     ----------
     function : casadi.Function
@@ -38,7 +41,7 @@ class Physical(Structure):
         order) and outputs ``"A" (n, n), "B" (n, 1), "C" (1, n), "D" (1, 1)`` (others are
         ignored) -- or, for ``R`` systems sharing the parameters, ``"A1", .., "D1", ..,
         "AR", .., "DR"`` of those shapes (then :attr:`records` is ``R``). Evaluated through
-        :class:`~aeid_struct.casadi_torch.CasadiOp`, so gradients are CasADi's.
+        ``CasadiOp``, so gradients are CasADi's.
     bounds : dict name -> (lo, hi)
         For every input, ``lo < hi``: ``element = lo + (hi - lo) sigmoid(theta)``.
     inverse : casadi.Function, optional
@@ -49,8 +52,11 @@ class Physical(Structure):
         return (e.g. ``d`` of the unstable leg, which its transfer function does not contain)
         is set to its fixed value if fixed, else to the midpoint of its bounds (``raw = 0``).
 
-    ``elements_of`` (strict) also checks that the parameters rebuild the model: the CCF
-    coefficients of ``function(parameters)`` must match the model's to ``1e-6`` relative.
+    Raises
+    ------
+    ValueError
+        If ``function`` or ``inverse`` is not a casadi.Function of the described inputs and
+        outputs, or ``bounds`` does not give finite ``lo < hi`` for every input.
     """
 
     def __init__(self, function: casadi.Function, *, bounds: dict, inverse=None) -> None:
