@@ -6,10 +6,10 @@ name of the factory that builds it and the factory's numeric constants,
 
     {"map": "symbolic.leg.stable_map", "args": {"l0": 0.8, "g": 9.81}},
 
-and the reader calls the factory again (``aeid_struct.maps`` holds the allow-list of factories a
-file may name). This module only remembers, for every Function a factory decorated with
-:func:`named` returns, that reference; it depends on nothing but the standard library, so that
-``symbolic`` stays importable without ``aeid_struct``.
+and the reader calls the factory again (``aeid_struct.structures.maps`` holds the allow-list of
+factories a file may name). This module only remembers, for every Function a factory decorated
+with :func:`named` returns, that reference; it depends on nothing but the standard library, so
+that ``symbolic`` stays importable without ``aeid_struct``.
 """
 
 from __future__ import annotations

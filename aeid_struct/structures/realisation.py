@@ -169,6 +169,7 @@ def ccf_coefficients(A: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.nd
     c : (B, n) ndarray
         ``(c_0, ..., c_{n-1})``, the numerator of ``c^T (sI - A)^{-1} b``.
     """
+    A, b, c = (np.asarray(x, dtype=np.float64) for x in (A, b, c))
     B, n = b.shape
     if B == 0:
         return np.zeros((0, n)), np.zeros((0, n))
