@@ -1,8 +1,12 @@
 """Physical models and their derivations, in CasADi only (no torch): each module is a short,
 sectioned script in the style of the CasADi examples that builds named ``casadi.Function`` objects
-(model, derivation, linearisation, maps to and from canonical forms, generated C) and checks itself
-when run as ``python -m symbolic.<module>``. ``symbolic.leg`` derives the robot leg of paper
-Sec. IV, a spring-loaded inverted pendulum, from its Lagrangian to the controllable canonical forms
-of its stable and unstable subsystems and back to the physical parameters ``k, d, m``; the
+and checks itself when run as ``python -m symbolic.<module>``.
+
+``symbolic.slip`` derives the robot leg of paper Sec. IV, a spring-loaded inverted pendulum, from
+its Lagrangian to the linearisation of Eq. 16 and its two SISO subsystems; ``symbolic.leg`` maps
+its physical parameters ``k, d, m`` to the controllable canonical forms of those subsystems and
+back (and re-exports the model); ``symbolic.realisation`` is the CCF of any SISO realisation
+(paper Eq. 5), the library's one model -> CCF conversion; ``symbolic.codegen`` writes and compiles
+C code; ``symbolic.named`` lets a model file name a map instead of holding its code. The
 ``aeid_struct`` library imports these maps where a physical structure needs them.
 """
