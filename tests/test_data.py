@@ -4,7 +4,7 @@ import control
 import numpy as np
 import pytest
 
-from aeid_struct.training.families import EXCITATIONS, LegFamily, PoleFamily, excitation, records
+from aeid_struct.training import EXCITATIONS, LegFamily, PoleFamily, excitation, records
 
 
 def test_leg_family_closed_forms():
