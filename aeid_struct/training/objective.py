@@ -16,8 +16,11 @@ import numpy as np
 import torch
 
 from aeid_struct.identification import Identifier
-from aeid_struct.simulation import normalise, record_scale
-from aeid_struct.simulation.foh import _free_fit, _loss, _simulate, _stationary_value
+from aeid_struct.simulation import loss, normalise, record_scale
+
+# The unchecked batch kernels: a training step needs a non-finite response to come back as it is
+# (the batch is skipped), not recomputed and warned about as the public simulate() does.
+from aeid_struct.simulation.foh import _free_fit, _simulate, _stationary_value
 from aeid_struct.structures import Structure
 from aeid_struct.training.families import Systems
 
@@ -71,9 +74,9 @@ def batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
             return torch.full((), math.nan, dtype=y_hat.dtype)   # overflowed: a skipped batch
         y_bar = record_scale(ys[r])
         yinf_r = yinf[:, r] if R > 1 else yinf
-        total = total + _loss(normalise(y_hat, y_bar), normalise(ys[r], y_bar),
-                              None if yinf_hat is None else normalise(yinf_hat, y_bar),
-                              None if yinf_hat is None else normalise(yinf_r, y_bar), gamma)
+        total = total + loss(normalise(y_hat, y_bar), normalise(ys[r], y_bar),
+                             None if yinf_hat is None else normalise(yinf_hat, y_bar),
+                             None if yinf_hat is None else normalise(yinf_r, y_bar), gamma=gamma)
     total = total / R
     if weight > 0:
         total = total + weight * torch.mean((raw - z.to(raw.dtype)) ** 2)
