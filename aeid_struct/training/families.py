@@ -248,8 +248,12 @@ class PoleFamily:
     pairs : int
         Complex pairs ``-sigma +- j omega``, ``sigma`` uniform in ``decay``, ``omega`` in
         ``freq``; ``real + pairs >= 1``.
-    decay, freq, gain : (lo, hi)
-        Positive ranges (1/s, rad/s, static gain).
+    decay : (lo, hi)
+        Positive range of the poles' decay rates ``-Re(p)`` (1/s).
+    freq : (lo, hi)
+        Positive range of the pairs' frequencies ``Im(p)`` (rad/s).
+    gain : (lo, hi)
+        Positive range of the static gain.
     """
 
     real: int = 1
