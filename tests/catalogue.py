@@ -1112,8 +1112,8 @@ def _configs() -> list[Case]:
 
 def _training() -> list[Case]:
     import aeid_struct as ae
-    from aeid_struct.structures.base import CCF
     from aeid_struct import training as data
+    from aeid_struct.structures.base import CCF
     from aeid_struct.training import LegFamily, PoleFamily
 
     area = "train-data"

@@ -293,7 +293,8 @@ def test_bad_checkpoint_is_refused_with_its_path_and_never_run(tmp_path, case):
     "kw, match",
     [
         ({"dt": 0.0}, "dt must be a positive finite number"),
-        ({"steps": 0}, r"steps must be an integer >= 2 \(or a tuple of them, one per record\); got 0"),
+        ({"steps": 0}, r"steps must be an integer >= 2 \(or a tuple of them, one per record\); "
+                       r"got 0"),
         ({"steps": 1}, r"steps must be an integer >= 2 .*got 1"),
         ({"holdout": 1.0}, r"holdout must be in \(0, 1\)"),
         ({"count": 2, "holdout": 0.2}, "count=2 is too small to hold out 20%"),
