@@ -398,10 +398,10 @@ def test_stationary_weight_defaults_to_the_paper_for_steps_only():
 
 
 def test_fresh_records_every_epoch_are_new_and_reproducible(monkeypatch):
-    import aeid_struct.training.loop as training
+    import aeid_struct.training.tensors as training
 
     drawn = []
-    real = training._redraw
+    real = training.redraw
 
     def spy(family, config, epoch, rows, u_all, y_all, yinf_all, scale_all):
         before = y_all[0][torch.as_tensor(rows)].clone()
@@ -409,7 +409,7 @@ def test_fresh_records_every_epoch_are_new_and_reproducible(monkeypatch):
         drawn.append((epoch, bool((y_all[0][torch.as_tensor(rows)] != before).any())))
         return out
 
-    monkeypatch.setattr(training, "_redraw", spy)
+    monkeypatch.setattr(training, "redraw", spy)
     config = _config(epochs=3, fresh=True, excitation="mix", gamma=0.0)
     a = train(ae.CCF(1, descartes=True), FAMILY, config, encoder=SMALL)
     assert drawn == [(1, True), (2, True)]               # new training records from epoch 2 on

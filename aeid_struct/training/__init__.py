@@ -3,7 +3,7 @@
 
 Modules: ``families`` (the true systems), ``excitation`` (the inputs), ``datasets`` (simulated
 records and the per-record time grid), ``config`` (``TrainConfig``), ``objective`` (Eq. 14 on
-Eq. 15-normalised records), ``loop`` (``train``), ``checkpoints``, ``calibration`` (the training
+Eq. 15-normalised records), ``tensors`` (the run's records as tensors), ``loop`` (``train``), ``checkpoints``, ``calibration`` (the training
 range and flag thresholds) and ``progress`` (the budget, the progress line, the warning).
 """
 

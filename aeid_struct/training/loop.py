@@ -1,9 +1,9 @@
 """Unsupervised training of an identifier (paper Sec. III): encoder -> structure -> decoder.
 
-``train()`` runs in stages: the data (simulated records, their split and scales), the model
-(encoder, identifier, optimiser, random streams, a resumed checkpoint), the epochs (gradient
-steps on Eq. 14, ``objective.batch_loss``), the held-out evaluation that picks the weights, and
-the finish (best weights, history, training range). Choices the paper leaves open: 80/20 split
+``train()`` runs in stages: the data (``tensors.record_tensors``: simulated records, their
+split and scales), the model (encoder, identifier, optimiser, random streams, a resumed
+checkpoint), the epochs (gradient steps on Eq. 14, ``objective.batch_loss``), the held-out
+evaluation that picks the weights, and the finish (best weights, history, training range). Choices the paper leaves open: 80/20 split
 (paper Sec. IV); Adam with a short warm-up and a cosine decay over an epoch or wall-time budget;
 gradient-norm clipping, and batches whose loss or gradient is not finite are skipped and
 counted; float32.
@@ -25,58 +25,18 @@ import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.identification import Identifier
-from aeid_struct.simulation import stationary_value
-from aeid_struct.structures import Physical, Structure
+from aeid_struct.structures import Structure
 from aeid_struct.training import checkpoints
 from aeid_struct.training.calibration import training_range
 from aeid_struct.training.config import TrainConfig, config_dict
-from aeid_struct.training.datasets import Records, holdout_split, records
-from aeid_struct.training.objective import (
-    add_noise,
-    batch_loss,
-    output_free,
-    raw_statistics,
-    theta,
-)
+from aeid_struct.training.objective import add_noise, batch_loss
 from aeid_struct.training.progress import (
     UndertrainedWarning,
     learning_rate,
     progress_line,
     undertrained,
 )
-
-
-@dataclass
-class _Data:
-    """The run's records as tensors, ``(count, ...)`` rows, and how the network's outputs are
-    standardised (``objective.raw_statistics``)."""
-
-    rec: Records                  # the records drawn first (the training range is on them)
-    u: list[torch.Tensor]         # R tensors (count, steps_r)
-    y: list[torch.Tensor]         # R clean records (count, steps_r)
-    yinf: torch.Tensor            # (count, R) true stationary values (Eq. 4)
-    scale: torch.Tensor           # (count, R) max|y| of the clean records
-    train: np.ndarray             # training indices
-    held: np.ndarray              # held-out indices
-    scale_mode: str               # "denormalise" or "feature" (Identifier's scale)
-    mean: np.ndarray              # (p,) centre of the raw parameters
-    spread: np.ndarray            # (p,) their spread
-    gain: np.ndarray              # (count, R) max|y| / max|u|
-    z: torch.Tensor | None = None  # (count, p) standardised true parameters (supervised)
-
-    def targets(self, structure: Structure, systems, gain: np.ndarray) -> torch.Tensor:
-        """Standardised true raw parameters ``(N, p)`` (``TrainConfig.supervised``)."""
-        t = theta(structure, systems, gain[:, 0] if self.scale_mode == "denormalise" else None)
-        return torch.tensor((t - self.mean) / self.spread, dtype=torch.float32)
-
-    def batch(self, idx: torch.Tensor, ys: list[torch.Tensor]):
-        """``(y, u, yinf, z)`` of the records ``idx`` as the loss takes them (tensors for one
-        record, lists for several); ``ys`` are their outputs, already taken (and noisy)."""
-        u = [v[idx] for v in self.u]
-        z = None if self.z is None else self.z[idx]
-        if len(ys) == 1:
-            return ys[0], u[0], self.yinf[idx, 0], z
-        return ys, u, self.yinf[idx], z
+from aeid_struct.training.tensors import RecordTensors, record_tensors, refresh
 
 
 @dataclass
@@ -86,7 +46,7 @@ class _Run:
     structure: Structure
     family: object
     config: TrainConfig
-    data: _Data
+    data: RecordTensors
     ident: Identifier
     enc_config: EncoderConfig
     opt: torch.optim.Adam
@@ -185,7 +145,7 @@ def _train(structure: Structure, family, config: TrainConfig, encoder, inverse, 
            on_epoch) -> Identifier:
     """``train()`` after its checks, on the run's torch threads: the stages in order."""
     torch.manual_seed(config.seed)
-    data = _data(structure, family, config)
+    data = record_tensors(structure, family, config)
     run = _model(structure, family, config, data, encoder, inverse, meta)
     tty = sys.stderr.isatty()
     start = time.perf_counter() - run.state["elapsed"]
@@ -210,36 +170,8 @@ def _train(structure: Structure, family, config: TrainConfig, encoder, inverse, 
     return _finish(run)
 
 
-def _data(structure: Structure, family, config: TrainConfig) -> _Data:
-    """Stage 1: the simulated records as tensors, their split, scales and the output
-    standardisation."""
-    R = structure.records
-    rec = records(family, config.count, steps=config.steps, dt=config.dt,
-                  excitation_kind=config.excitation, seed=config.seed, warmup=config.warmup)
-    scale_mode = ("feature" if isinstance(structure, Physical) or not output_free(structure)
-                  else "denormalise")
-    ys_clean, us = (rec.y_clean, rec.u) if R > 1 else ((rec.y_clean,), (rec.u,))
-    y_bar = np.stack([np.max(np.abs(y), axis=1) for y in ys_clean], 1)     # (count, R)
-    u_bar = np.stack([np.max(np.abs(u), axis=1) for u in us], 1)
-    gain = y_bar / u_bar
-    mean, spread = raw_statistics(structure, rec.systems,
-                                  gain[:, 0] if scale_mode == "denormalise" else None)
-    train_idx, held_idx = holdout_split(config.count, config.holdout, config.seed)
-    dtype = torch.float32
-    yinf = torch.tensor(np.stack([
-        stationary_value(*(getattr(rec.systems.record(r), f) for f in "Abcd"))
-        for r in range(R)], 1), dtype=dtype)                                  # (count, R)
-    data = _Data(rec=rec, u=[torch.tensor(u, dtype=dtype) for u in us],
-                 y=[torch.tensor(y, dtype=dtype) for y in ys_clean], yinf=yinf,
-                 scale=torch.tensor(y_bar, dtype=dtype), train=train_idx, held=held_idx,
-                 scale_mode=scale_mode, mean=mean, spread=spread, gain=gain)
-    if config.supervised > 0:
-        data.z = data.targets(structure, rec.systems, gain)
-    return data
-
-
-def _model(structure: Structure, family, config: TrainConfig, data: _Data, encoder, inverse,
-           meta) -> _Run:
+def _model(structure: Structure, family, config: TrainConfig, data: RecordTensors, encoder,
+           inverse, meta) -> _Run:
     """Stage 2: the encoder and identifier, Adam, the run's random streams and state, resumed
     from the checkpoint when there is one."""
     R = structure.records
@@ -286,7 +218,7 @@ def _epoch(run: _Run, start: float) -> tuple[float, float, list[float], int]:
     """
     config, data, epoch = run.config, run.data, run.state["epoch"]
     if config.fresh and epoch > 0:
-        _refresh(run, epoch)
+        refresh(data, run.structure, run.family, config, epoch)
     generator = run.generators["generator"]
     train_t = torch.as_tensor(data.train)
     steps_per_epoch = math.ceil(len(train_t) / config.batch)
@@ -330,40 +262,6 @@ def _progress(config: TrainConfig, done: float, start: float) -> float:
         progress = max(progress, min((time.perf_counter() - start) / config.seconds,
                                      done / config.min_epochs))
     return progress
-
-
-def _refresh(run: _Run, epoch: int) -> None:
-    """New training records for ``epoch`` (``TrainConfig.fresh``), and their targets."""
-    data, R = run.data, run.structure.records
-    new = _redraw(run.family, run.config, epoch, data.train, data.u, data.y, data.yinf,
-                  data.scale)
-    if data.z is not None:
-        rows = torch.as_tensor(data.train)
-        new_u = new.u if R > 1 else (new.u,)
-        u_new = np.stack([np.max(np.abs(u), axis=1) for u in new_u], 1)
-        data.z[rows] = data.targets(run.structure, new.systems,
-                                    data.scale[rows].double().numpy() / u_new)
-
-
-def _redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_all,
-            yinf_all, scale_all) -> Records:
-    """New training records for ``epoch``: the rows ``rows`` of the record tensors are replaced
-    in place by records drawn with a seed of their own, so that a resumed run draws the same
-    ones. Returns the new records."""
-    rec = records(family, len(rows), steps=config.steps, dt=config.dt,
-                  excitation_kind=config.excitation, seed=config.seed + 7919 * epoch,
-                  warmup=config.warmup)
-    multi = isinstance(rec.u, tuple)
-    ys, us = (rec.y_clean, rec.u) if multi else ((rec.y_clean,), (rec.u,))
-    index = torch.as_tensor(rows)
-    for r, (y, u) in enumerate(zip(ys, us, strict=True)):
-        y_all[r][index] = torch.as_tensor(y, dtype=y_all[r].dtype)
-        u_all[r][index] = torch.as_tensor(u, dtype=u_all[r].dtype)
-        scale_all[index, r] = torch.as_tensor(np.max(np.abs(y), axis=1), dtype=scale_all.dtype)
-        s = rec.systems.record(r)
-        yinf_all[index, r] = torch.as_tensor(stationary_value(s.A, s.b, s.c, s.d),
-                                             dtype=yinf_all.dtype)
-    return rec
 
 
 def _holdout_loss(run: _Run) -> float:
