@@ -19,7 +19,7 @@ import sys
 #: old module path (under ``aeid_struct``) -> the module that holds its code now
 ALIASES = {
     "decoder": "simulation.foh",
-    "data": "training.families",
+    "data": "training",
     "identify": "identification.identifier",
     "refine": "refinement.nlp",
     "scorecard": "evaluation.scorecard",

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Checked", "RecordError", "as_array", "as_records", "check_records", "normalise",
-           "overflow_problem", "record_problems", "require_finite"]
+           "overflow_problem", "record_problems", "require_finite", "unit_step"]
 
 
 class RecordError(ValueError):
@@ -265,3 +265,22 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
         return y_tilde, np.ones_like(y2), y_bar, np.ones_like(y_bar)
     u_bar = np.abs(u2).max(axis=1)
     return y_tilde, u2 / u_bar[:, None], y_bar, u_bar
+
+
+def unit_step(shape: int | tuple[int, ...]) -> np.ndarray:
+    """The input a record without ``u`` stands for: a unit step, ``u_k = 1`` for every sample.
+
+    With the first-order hold between samples (docs/architecture.md, time grid) this is the
+    step of the paper's experiments: the input is 1 from ``t_0 = 0`` on, the system at rest
+    before it.
+
+    Parameters
+    ----------
+    shape : int or tuple of int
+        ``steps`` for one record, ``(count, steps)`` for a batch (e.g. ``y.shape``).
+
+    Returns
+    -------
+    u : (steps,) or (count, steps) float64 array of ones
+    """
+    return np.ones(shape, dtype=np.float64)

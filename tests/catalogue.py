@@ -160,7 +160,7 @@ class Context:
     @cached_property
     def leg(self):
         """The stable leg k=22, d=3, m=1 as (A, b, c, d)."""
-        from aeid_struct.training.families import LegFamily
+        from aeid_struct.training import LegFamily
         s = LegFamily().systems(22.0, 3.0, 1.0)
         return s.A[0], s.b[0], s.c[0], float(s.d[0])
 
@@ -949,7 +949,7 @@ def _refine() -> list[Case]:
 def _configs() -> list[Case]:
     from aeid_struct.encoder.network import EncoderConfig
     from aeid_struct.online.tracker import TrackerConfig
-    from aeid_struct.training.loop import TrainConfig
+    from aeid_struct.training import TrainConfig
 
     area = "configs"
 
@@ -964,9 +964,9 @@ def _configs() -> list[Case]:
         Case(area, "TrainConfig dt string", lambda x: tc(dt="0.01"),
              match=r"dt must be a positive finite number .*got '0.01'"),
         Case(area, "TrainConfig steps 0", lambda x: tc(steps=0),
-             match=r"steps must be a positive integer .*got 0"),
+             match=r"steps must be an integer >= 2 .*got 0"),
         Case(area, "TrainConfig steps 2.5", lambda x: tc(steps=2.5),
-             match=r"steps must be a positive integer .*got 2.5"),
+             match=r"steps must be an integer >= 2 .*got 2.5"),
         Case(area, "TrainConfig dt/steps tuple lengths", lambda x: tc(dt=(0.01, 0.02), steps=50),
              match=r"dt and steps must have one entry per record alike"),
         Case(area, "TrainConfig count 0", lambda x: tc(count=0),
@@ -1112,9 +1112,9 @@ def _configs() -> list[Case]:
 
 def _training() -> list[Case]:
     import aeid_struct as ae
+    from aeid_struct import training as data
     from aeid_struct.structures.base import CCF
-    from aeid_struct.training import families as data
-    from aeid_struct.training.families import LegFamily, PoleFamily
+    from aeid_struct.training import LegFamily, PoleFamily
 
     area = "train-data"
 

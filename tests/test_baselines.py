@@ -400,7 +400,7 @@ def test_casadi_cold_recovers_the_stable_leg_from_the_generic_start():
 def test_classical_stacks_per_record_estimates_like_an_identifier():
     from functools import partial
 
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     rec = records(LegFamily(subsystem="unstable"), 3, steps=UNSTABLE[1], dt=UNSTABLE[0], seed=4)
     method = partial(bl.least_squares, structure=ae.CCF(2).fixed(a1=0.0),

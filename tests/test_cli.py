@@ -272,7 +272,7 @@ def test_every_option_has_help():
 
 def test_excitations_in_help_are_the_libraries():
     import aeid_struct.cli.main as cli
-    from aeid_struct.training.families import EXCITATIONS
+    from aeid_struct.training import EXCITATIONS
 
     assert cli._EXCITATIONS == EXCITATIONS
 

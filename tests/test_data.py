@@ -4,7 +4,7 @@ import control
 import numpy as np
 import pytest
 
-from aeid_struct.training.families import EXCITATIONS, LegFamily, PoleFamily, excitation, records
+from aeid_struct.training import EXCITATIONS, LegFamily, PoleFamily, excitation, records
 
 
 def test_leg_family_closed_forms():
@@ -163,3 +163,48 @@ def test_mixed_windows_step_inside_the_window():
     assert np.mean(np.ptp(u0[:, 200:], axis=1) == 0) > 0.15   # without first=: flat windows
     with pytest.raises(ValueError, match=r"warmup must be a non-negative integer; got -1"):
         records(fam, 2, steps=50, dt=0.01, warmup=-1)
+
+
+def test_one_grid_rule_for_training_settings_and_records():
+    from aeid_struct.simulation import simulate
+    from aeid_struct.training import TrainConfig, grids
+
+    assert grids(300, 0.01) == ((300, 0.01),)
+    assert grids([150, 50], [0.02, 0.01], records=2) == ((150, 0.02), (50, 0.01))
+    assert TrainConfig(dt=(0.02, 0.01), steps=[150, 50]).grids == ((150, 0.02), (50, 0.01))
+    # Why at least two samples: a one-sample response of a strictly proper system from rest is
+    # y_0 = c^T x_0 + d u_0 = 0 (closed form), nothing to identify and max|y| = 0 for Eq. 15.
+    A, b, c = np.array([[-2.0]]), np.array([1.0]), np.array([3.0])
+    assert simulate(A, b, c, 0.0, np.ones(1), 0.05).tolist() == [0.0]
+    # the shortest grid works for both; one sample is refused by both with the same words
+    assert records(PoleFamily(real=1, pairs=0), 3, steps=2, dt=0.05).y.shape == (3, 2)
+    assert TrainConfig(dt=0.05, steps=2).grids == ((2, 0.05),)
+    for make in (lambda: TrainConfig(dt=0.05, steps=1),
+                 lambda: records(PoleFamily(real=1, pairs=0), 3, steps=1, dt=0.05)):
+        with pytest.raises(ValueError, match=r"steps must be an integer >= 2.*; got 1"):
+            make()
+    cases = [
+        ((300, 1), (0.01, 0.01), None, r"steps must be an integer >= 2 \(or a tuple of them, "
+                                       r"one per record\); got \(300, 1\)"),
+        (300, True, None, r"dt must be a positive finite number .*; got True"),
+        (300, float("nan"), 1, r"dt must be a positive finite number; got nan"),
+        ((300, 300), (0.01,), None, r"dt and steps must have one entry per record alike"),
+        ((), (), None, r"dt and steps must have one entry per record alike; got dt=\(\)"),
+        (300, 0.01, 2, r"steps and dt must be tuples of 2 entries \(one per record\)"),
+        ((300, 300), (0.01, 0.01), 1, r"steps and dt must be single numbers for a family of "
+                                      r"one record"),
+        ((300, 2.5), (0.01, 0.01), 2, r"steps must be an integer >= 2 in each of the 2 entries"),
+        (300.0, 0.01, None, r"steps must be an integer >= 2 .*; got 300.0"),
+    ]
+    for steps, dt, count, match in cases:
+        with pytest.raises(ValueError, match=match):
+            grids(steps, dt, count)
+
+
+def test_step_excitation_is_the_unit_step_of_a_record_without_input():
+    from aeid_struct.records import unit_step
+
+    u = unit_step((2, 5))
+    assert u.dtype == np.float64 and u.shape == (2, 5) and np.all(u == 1.0)
+    assert unit_step(4).tolist() == [1.0] * 4
+    np.testing.assert_array_equal(excitation("step", 2, 5, 0.1, np.random.default_rng(0)), u)

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.encoder import Encoder, EncoderConfig
 
 
 def test_paper_architecture_shapes():

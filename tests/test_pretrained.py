@@ -30,7 +30,7 @@ def test_record_format_and_provenance(sub, variant):
 
 @pytest.mark.parametrize("sub", ["stable", "unstable"])
 def test_noise_trained_beats_clean_trained_on_noisy_records(sub):
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     dt, steps = RECORD[sub]
     rec = records(LegFamily(subsystem=sub), 100, steps=steps, dt=dt, noise=0.05, seed=7)
@@ -127,7 +127,7 @@ UNSTABLE_ANY_STEP_ERROR = 0.03
 def test_arbitrary_input_identifiers_recover_known_legs(kind, name, subsystem, warmup, dt, steps,
                                                        bound):
     from aeid_struct.metrics import step_error
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     ident = ae.load_pretrained(name)
     assert ident.inputs and ident.steps == steps and ident.dt == dt

@@ -13,7 +13,7 @@ import pytest
 import aeid_struct
 from aeid_struct.cli.main import main
 from aeid_struct.studies import leg_paper as study
-from aeid_struct.training.loop import UndertrainedWarning
+from aeid_struct.training import UndertrainedWarning
 
 SHIPPED = Path(aeid_struct.__file__).parent / "pretrained"
 

@@ -13,10 +13,9 @@ import pytest
 import torch
 
 import aeid_struct as ae
-from aeid_struct.encoder.network import EncoderConfig
-from aeid_struct.simulation.foh import simulate
-from aeid_struct.training.families import PoleFamily
-from aeid_struct.training.loop import TrainConfig, train
+from aeid_struct.encoder import EncoderConfig
+from aeid_struct.simulation import simulate
+from aeid_struct.training import PoleFamily, TrainConfig, train
 
 FAMILY = PoleFamily(real=1, pairs=0, decay=(1.0, 4.0), gain=(0.5, 2.0))
 SMALL = EncoderConfig(width=4, kernel=3, dense=(16,))
@@ -43,7 +42,7 @@ def test_training_lowers_the_loss_and_identifies():
 
 
 def test_training_noise_has_the_stated_level():
-    from aeid_struct.training.loop import _add_noise
+    from aeid_struct.training.objective import add_noise as _add_noise
 
     g = torch.Generator().manual_seed(0)
     y = torch.ones(2000, 400, dtype=torch.float64)
@@ -71,9 +70,8 @@ _SCRIPT = """
 import os, signal, sys
 sys.path.insert(0, {root!r})
 import aeid_struct as ae
-from aeid_struct.training.families import PoleFamily
-from aeid_struct.encoder.network import EncoderConfig
-from aeid_struct.training.loop import TrainConfig, train
+from aeid_struct.training import PoleFamily, TrainConfig, train
+from aeid_struct.encoder import EncoderConfig
 fam = PoleFamily(real=1, pairs=0, decay=(1.0, 4.0), gain=(0.5, 2.0))
 cfg = TrainConfig(dt=0.05, steps=40, count=400, epochs=int(sys.argv[1]), batch=50, lr=1e-2,
                   seed=0, progress=False, checkpoint=sys.argv[2], noise=(0.0, 0.05),
@@ -295,7 +293,9 @@ def test_bad_checkpoint_is_refused_with_its_path_and_never_run(tmp_path, case):
     "kw, match",
     [
         ({"dt": 0.0}, "dt must be a positive finite number"),
-        ({"steps": 0}, "steps must be a positive integer"),
+        ({"steps": 0}, r"steps must be an integer >= 2 \(or a tuple of them, one per record\); "
+                       r"got 0"),
+        ({"steps": 1}, r"steps must be an integer >= 2 .*got 1"),
         ({"holdout": 1.0}, r"holdout must be in \(0, 1\)"),
         ({"count": 2, "holdout": 0.2}, "count=2 is too small to hold out 20%"),
         ({"seconds": -1.0}, "seconds must be positive or None"),
@@ -333,7 +333,7 @@ def test_history_records_gradient_norms_before_clipping():
 def test_non_finite_batches_are_skipped_not_stepped_on(monkeypatch):
     import aeid_struct.training.loop as training
 
-    real = training._batch_loss
+    real = training.batch_loss
     calls = {"n": 0}
 
     def flaky(*args):
@@ -341,7 +341,7 @@ def test_non_finite_batches_are_skipped_not_stepped_on(monkeypatch):
         loss = real(*args)
         return loss * float("nan") if calls["n"] % 3 == 0 else loss   # every third batch NaN
 
-    monkeypatch.setattr(training, "_batch_loss", flaky)
+    monkeypatch.setattr(training, "batch_loss", flaky)
     ident = train(ae.CCF(1, descartes=True), FAMILY, _config(epochs=2), encoder=SMALL)
     hist = ident.meta["history"]
     assert sum(hist["skipped"]) > 0
@@ -367,8 +367,8 @@ def test_joint_training_reads_both_records_and_lowers_the_loss():
 
 
 def test_windows_mid_motion_train_with_a_fitted_initial_state():
-    from aeid_struct.simulation.foh import initial_state
-    from aeid_struct.training.families import records
+    from aeid_struct.simulation import initial_state
+    from aeid_struct.training import records
 
     # gamma = 0: the stationary-value term of Eq. 14 is a step-response term
     config = _config(epochs=10, count=600, excitation="mix", warmup=30, initial="fitted",
@@ -398,10 +398,10 @@ def test_stationary_weight_defaults_to_the_paper_for_steps_only():
 
 
 def test_fresh_records_every_epoch_are_new_and_reproducible(monkeypatch):
-    import aeid_struct.training.loop as training
+    import aeid_struct.training.tensors as training
 
     drawn = []
-    real = training._redraw
+    real = training.redraw
 
     def spy(family, config, epoch, rows, u_all, y_all, yinf_all, scale_all):
         before = y_all[0][torch.as_tensor(rows)].clone()
@@ -409,7 +409,7 @@ def test_fresh_records_every_epoch_are_new_and_reproducible(monkeypatch):
         drawn.append((epoch, bool((y_all[0][torch.as_tensor(rows)] != before).any())))
         return out
 
-    monkeypatch.setattr(training, "_redraw", spy)
+    monkeypatch.setattr(training, "redraw", spy)
     config = _config(epochs=3, fresh=True, excitation="mix", gamma=0.0)
     a = train(ae.CCF(1, descartes=True), FAMILY, config, encoder=SMALL)
     assert drawn == [(1, True), (2, True)]               # new training records from epoch 2 on
@@ -437,7 +437,7 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
     calibrated = ident.meta["training_range"]
     ident.meta["training_range"] = {k: v for k, v in calibrated.items() if k != "excess"}
     assert ident.identify(inside).outside is None
-    from aeid_struct.training.loop import recalibrate
+    from aeid_struct.training import recalibrate
 
     assert recalibrate(ident, FAMILY).meta["training_range"] == calibrated
     assert ident.identify(np.stack([inside, far])).outside.tolist() == [False, True]
@@ -446,8 +446,9 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
 
 
 def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_square():
-    from aeid_struct.training.families import records
-    from aeid_struct.training.loop import _batch_loss, _theta
+    from aeid_struct.training import records
+    from aeid_struct.training.objective import batch_loss as _batch_loss
+    from aeid_struct.training.objective import theta as _theta
 
     structure = ae.CCF(2, descartes=True)
     fam = ae.LegFamily(subsystem="stable")
@@ -472,8 +473,8 @@ def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_squa
 
 
 def test_supervised_training_steers_the_parameters_and_ends_on_the_paper_loss():
-    from aeid_struct.training.families import records
-    from aeid_struct.training.loop import _theta
+    from aeid_struct.training import records
+    from aeid_struct.training.objective import theta as _theta
 
     val = records(FAMILY, 200, steps=40, dt=0.05, excitation_kind="mix", seed=77, warmup=30)
     gain = np.abs(val.y_clean).max(axis=1) / np.abs(val.u).max(axis=1)
@@ -498,7 +499,8 @@ def test_supervised_training_steers_the_parameters_and_ends_on_the_paper_loss():
 
 
 def test_tiny_time_budget_trains_min_epochs_and_warns_with_the_numbers():
-    from aeid_struct.training.loop import UndertrainedWarning, _learning_rate
+    from aeid_struct.training import UndertrainedWarning
+    from aeid_struct.training.progress import learning_rate as _learning_rate
 
     # 1 ms cannot hold one epoch: the budget alone would stop after the first one
     config = _config(epochs=100, seconds=1e-3, min_epochs=3)
@@ -522,7 +524,7 @@ def test_tiny_time_budget_trains_min_epochs_and_warns_with_the_numbers():
 def test_held_out_loss_above_the_target_warns_and_a_run_that_reaches_it_does_not():
     import warnings
 
-    from aeid_struct.training.loop import UndertrainedWarning
+    from aeid_struct.training import UndertrainedWarning
 
     quiet = train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL)
     best = quiet.meta["train"]["best_holdout_loss"]
@@ -548,7 +550,8 @@ def test_held_out_loss_above_the_target_warns_and_a_run_that_reaches_it_does_not
 
 
 def test_progress_line_shows_the_budget_that_applies_and_an_eta():
-    from aeid_struct.training.loop import _eta, _progress_line
+    from aeid_struct.training.progress import eta as _eta
+    from aeid_struct.training.progress import progress_line as _progress_line
 
     timed = _config(epochs=100_000, seconds=150.0, min_epochs=60)
     # 10 epochs in 50 s: 5 s each; the time budget has 100 s left, the floor 50 epochs (250 s)

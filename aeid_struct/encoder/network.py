@@ -1,30 +1,13 @@
-"""The residual 1-D-convolutional encoder of paper Sec. III-A.
+"""The residual 1-D convolutional encoder of paper Sec. III-A: normalised records -> the raw
+parameters of a structure.
 
-The paper's network: three sequential 1-D convolution layers, a fourth convolution that shortcuts
-them, the two outputs concatenated and fed to dense layers (paper default: eight convolution
-neurons, two dense layers of ten). Each convolution neuron computes Eq. 8 followed by an
-activation, each dense neuron Eq. 7.
-
-Choices the paper leaves open, and ours:
-
-- **Input channels.** Channel 0 is the normalised output record ``y_tilde`` (Eq. 15). With
-  ``inputs=True`` the normalised input record is channel 1, so the encoder can read arbitrary
-  excitations, not only a unit step.
-- **Scalar features.** ``features`` extra scalars (e.g. ``log max|y|``, the scale that Eq. 15
-  removes) are appended to the flattened convolution features before the dense layers. A
-  canonical structure does not need them (``c`` and ``d`` are de-normalised exactly), a physical
-  one does: the static gain of the leg is ``1/k``.
-- **Pooling.** ``pool > 1`` average-pools the record before the convolutions. The leg's step
-  responses are smooth, so this loses little and divides the convolution cost by ``pool``.
-- **Several records.** An identifier of several systems that share parameters (the leg's two
-  subsystems, one ``(k, d, m)``) reads one record per system, each on its own grid: ``steps``
-  and ``pool`` are then tuples, one entry per record, and each record is pooled by its own
-  factor to a common length (300 samples / 6 and 100 / 2 both give 50), so that the records
-  enter the convolutions as channels of one signal on a normalised time axis.
-- **Padding.** "same" padding keeps the time axis, so the flattened features keep the position of
-  each pattern in time, which the dense layers need to read time constants off the record.
-- **Activation.** ``tanh`` by default: smooth, bounded, and it gave lower step errors than ReLU in
-  our training runs for these small networks (ReLU is available).
+Three sequential 1-D convolution layers (each neuron Eq. 8 followed by an activation) and a
+fourth convolution that shortcuts them; the two outputs are concatenated, flattened and fed to
+dense layers (Eq. 7). Paper defaults: eight convolution neurons, two dense layers of ten.
+"Same" padding keeps the time axis, so the flattened features keep the position of each pattern
+in time, which the dense layers need to read time constants off the record. What the paper
+leaves open (an input channel, scalar features, pooling, several records, the activation) is
+set by ``EncoderConfig``.
 """
 
 from __future__ import annotations
@@ -42,21 +25,41 @@ _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU, "silu": nn.Si
 class EncoderConfig:
     """Shape of the encoder; validates itself.
 
-    Attributes:
-        steps: samples per record (the time axis the network is built for); 0 = unset, filled
-            in by ``train()`` from the record format. A tuple for several records, one entry
-            each (module docstring).
-        outputs: raw structure parameters produced, ``p`` of the structure; 0 = unset, filled
-            in by ``train()``.
-        inputs: read the input record as a second channel.
-        features: extra scalar features appended before the dense layers.
-        width: neurons (channels) of each convolution layer (paper: 8).
-        kernel: convolution kernel size (odd, so "same" padding is symmetric).
-        depth: sequential convolution layers on the main path (paper: 3).
-        dense: widths of the hidden dense layers (paper: (10, 10)).
-        pool: average-pooling factor applied to the record first (1 = none); a tuple (one per
-            record) for several records, which must all pool to the same length.
-        activation: one of "tanh", "relu", "gelu", "silu".
+    Attributes
+    ----------
+    steps : int or tuple of int
+        Samples per record (the time axis the network is built for); 0 = unset, filled in by
+        ``train()`` from the record format. An identifier of several systems that share
+        parameters (the leg's two subsystems, one ``(k, d, m)``) reads one record per system,
+        each on its own grid: a tuple of two or more, one entry per record.
+    outputs : int
+        Raw structure parameters produced, ``p`` of the structure; 0 = unset, filled in by
+        ``train()``.
+    inputs : bool
+        Read the normalised input record ``u / max|u|`` as a second channel (channel 0 is the
+        normalised output ``y_tilde`` of Eq. 15), so that the encoder can read arbitrary
+        excitations, not only a unit step.
+    features : int
+        Extra scalar features (e.g. ``log max|y|``, the scale that Eq. 15 removes) appended to
+        the flattened convolution features before the dense layers. A canonical structure does
+        not need them (``c`` and ``d`` are de-normalised exactly), a physical one does: the
+        static gain of the leg is ``1/k``.
+    width : int
+        Neurons (channels) of each convolution layer (paper: 8).
+    kernel : int
+        Convolution kernel size, odd, so that "same" padding is symmetric.
+    depth : int
+        Sequential convolution layers on the main path (paper: 3).
+    dense : tuple of int
+        Widths of the hidden dense layers (paper: (10, 10)).
+    pool : int or tuple of int
+        Average-pooling factor applied to the record first (1 = none); it divides the
+        convolution cost and loses little on smooth responses. A tuple (one per record) for
+        several records, each pooled by its own factor to a common length (300 samples / 6 and
+        100 / 2 both give 50), so that the records enter the convolutions as channels of one
+        signal on a normalised time axis.
+    activation : {"tanh", "relu", "gelu", "silu"}
+        ``tanh`` by default: smooth and bounded.
     """
 
     steps: int | tuple[int, ...] = 0
@@ -150,7 +153,13 @@ class EncoderConfig:
         return self.records * (2 if self.inputs else 1)
 
     def to_dict(self) -> dict:
-        """JSON-serialisable form (``EncoderConfig(**d)`` rebuilds it)."""
+        """JSON-serialisable form; ``from_dict`` (or ``EncoderConfig(**d)``) rebuilds it.
+
+        Returns
+        -------
+        dict
+            Field name -> value, tuples as lists.
+        """
         d = asdict(self)
         d["dense"] = list(self.dense)
         for key in ("steps", "pool"):
@@ -160,6 +169,17 @@ class EncoderConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> EncoderConfig:
+        """The config of a ``to_dict`` result (lists back to tuples).
+
+        Parameters
+        ----------
+        d : dict
+            Field name -> value.
+
+        Returns
+        -------
+        EncoderConfig
+        """
         d = dict(d)
         d["dense"] = tuple(d.get("dense", (10, 10)))
         for key in ("steps", "pool"):
@@ -169,11 +189,22 @@ class EncoderConfig:
 
 
 class Encoder(nn.Module):
-    """Residual 1-D CNN: records ``(batch, channels, steps)`` -> raw parameters ``(batch, p)``.
+    """Residual 1-D CNN of paper Sec. III-A: records ``(batch, channels, steps)`` -> raw
+    parameters ``(batch, p)``.
 
     Main path: ``depth`` convolutions (Eq. 8 + activation); shortcut: one convolution from the
     input; both concatenated along channels, flattened, optionally joined by scalar features,
     then the dense layers (Eq. 7) and a linear output layer.
+
+    Parameters
+    ----------
+    config : EncoderConfig
+        With ``steps`` and ``outputs`` set (>= 1).
+
+    Raises
+    ------
+    ValueError
+        ``config.steps`` or ``config.outputs`` unset.
     """
 
     def __init__(self, config: EncoderConfig):
@@ -209,13 +240,18 @@ class Encoder(nn.Module):
     def forward(self, records, features: torch.Tensor | None = None) -> torch.Tensor:
         """Map records to raw structure parameters.
 
-        Args:
-            records: ``(batch, channels, steps)``, normalised (Eq. 15); for several records a
-                sequence of ``(batch, channels / records, steps_r)``, one per record.
-            features: ``(batch, features)`` scalar features, or None when ``features == 0``.
+        Parameters
+        ----------
+        records : (batch, channels, steps) tensor, or a sequence of them
+            Normalised records (Eq. 15); for several records one
+            ``(batch, channels / records, steps_r)`` tensor per record.
+        features : (batch, features) tensor, optional
+            Scalar features; None when ``config.features == 0``.
 
-        Returns:
-            ``(batch, outputs)`` raw parameters ``theta`` for the structure.
+        Returns
+        -------
+        theta : (batch, outputs) tensor
+            Raw parameters for the structure.
         """
         cfg = self.config
         if cfg.records == 1:
