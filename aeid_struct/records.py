@@ -3,6 +3,9 @@
 Every entry point that reads a record -- ``Identifier.identify``, ``export.OnnxIdentifier``,
 ``online.Tracker`` (both engines), ``refine`` and the baselines -- checks it here, so that a bad
 input gets the same answer (the same exception, the same message) whichever way it comes in.
+:func:`check_record` checks a user's records once into a frozen :class:`Record` (``y, u, dt``
+per record, the batch flag, each system's problem); everything behind the boundary (the
+encoder pass, the ``Estimate``, the refinement) takes that value and checks nothing again.
 
 Two kinds of problem, kept apart because a batch treats them differently:
 
@@ -23,20 +26,26 @@ same ``y_tilde`` in ``[-1, 1]`` as any other record of its shape.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Checked", "RecordError", "as_array", "as_records", "check_records", "normalise",
-           "overflow_problem", "record_problems", "require_finite"]
+__all__ = ["Checked", "Record", "RecordError", "as_array", "as_records", "check_dt",
+           "check_record", "check_records", "normalise", "overflow_problem", "record_problems",
+           "require_finite"]
 
 
 class RecordError(ValueError):
     """A record that cannot be identified (non-finite, all zero, ...), as opposed to a
     malformed argument.
 
-    Attributes:
-        record: the record's index in its batch (0 for a single record).
+    Parameters
+    ----------
+    message : str
+        What is wrong, naming the argument and the record.
+    record : int
+        The record's index in its batch (0 for a single record); kept as ``self.record``.
     """
 
     def __init__(self, message: str, record: int) -> None:
@@ -120,12 +129,15 @@ def as_records(name: str, value, steps: int, dt: float, *,
 class Checked:
     """Records that passed the structural checks, with each one's problem.
 
-    Attributes:
-        y: float64 ``(count, steps)``.
-        u: float64 ``(count, steps)`` (a ``(steps,)`` input broadcast over the batch), or None
-            for a unit step.
-        batched: whether ``y`` came with a batch axis.
-        problems: per record, why it cannot be identified, or None for a good record.
+    Attributes
+    ----------
+    y : (count, steps) float64 array
+    u : (count, steps) float64 array or None
+        A ``(steps,)`` input broadcast over the batch; None for a unit step.
+    batched : bool
+        Whether ``y`` came with a batch axis.
+    problems : tuple of count (str or None)
+        Per record, why it cannot be identified, or None for a good record.
     """
 
     y: np.ndarray
@@ -155,14 +167,25 @@ def check_records(y, u, *, steps: int, dt: float, reads_u: bool, batch: bool = T
     """Check an output record set ``y`` and its input ``u`` for an identifier of ``steps``
     samples at ``dt`` (module docstring).
 
-    Args:
-        y: ``(steps,)`` or ``(batch, steps)`` (only ``(steps,)`` without ``batch``).
-        u: like ``y``, ``(steps,)`` for a whole batch, or None (a unit step).
-        reads_u: whether the identifier reads ``u`` (otherwise ``u`` must be a constant step).
-        names: the arguments' names in messages (``("y[1]", "u[1]")`` for a second record).
+    Parameters
+    ----------
+    y : (steps,) or (batch, steps) array
+        Only ``(steps,)`` without ``batch``.
+    u : like ``y``, (steps,) for a whole batch, or None
+        None is a unit step.
+    steps, dt : int, float
+        The record format of the identifier (named in messages).
+    reads_u : bool
+        Whether the identifier reads ``u`` (otherwise ``u`` must be a constant step).
+    batch : bool
+        Whether a batch axis is allowed.
+    names : (str, str)
+        The arguments' names in messages (``("y[1]", "u[1]")`` for a second record).
 
-    Returns:
-        :class:`Checked`. Structural problems raise a ValueError.
+    Returns
+    -------
+    Checked
+        Each record's problem; structural problems raise a ValueError.
     """
     yname, uname = names
     y2, batched = as_records(yname, y, steps, dt, batch=batch)
@@ -251,12 +274,16 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
     """Eq. 15 per record, in float64: ``y_tilde = 2 y / y_bar - 1`` with ``y_bar = max|y|``,
     and ``u / u_bar`` with ``u_bar = max|u|`` (ones and ``u_bar = 1`` for a unit step).
 
-    Args:
-        y2, u2: good records (:func:`record_problems`), float64 ``(count, steps)``; u2 may be
-            None.
+    Parameters
+    ----------
+    y2 : (count, steps) float64 array
+        Good records (:func:`record_problems`).
+    u2 : (count, steps) float64 array or None
 
-    Returns:
-        ``y_tilde, u_tilde`` ``(count, steps)`` in ``[-1, 1]``, ``y_bar, u_bar`` ``(count,)``.
+    Returns
+    -------
+    y_tilde, u_tilde : (count, steps) arrays in [-1, 1]
+    y_bar, u_bar : (count,) arrays
     """
     y_bar = np.abs(y2).max(axis=1)
     # y / y_bar first: 2 y overflows for |y| near float64's largest number
@@ -265,3 +292,214 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
         return y_tilde, np.ones_like(y2), y_bar, np.ones_like(y_bar)
     u_bar = np.abs(u2).max(axis=1)
     return y_tilde, u2 / u_bar[:, None], y_bar, u_bar
+
+
+def check_dt(dt) -> float:
+    """``dt`` as a positive finite float, or a ValueError naming it.
+
+    Parameters
+    ----------
+    dt : number
+        A sample time; a bool or a string is refused (no silent casts).
+
+    Returns
+    -------
+    float
+    """
+    try:
+        value = float(dt) if not isinstance(dt, (bool, str)) else math.nan
+    except (TypeError, ValueError, RuntimeError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"dt must be a positive finite number; got {dt!r}")
+    return value
+
+
+@dataclass(frozen=True, eq=False)
+class Record:
+    """Records checked once, at the public boundary (:func:`check_record`).
+
+    Everything behind the boundary takes this value and checks nothing again. One system's
+    data may be ``R`` records (the several-record identifiers: one record per subsystem, each on
+    its own grid); ``y``, ``u`` and ``dt`` hold one entry per record (the record axis).
+
+    Attributes
+    ----------
+    y : tuple of R (count, steps_r) float64 arrays
+        The outputs, a batch axis always (``count = 1`` for one unbatched record).
+    u : tuple of R (count, steps_r) float64 arrays
+        The inputs; a unit step where none was given.
+    dt : tuple of R floats
+        Sample times.
+    batched : bool
+        Whether the records came with a batch axis.
+    problems : tuple of count (str or None), optional
+        Per system, why it cannot be identified (the first of its records' problems), or None
+        for a good one; default: all good.
+    """
+
+    y: tuple
+    u: tuple
+    dt: tuple
+    batched: bool
+    problems: tuple | None = None
+
+    def __post_init__(self) -> None:
+        if self.problems is None:
+            object.__setattr__(self, "problems", (None,) * self.count)
+
+    @classmethod
+    def of(cls, y, u, dt, *, batched: bool | None = None) -> Record:
+        """A Record of arrays that need no check (the library's own, or an old-style
+        ``Estimate``'s): ``y, u`` ``(steps,)`` / ``(count, steps)`` or tuples of ``R`` of them,
+        ``dt`` a number or a tuple; ``u`` None is a unit step.
+
+        Parameters
+        ----------
+        y, u : arrays, or tuples of R arrays
+        dt : float or tuple of R floats
+        batched : bool, optional
+            Default: whether ``y`` (its first record) has a batch axis.
+
+        Returns
+        -------
+        Record
+        """
+        several = isinstance(y, tuple)
+        ys = tuple(np.asarray(v) for v in (y if several else (y,)))
+        us = (None,) * len(ys) if u is None else (tuple(u) if several else (u,))
+        us = tuple(np.ones_like(v, dtype=np.float64) if w is None else np.asarray(w)
+                   for v, w in zip(ys, us, strict=True))
+        if batched is None:
+            batched = ys[0].ndim == 2
+        dts = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
+        return cls(tuple(np.atleast_2d(v) for v in ys), tuple(np.atleast_2d(v) for v in us),
+                   dts, batched)
+
+    @property
+    def records(self) -> int:
+        """``R``: records per system (1, or one per subsystem)."""
+        return len(self.y)
+
+    @property
+    def count(self) -> int:
+        """Systems in the batch (1 for an unbatched record)."""
+        return self.y[0].shape[0]
+
+    @property
+    def good(self) -> np.ndarray:
+        """``(count,)`` bool: the systems without a problem."""
+        return np.array([p is None for p in self.problems], dtype=bool)
+
+    def raise_first(self) -> None:
+        """Raise the first system's problem as a :class:`RecordError`; nothing if all are
+        good."""
+        Checked(self.y[0], self.u[0], self.batched, self.problems).raise_first()
+
+    def given(self, arrays: tuple):
+        """``arrays`` (``y``, ``u`` or one like them) shaped as the user gave them: ``(steps,)``
+        unbatched, ``(count, steps)`` batched, a tuple of ``R`` of those for several records.
+
+        Parameters
+        ----------
+        arrays : tuple of R (count, steps_r) arrays
+
+        Returns
+        -------
+        array or tuple of R arrays
+        """
+        out = tuple(a if self.batched else a[0] for a in arrays)
+        return out[0] if self.records == 1 else out
+
+    @property
+    def times(self):
+        """``dt`` as given: a float, or a tuple of ``R`` floats for several records."""
+        return self.dt[0] if self.records == 1 else self.dt
+
+    def take(self, index) -> Record:
+        """The systems ``index`` of a batch (an int gives an unbatched Record).
+
+        Parameters
+        ----------
+        index : int, int array, slice or (count,) bool mask
+
+        Returns
+        -------
+        Record
+        """
+        rows = np.atleast_1d(np.arange(self.count)[index])
+        batched = np.ndim(np.arange(self.count)[index]) == 1
+        return Record(tuple(v[rows] for v in self.y), tuple(v[rows] for v in self.u), self.dt,
+                      batched, tuple(self.problems[i] for i in rows))
+
+
+def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
+    """Check a user's records once, into a :class:`Record` (the public boundary).
+
+    Parameters
+    ----------
+    y : (steps,) or (batch, steps) array, or a sequence of R of them
+        The outputs; a sequence of ``R`` records (one per subsystem) when ``steps`` is a tuple
+        of ``R > 1``.
+    u : like y, (steps,) for a whole batch, or None
+        The inputs; None (or None for a record) is a unit step.
+    steps : int or tuple of R ints
+        Samples per record.
+    dt : float or tuple of R floats
+        Sample times (named in messages).
+    reads_u : bool
+        Whether the identifier reads ``u`` (otherwise ``u`` must be a constant step).
+
+    Returns
+    -------
+    Record
+        With each system's problem (non-finite, all zero, ...): the caller decides whether to
+        raise (:meth:`Record.raise_first`) or to set those systems aside.
+
+    Raises
+    ------
+    ValueError
+        For a malformed argument (not real numbers, a wrong shape, no records, several-record
+        sequences of another length or batch).
+    """
+    grids = list(zip(*(v if isinstance(v, tuple) else (v,) for v in (steps, dt)), strict=True))
+    R = len(grids)
+    if R == 1:
+        checks = [check_records(y, u, steps=grids[0][0], dt=grids[0][1], reads_u=reads_u)]
+    else:
+        checks = _check_several(y, u, grids, reads_u)
+    # A system is good when each of its R records is; its reason is the first one's.
+    problems = tuple(next((c.problems[i] for c in checks if c.problems[i] is not None), None)
+                     for i in range(checks[0].count))
+    return Record(tuple(c.y for c in checks),
+                  tuple(np.ones_like(c.y) if c.u is None else np.asarray(c.u) for c in checks),
+                  tuple(float(t) for _, t in grids), checks[0].batched, problems)
+
+
+def _check_several(y, u, grids: list, reads_u: bool) -> list[Checked]:
+    """:func:`check_records` of ``R`` records ``y[r], u[r]`` on their grids, batched alike."""
+    R = len(grids)
+    if _not_sequence(y, R):
+        raise ValueError(f"y must be a sequence of {R} records (one per subsystem: "
+                         f"{', '.join(f'{s} samples at dt={t}' for s, t in grids)}); "
+                         f"got {type(y).__name__}")
+    if u is not None and _not_sequence(u, R):
+        raise ValueError(f"u must be None (unit steps) or a sequence of {R} inputs, one per "
+                         f"record; got {type(u).__name__}")
+    checks = []
+    for r, (steps, dt) in enumerate(grids):
+        checked = check_records(y[r], None if u is None else u[r], steps=steps, dt=dt,
+                                reads_u=reads_u, names=(f"y[{r}]", f"u[{r}]"))
+        if checks and (checked.batched != checks[0].batched
+                       or checked.count != checks[0].count):
+            raise ValueError(f"y[{r}] must be batched like y[0] ({checks[0].count} "
+                             f"record(s), batch axis {checks[0].batched}); got shape "
+                             f"{np.shape(y[r])}")
+        checks.append(checked)
+    return checks
+
+
+def _not_sequence(value, R: int) -> bool:
+    """Whether ``value`` is not a sequence of ``R`` records (an array is one record)."""
+    array = isinstance(value, np.ndarray) or (hasattr(value, "detach") and hasattr(value, "cpu"))
+    return array or not hasattr(value, "__len__") or len(value) != R
