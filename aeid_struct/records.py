@@ -7,21 +7,13 @@ input gets the same answer (the same exception, the same message) whichever way 
 per record, the batch flag, each system's problem); everything behind the boundary (the
 encoder pass, the ``Estimate``, the refinement) takes that value and checks nothing again.
 
-Two kinds of problem, kept apart because a batch treats them differently:
-
-- **structural**, about the argument as a whole: not an array of real numbers (a complex array
-  is refused, never silently cut to its real part), a wrong shape, a batch of no records, an
-  input with another record count than the output. Always a ``ValueError``.
-- **per record**: non-finite samples, an all-zero output (Eq. 15 divides by ``max|y|``) or
-  input, a varying input to an identifier that only reads steps, a scale ratio
-  ``max|y| / max|u|`` that float64 cannot hold (the de-normalisation multiplies the model by
-  it). :meth:`Checked.raise_first` raises the first as a :class:`RecordError` (a
-  ``ValueError`` naming the record); ``Identifier.identify(errors="collect")`` keeps every
-  record's reason instead and identifies the good ones.
-
-:func:`normalise` is Eq. 15 in float64, per record, before anything is cast to float32: a
-record of 1e40 (beyond float32) or 1e-44 (below its normal range) reaches the encoder as the
-same ``y_tilde`` in ``[-1, 1]`` as any other record of its shape.
+Two kinds of problem, kept apart because a batch treats them differently: **structural** ones,
+about the argument as a whole (not real numbers -- a complex array is refused, never silently cut
+to its real part --, a wrong shape, no records, an input with another record count), always
+raise a ``ValueError``; **per record** ones (non-finite samples, an all-zero output or input, a
+varying input to an identifier that reads only steps, a scale ratio ``max|y| / max|u|`` beyond
+float64) are kept per record: raised as a :class:`RecordError` naming the record, or collected
+(``Identifier.identify(errors="collect")``). :func:`normalise` is Eq. 15 in float64, per record.
 """
 
 from __future__ import annotations
@@ -336,6 +328,9 @@ class Record:
     problems : tuple of count (str or None), optional
         Per system, why it cannot be identified (the first of its records' problems), or None
         for a good one; default: all good.
+    checked : bool
+        Whether the records passed :func:`check_record` (or an equivalent check); a Record of
+        arrays taken as they are (:meth:`of`) is checked by whoever needs it checked.
     """
 
     y: tuple
@@ -343,6 +338,7 @@ class Record:
     dt: tuple
     batched: bool
     problems: tuple | None = None
+    checked: bool = False
 
     def __post_init__(self) -> None:
         if self.problems is None:
@@ -350,13 +346,12 @@ class Record:
 
     @classmethod
     def of(cls, y, u, dt, *, batched: bool | None = None) -> Record:
-        """A Record of arrays that need no check (the library's own, or an old-style
-        ``Estimate``'s): ``y, u`` ``(steps,)`` / ``(count, steps)`` or tuples of ``R`` of them,
-        ``dt`` a number or a tuple; ``u`` None is a unit step.
+        """A Record of arrays taken as they are, unchecked (an ``Estimate`` built by hand).
 
         Parameters
         ----------
-        y, u : arrays, or tuples of R arrays
+        y, u : (steps,) or (count, steps) arrays, or tuples of R of them
+            ``u`` None (or None for a record) is a unit step.
         dt : float or tuple of R floats
         batched : bool, optional
             Default: whether ``y`` (its first record) has a batch axis.
@@ -384,7 +379,7 @@ class Record:
     @property
     def count(self) -> int:
         """Systems in the batch (1 for an unbatched record)."""
-        return self.y[0].shape[0]
+        return len(self.y[0])
 
     @property
     def good(self) -> np.ndarray:
@@ -392,8 +387,7 @@ class Record:
         return np.array([p is None for p in self.problems], dtype=bool)
 
     def raise_first(self) -> None:
-        """Raise the first system's problem as a :class:`RecordError`; nothing if all are
-        good."""
+        """Raise the first system's problem as a :class:`RecordError` (none if all good)."""
         Checked(self.y[0], self.u[0], self.batched, self.problems).raise_first()
 
     def given(self, arrays: tuple):
@@ -414,7 +408,7 @@ class Record:
     @property
     def times(self):
         """``dt`` as given: a float, or a tuple of ``R`` floats for several records."""
-        return self.dt[0] if self.records == 1 else self.dt
+        return self.dt[0] if len(self.dt) == 1 else self.dt
 
     def take(self, index) -> Record:
         """The systems ``index`` of a batch (an int gives an unbatched Record).
@@ -430,7 +424,7 @@ class Record:
         rows = np.atleast_1d(np.arange(self.count)[index])
         batched = np.ndim(np.arange(self.count)[index]) == 1
         return Record(tuple(v[rows] for v in self.y), tuple(v[rows] for v in self.u), self.dt,
-                      batched, tuple(self.problems[i] for i in rows))
+                      batched, tuple(self.problems[i] for i in rows), self.checked)
 
 
 def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
@@ -473,7 +467,7 @@ def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
                      for i in range(checks[0].count))
     return Record(tuple(c.y for c in checks),
                   tuple(np.ones_like(c.y) if c.u is None else np.asarray(c.u) for c in checks),
-                  tuple(float(t) for _, t in grids), checks[0].batched, problems)
+                  tuple(float(t) for _, t in grids), checks[0].batched, problems, checked=True)
 
 
 def _check_several(y, u, grids: list, reads_u: bool) -> list[Checked]:
