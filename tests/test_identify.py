@@ -225,7 +225,7 @@ def test_standalone_refine_uses_the_estimates_structure():
 def test_a_record_is_checked_once_from_identify_to_the_refined_estimate(monkeypatch):
     # One check of y at the public boundary (records.record_problems: finite, all zero, scale),
     # none inside: neither the encoder pass nor the refinement re-checks the record.
-    import aeid_struct.records as records
+    import aeid_struct.records.checks as records
     from aeid_struct.refinement import solve
 
     calls = {"records": 0, "refine": 0}

@@ -14,8 +14,50 @@ import torch
 from aeid_struct.identification.estimate import Estimate
 from aeid_struct.identification.fast_path import fast_path
 from aeid_struct.records import Record, normalise, overflow_problem
+from aeid_struct.structures import System
 
-__all__ = ["encode", "estimate_of", "identify_record"]
+__all__ = ["differentiable", "encode", "estimate_of", "identify_record"]
+
+
+def differentiable(ident, y, u, *, raw: bool = False):
+    """The differentiable pass of tensors (training uses it): Eq. 15, the encoder, the
+    structure and the exact de-normalisation, in torch.
+
+    Parameters
+    ----------
+    ident : Identifier
+    y, u : (batch, steps) tensors, or sequences of R of them
+    raw : bool
+        Also return the encoder's standardised outputs.
+
+    Returns
+    -------
+    System, elements (batch, q) tensor[, z (batch, p) tensor]
+        In measured units.
+    """
+    ys, us = (tuple(y), tuple(u)) if ident.records > 1 else ((y,), (u,))
+    y_bar = torch.stack([r.abs().amax(dim=1) for r in ys], 1)     # (batch, R)
+    u_bar = torch.stack([r.abs().amax(dim=1) for r in us], 1)
+    x = []
+    for r, (y_r, u_r) in enumerate(zip(ys, us, strict=True)):
+        channels = [2.0 * y_r / y_bar[:, r, None] - 1.0]         # Eq. 15
+        if ident.inputs:
+            channels.append(u_r / u_bar[:, r, None])
+        x.append(torch.stack(channels, dim=1))
+    features = None
+    gain = y_bar / u_bar                                          # (batch, R)
+    if ident.scale == "feature":
+        mean, spread = (f.to(gain.dtype) for f in ident._features)
+        features = (torch.log(gain) - mean) / spread
+    sys, elements, z = ident._decode(x, features)
+    if ident.scale == "denormalise":
+        gain = gain[:, 0]
+        # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
+        sys = System(sys.A, sys.b, sys.c * gain[:, None].to(sys.c.dtype),
+                     sys.d * gain.to(sys.d.dtype))
+        mask = ident._output_mask.to(elements.dtype)
+        elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
+    return (sys, elements, z) if raw else (sys, elements)
 
 
 def identify_record(ident, record: Record, start: float, errors: str) -> Estimate:

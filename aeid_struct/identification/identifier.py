@@ -51,6 +51,30 @@ def _same_dt(dt, dts: tuple[float, ...]) -> bool:
         for g, t in zip(given, dts, strict=True))
 
 
+def _thetas(theta_mean, theta_scale, p: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``theta_mean, theta_scale`` as finite float32 ``(p,)`` tensors."""
+    mean = torch.as_tensor(theta_mean, dtype=torch.float32).reshape(-1)
+    scale = torch.as_tensor(theta_scale, dtype=torch.float32).reshape(-1)
+    if mean.shape != (p,) or scale.shape != (p,):
+        raise ValueError(f"theta_mean and theta_scale must have shape ({p},); got "
+                         f"{tuple(mean.shape)}, {tuple(scale.shape)}")
+    if not bool(torch.isfinite(mean).all() & torch.isfinite(scale).all()):
+        raise ValueError("theta_mean and theta_scale must be finite: every estimate would be "
+                         "NaN")
+    return mean, scale
+
+
+def _scale_features(feature_mean, feature_scale, R: int) -> tuple[np.ndarray, np.ndarray]:
+    """The scale feature's standardisation, ``(R,)`` each, the spread positive."""
+    fm, fs = (_features(name, v, R) for name, v in (("feature_mean", feature_mean),
+                                                    ("feature_scale", feature_scale)))
+    if not np.all(fs > 0):
+        # the scale feature is divided by it: 0 gives inf features and NaN estimates
+        raise ValueError(f"feature_scale must be positive (one per record); got "
+                         f"{feature_scale!r}")
+    return fm, fs
+
+
 def _check_parts(encoder, structure, dt, scale: str, initial: str) -> tuple[float, ...]:
     """The constructor's checks of the parts against each other; the sample times."""
     if scale not in SCALE_MODES:
@@ -83,6 +107,14 @@ def _check_parts(encoder, structure, dt, scale: str, initial: str) -> tuple[floa
         raise ValueError(f"scale='feature' needs an encoder with features={R} (one scale "
                          f"per record); got features={encoder.config.features}")
     return tuple(float(t) for t in dts)
+
+
+def _provenance_of(ident) -> Provenance:
+    """The Provenance of an identifier's estimates."""
+    inverse = (("elements", tuple(ident.structure.element_names))
+               if isinstance(ident.structure, Physical) else ident.inverse)
+    return Provenance(structure=ident.structure, inverse=inverse, initial=ident.initial,
+                      training_range=ident.training_range)
 
 
 class Identifier:
@@ -123,22 +155,8 @@ class Identifier:
         self.encoder, self.structure, self.scale, self.initial = encoder, structure, scale, initial
         #: Sample time (a tuple, one per record, for several records).
         self.dt = self._dts[0] if R == 1 else self._dts
-        self.theta_mean = torch.as_tensor(theta_mean, dtype=torch.float32).reshape(-1)
-        self.theta_scale = torch.as_tensor(theta_scale, dtype=torch.float32).reshape(-1)
-        if self.theta_mean.shape != (structure.p,) or self.theta_scale.shape != (structure.p,):
-            raise ValueError(f"theta_mean and theta_scale must have shape ({structure.p},); "
-                             f"got {tuple(self.theta_mean.shape)}, "
-                             f"{tuple(self.theta_scale.shape)}")
-        if not bool(torch.isfinite(self.theta_mean).all()
-                    & torch.isfinite(self.theta_scale).all()):
-            raise ValueError("theta_mean and theta_scale must be finite: every estimate would be "
-                             "NaN")
-        fm, fs = (_features(name, v, R) for name, v in (("feature_mean", feature_mean),
-                                                        ("feature_scale", feature_scale)))
-        if not np.all(fs > 0):
-            # the scale feature is divided by it: 0 gives inf features and NaN estimates
-            raise ValueError(f"feature_scale must be positive (one per record); got "
-                             f"{feature_scale!r}")
+        self.theta_mean, self.theta_scale = _thetas(theta_mean, theta_scale, structure.p)
+        fm, fs = _scale_features(feature_mean, feature_scale, R)
         self.feature_mean = float(fm[0]) if R == 1 else tuple(fm.tolist())
         self.feature_scale = float(fs[0]) if R == 1 else tuple(fs.tolist())
         self._features = (torch.from_numpy(fm), torch.from_numpy(fs))   # (R,) each
@@ -187,11 +205,7 @@ class Identifier:
         sources = (self.structure, self.inverse, self.initial, self.meta.get("training_range"))
         cached = self._provenance
         if cached is None or any(a is not b for a, b in zip(cached[0], sources, strict=True)):
-            inverse = (("elements", tuple(self.structure.element_names))
-                       if isinstance(self.structure, Physical) else self.inverse)
-            cached = self._provenance = (sources, Provenance(
-                structure=self.structure, inverse=inverse, initial=self.initial,
-                training_range=self.training_range))
+            cached = self._provenance = (sources, _provenance_of(self))
         return cached[1]
 
     def _physical_source(self):
@@ -233,29 +247,7 @@ class Identifier:
     def _forward(self, y, u, *, raw: bool = False):
         """``(System, elements (batch, q))`` of the records, both in measured units; with
         ``raw``, also the encoder's standardised outputs ``(batch, p)``."""
-        ys, us = (tuple(y), tuple(u)) if self.records > 1 else ((y,), (u,))
-        y_bar = torch.stack([r.abs().amax(dim=1) for r in ys], 1)     # (batch, R)
-        u_bar = torch.stack([r.abs().amax(dim=1) for r in us], 1)
-        x = []
-        for r, (y_r, u_r) in enumerate(zip(ys, us, strict=True)):
-            channels = [2.0 * y_r / y_bar[:, r, None] - 1.0]         # Eq. 15
-            if self.inputs:
-                channels.append(u_r / u_bar[:, r, None])
-            x.append(torch.stack(channels, dim=1))
-        features = None
-        gain = y_bar / u_bar                                          # (batch, R)
-        if self.scale == "feature":
-            mean, spread = (f.to(gain.dtype) for f in self._features)
-            features = (torch.log(gain) - mean) / spread
-        sys, elements, z = self._decode(x, features)
-        if self.scale == "denormalise":
-            gain = gain[:, 0]
-            # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
-            sys = System(sys.A, sys.b, sys.c * gain[:, None].to(sys.c.dtype),
-                         sys.d * gain.to(sys.d.dtype))
-            mask = self._output_mask.to(elements.dtype)
-            elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
-        return (sys, elements, z) if raw else (sys, elements)
+        return forward.differentiable(self, y, u, raw=raw)
 
     def _decode(self, x: list, features):
         """Normalised records ``x`` (one ``(batch, channels, steps_r)`` tensor per record) and
@@ -375,11 +367,6 @@ class Identifier:
             weights, or a map the file cannot name without ``maps``/``trust``.
         """
         return files.load(cls, path, maps=maps, trust=trust)
-
-    @classmethod
-    def _from_parts(cls, header: dict, tensors: dict, *, source: str = "header",
-                    maps: dict | None = None, trust: bool = False) -> Identifier:
-        return files.from_parts(cls, header, tensors, source=source, maps=maps, trust=trust)
 
 
 #: Names this module held before the split (``aeid_struct.identify`` is an alias of it),

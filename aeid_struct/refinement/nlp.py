@@ -30,8 +30,8 @@ import casadi
 import numpy as np
 
 from aeid_struct.records import as_array
+from aeid_struct.records import check_dt as _check_dt  # the one dt rule (foundation)
 from aeid_struct.refinement.config import SOLVERS, CacheInfo, RefineConfig
-from aeid_struct.simulation.foh import _check_dt
 from aeid_struct.structures import Structure
 
 __all__ = ["SOLVERS", "THETA13", "Numeric", "assembly", "build", "cache_info", "casadi_simulate",
