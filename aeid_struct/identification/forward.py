@@ -90,28 +90,27 @@ def identify_record(ident, record: Record, start: float, errors: str) -> Estimat
 
 
 def _on_rows(ident, record: Record, good: np.ndarray) -> tuple:
-    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False."""
+    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False; one
+    single record through the batch-1 path (``fast_path``), the others batched."""
+    ys, us, rows = record.y, record.u, np.flatnonzero(good)
+    if not good.all():
+        ys, us = [v[rows] for v in ys], [v[rows] for v in us]
+    parts = None
+    if rows.size:
+        fast = fast_path(ident) if len(ys) == 1 and ys[0].shape[0] == 1 else None
+        parts = fast(ys[0][0], us[0][0]) if fast is not None else encode(ident, list(ys),
+                                                                             list(us))
     if good.all():
-        return _encode_checked(ident, record.y, record.u)
+        return parts
     R, count = record.records, record.count
     n, q = ident.structure.n, len(ident.structure.element_names)
     axis = () if R == 1 else (R,)
     model = tuple(np.full((count, *axis, *shape), math.nan)
                   for shape in ((n, n), (n,), (n,), ())) + (np.full((count, q), math.nan),)
-    rows = np.flatnonzero(good)
-    if rows.size:
-        parts = _encode_checked(ident, [v[rows] for v in record.y], [v[rows] for v in record.u])
+    if parts is not None:
         for whole, part in zip(model, parts, strict=True):
             whole[rows] = part
     return model
-
-
-def _encode_checked(ident, ys, us) -> tuple:
-    """The batch-1 path for one single record, the batched one otherwise."""
-    fast = fast_path(ident) if len(ys) == 1 and ys[0].shape[0] == 1 else None
-    if fast is not None:
-        return fast(ys[0][0], us[0][0])
-    return encode(ident, list(ys), list(us))
 
 
 def encode(ident, ys: list, us: list) -> tuple:
