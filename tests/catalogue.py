@@ -145,7 +145,7 @@ class Context:
         import torch
 
         from aeid_struct.encoder.network import Encoder, EncoderConfig
-        from aeid_struct.identification.identifier import Identifier
+        from aeid_struct.identification import Identifier
         from aeid_struct.structures.base import Physical
         from symbolic import leg
 
@@ -882,11 +882,18 @@ def _collect_ok(e) -> bool:
 
 
 def _refine() -> list[Case]:
-    from aeid_struct.refinement.nlp import RefineConfig, refine
-    from aeid_struct.structures.base import CCF
+    from aeid_struct.refinement import RefineConfig, refine
+    from aeid_struct.structures import CCF
 
     area = "refine"
     return [
+        Case(area, "the estimate's own records (valid)", lambda x: refine(x.est), raises=None,
+             check=lambda e: close(e.A, [[0, 1], [-22, -3]], rtol=1e-6, atol=1e-6)),
+        Case(area, "config in place of y (valid)",
+             lambda x: refine(x.est, RefineConfig(max_iter=30)), raises=None,
+             check=lambda e: close(e.A, [[0, 1], [-22, -3]], rtol=1e-6, atol=1e-6)),
+        Case(area, "u without y", lambda x: refine(x.est, None, np.ones(300)),
+             match=r"y must be given with u and dt \(the deprecated form"),
         Case(area, "estimate a dict", lambda x: refine({"A": 1}, x.y300, None, 0.01),
              match=r"estimate must be an Estimate; got dict"),
         Case(area, "estimate None", lambda x: refine(None, x.y300, None, 0.01),

@@ -8,7 +8,7 @@ import torch
 
 import aeid_struct as ae
 from aeid_struct.encoder.network import Encoder, EncoderConfig
-from aeid_struct.identification.identifier import Identifier
+from aeid_struct.identification import Identifier
 from aeid_struct.metrics import nrmse_fit
 from symbolic import leg
 
@@ -207,18 +207,92 @@ def test_dt_mismatch_names_what_the_identifier_expects():
 
 
 def test_standalone_refine_uses_the_estimates_structure():
-    from aeid_struct.refinement.nlp import refine
+    from aeid_struct.refinement import refine
 
     ident = _identifier()
     y = _record()
     est = ident.identify(y)
     assert est.structure == ident.structure
-    polished = refine(est, y, None, 0.05)           # no structure argument needed
+    polished = refine(est)                          # no further argument needed
     assert polished.refined and polished.info["loss"] <= polished.info["loss_start"]
     np.testing.assert_allclose(polished.A, [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-6, atol=1e-8)
     bare = ae.Estimate(est.A, est.b, est.c, est.d, est.elements, y, np.ones(60), 0.05)
     with pytest.raises(ValueError, match="structure must be given: this estimate does not"):
-        refine(bare, y, None, 0.05)
+        refine(bare)
+
+
+# -- the boundary, the Record and the Provenance (issue 13) -------------------------------------
+def test_a_record_is_checked_once_from_identify_to_the_refined_estimate(monkeypatch):
+    # One check of y at the public boundary (records.record_problems: finite, all zero, scale),
+    # none inside: neither the encoder pass nor the refinement re-checks the record.
+    import aeid_struct.records.checks as records
+    from aeid_struct.refinement import solve
+
+    calls = {"records": 0, "refine": 0}
+    real_problems, real_check = records.record_problems, solve._check_not_zero
+
+    def counted_problems(*args, **kwargs):
+        calls["records"] += 1
+        return real_problems(*args, **kwargs)
+
+    def counted_check(*args):
+        calls["refine"] += 1
+        return real_check(*args)
+
+    monkeypatch.setattr(records, "record_problems", counted_problems)
+    monkeypatch.setattr(solve, "_check_not_zero", counted_check)
+    est = _identifier().identify(_record(), refine=True)
+    assert calls == {"records": 1, "refine": 0}
+    np.testing.assert_allclose(est.A, [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-6, atol=1e-8)
+    assert est.record.checked and est.record.y[0].shape == (1, 60)
+
+
+def test_an_estimate_refers_to_its_identifiers_provenance():
+    import dataclasses
+
+    from aeid_struct.identification import Estimate, Provenance
+
+    ident = _identifier()
+    y = _record()
+    one, two = ident.identify(y), ident.identify(np.stack([y, 2 * y]))
+    assert one.provenance is two.provenance is ident.provenance      # one object, not copies
+    assert one.provenance == one.provenance and isinstance(one.provenance, Provenance)
+    assert one.structure is ident.structure and one.initial == "rest"
+    assert one.provenance.inverse is ident.inverse and one.training_range is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        one.provenance.initial = "fitted"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        one.record.batched = True
+    # a training range recorded later (train, recalibrate) gives a new provenance
+    ident.meta["training_range"] = {"elements": {"a0": [1.0, 30.0, 0.5]}, "fit": 90.0,
+                                    "excess": 2.0}
+    assert ident.provenance is not one.provenance
+    assert ident.identify(y).training_range["elements"]["a0"] == (1.0, 30.0, 0.5)
+    # every public attribute of the estimate, read through its record and provenance
+    assert np.array_equal(one.y, y) and np.array_equal(one.u, np.ones(60)) and one.dt == 0.05
+    assert two.y.shape == (2, 60) and np.array_equal(two.y[1], 2 * y)
+    assert one.x0.shape == (2,) and two.x0.shape == (2, 2) and one.errors is None
+    assert one.fit == pytest.approx(nrmse_fit(y, one.y_hat)[0])
+    assert not one.refined and one.seconds > 0 and one.info == {}
+    assert set(one.physical) == {"k", "d", "m"} and one.outside is None and one.excess is None
+    assert two.take(1).A.shape == (2, 2) and two.take([1]).y.shape == (1, 60)
+    assert len(two.to_control()) == 2 and one.to_control().nstates == 2
+    # keywords build it; the old positional form and the old keywords give the same estimate
+    kw = Estimate(A=one.A, b=one.b, c=one.c, d=one.d, elements=one.elements, record=one.record,
+                  provenance=one.provenance)
+    old = Estimate(one.A, one.b, one.c, one.d, one.elements, y, np.ones(60), 0.05, 0.0, False,
+                   {}, ident.inverse, structure=ident.structure)
+    for e in (kw, old):
+        assert e.fit == pytest.approx(one.fit, rel=1e-12)
+        assert e.physical["k"] == pytest.approx(one.physical["k"], rel=1e-12)
+        assert e.structure is ident.structure and e.dt == 0.05 and not e.batched
+    bare = dataclasses.replace(one, structure=None)
+    assert bare.structure is None and one.structure is ident.structure
+    assert bare.record is one.record
+    with pytest.raises(TypeError, match=r"unexpected keyword arguments \['shape'\]"):
+        Estimate(A=one.A, b=one.b, c=one.c, d=one.d, elements={}, record=one.record, shape=3)
+    with pytest.raises(TypeError, match=r"Estimate needs a record"):
+        Estimate(A=one.A, b=one.b, c=one.c, d=one.d, elements={})
 
 
 # -- several records, one parameter set (the joint leg) ----------------------------------------
@@ -317,7 +391,7 @@ def test_physical_of_a_modal_estimate_goes_through_its_transfer_function():
 
 
 def test_excess_is_the_distance_beyond_the_range_in_error_units():
-    from aeid_struct.identification.identifier import _excess
+    from aeid_struct.identification import excess as _excess
 
     rng = {"elements": {"a0": [1.0, 4.0, 0.5], "c1": [0.0, 0.0, 0.1]},
            "physical": {"k": [20.0, 25.0, 2.0]}}
@@ -336,7 +410,7 @@ def _complex(n=60):
 def _complex_cases():
     """(entry point, call, message): a complex ``y`` or ``u`` at every place a record enters."""
     from aeid_struct.baselines import classical as bl
-    from aeid_struct.refinement.nlp import refine
+    from aeid_struct.refinement import refine
 
     ident = _identifier()
     reads_u = _identifier(inputs=True)

@@ -21,14 +21,15 @@ from problems import inputs, modal_system
 from test_identify import _identifier, _record
 
 import aeid_struct as ae
-from aeid_struct.refinement import nlp as R
-from aeid_struct.refinement.nlp import (
+from aeid_struct.refinement import (
     RefineConfig,
     cache_info,
     clear_cache,
     refine,
     refine_elements,
 )
+from aeid_struct.refinement import nlp as R
+from aeid_struct.refinement import solve as S
 from symbolic import leg
 
 # -- records with exact answers ---------------------------------------------------------------
@@ -207,7 +208,7 @@ def test_iterates_beyond_the_squarings_trigger_a_rebuild():
     y = record_of(structure, x_true, np.ones(steps), dt)
     x0 = np.array([100.0, 10.0, 100.0, 0.0])
     res = refine_elements(structure, x0, y, None, dt)
-    assert R._squarings(R._NORM_MARGIN * 5.0) == 3 and res.squarings >= 5
+    assert R._squarings(S._NORM_MARGIN * 5.0) == 3 and res.squarings >= 5
     assert res.success
     assert np.abs(res.elements - x_true).max() <= 1e-8 * 2500.0
 
@@ -283,7 +284,7 @@ def test_the_start_is_kept_when_the_solver_makes_it_worse():
 def test_the_start_is_kept_when_the_solver_fails(monkeypatch):
     structure, x_true, y, u, dt = CASES["ccf-stable-leg"]
     x0 = perturbed(x_true, 0.05, 3)
-    real = R._problem
+    real = R.problem
 
     class Broken:
         def __call__(self, z, p, lbz, ubz):
@@ -292,7 +293,7 @@ def test_the_start_is_kept_when_the_solver_fails(monkeypatch):
         def stats(self):
             return {"iter_count": 7, "return_status": "Broken", "success": True}
 
-    monkeypatch.setattr(R, "_problem", lambda *a: dataclasses.replace(real(*a), solver=Broken()))
+    monkeypatch.setattr(R, "problem", lambda *a: dataclasses.replace(real(*a), solver=Broken()))
     res = refine_elements(structure, x0, y, u, dt)
     assert not res.success and "kept the start" in res.status
     assert np.array_equal(res.elements, x0) and res.loss == res.loss_start
@@ -368,7 +369,7 @@ def test_identify_with_refine_batched():
     np.testing.assert_allclose(est.elements["c0"], [1.0, 2.0, -1.0], rtol=1e-8)
     np.testing.assert_allclose(est.fit, 100.0, atol=1e-3)
     for i in range(3):
-        one = refine(ident.identify(y[i]), y[i], None, ident.dt, structure=ident.structure)
+        one = refine(ident.identify(y[i]))
         np.testing.assert_allclose(one.A, est.A[i], rtol=1e-10)
 
 
@@ -376,11 +377,66 @@ def test_refine_keeps_the_estimate_and_reports():
     ident = _identifier()
     y = _record()
     est = ident.identify(y)
-    out = refine(est, y, np.ones(60), ident.dt, structure=ident.structure)
+    out = refine(est)
     assert out.refined and out.info["solver"] == "sqpmethod"
     assert out.seconds >= est.seconds and out.info["seconds"] > 0
     assert out.dt == est.dt and np.array_equal(out.y, y)
     assert out.info["loss"] <= out.info["loss_start"]
+    # what the estimate refers to is kept, not copied: the same record and provenance
+    assert out.record is est.record and out.provenance is est.provenance
+    assert out.provenance is ident.provenance
+
+
+def test_refine_takes_everything_from_the_estimate():
+    # refine(estimate) and refine(estimate, config) need nothing the estimate holds; the
+    # deprecated refine(estimate, y, u, dt) with the same records gives the same model, with a
+    # DeprecationWarning (oracle: the closed-form model behind the noise-free record).
+    ident = _identifier()
+    y = _record()
+    est = ident.identify(y)
+    new = refine(est)
+    with_config = refine(est, RefineConfig(max_iter=50))
+    with pytest.warns(DeprecationWarning, match=r"refine\(estimate, y, u, dt\) is deprecated"):
+        old = refine(est, y, None, 0.05)
+    np.testing.assert_allclose(new.A, [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-8, atol=1e-10)
+    for other in (with_config, old):
+        np.testing.assert_allclose(other.A, new.A, rtol=1e-12, atol=1e-14)
+        assert other.info["iterations"] == new.info["iterations"]
+    # the old form refines against the records it is given: a shorter record
+    with pytest.warns(DeprecationWarning):
+        short = refine(est, y[:40], None, 0.05)
+    assert short.y.shape == (40,) and short.record.dt == (0.05,)
+    with pytest.raises(ValueError, match=r"y must be given with u and dt \(the deprecated form"):
+        refine(est, None, np.ones(60))
+    with pytest.raises(ValueError, match=r"y must be given with u and dt"):
+        refine(est, dt=0.05)
+
+
+def test_refine_of_a_collected_estimate_names_the_record_set_aside():
+    from aeid_struct.records import RecordError
+
+    ident = _identifier()
+    est = ident.identify(np.stack([_record(), np.zeros(60)]), errors="collect")
+    with pytest.raises(RecordError, match=r"y must not be all zero \(record 1 of 2\)") as err:
+        refine(est)
+    assert err.value.record == 1
+    good = refine(est.take([0]))          # the good record alone refines
+    np.testing.assert_allclose(good.A[0], [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-8, atol=1e-10)
+
+
+def test_an_estimate_built_by_hand_has_its_record_checked_when_refined():
+    # Estimate(...) of arrays taken as they are (no check at construction, as the baselines
+    # build theirs); refine checks such a record before fitting it.
+    from aeid_struct.records import Record
+
+    ident = _identifier()
+    est = ident.identify(_record())
+    bare = ae.Estimate(A=est.A, b=est.b, c=est.c, d=est.d, elements=est.elements,
+                       record=Record.of(np.zeros(60), None, 0.05),
+                       provenance=est.provenance)
+    assert not bare.record.checked and est.record.checked
+    with pytest.raises(ValueError, match=r"y must not be all zero \(record 0 of 1\)"):
+        refine(bare)
 
 
 # -- silence and errors ---------------------------------------------------------------------------
@@ -443,6 +499,7 @@ def test_refine_elements_errors():
     assert res.elements[1] == 0.1
 
 
+@pytest.mark.filterwarnings("ignore:refine\\(estimate, y, u, dt\\) is deprecated")
 def test_refine_errors():
     ident = _identifier()
     y = _record()

@@ -1,16 +1,25 @@
-"""Identification: ``Identifier`` (encoder + structure + normalisation), ``Estimate``, files.
+"""Identification: ``Identifier`` (encoder + structure + normalisation), ``Estimate`` and its
+``Provenance``, identifier files, the shipped identifiers.
+
+Layer: above ``refinement`` (``identify(refine=True)`` calls down into it), below ``training``.
 """
 
+from aeid_struct.identification.calibration import FLAG_FALSE_RATE as FLAG_FALSE_RATE
+from aeid_struct.identification.calibration import excess as excess
+from aeid_struct.identification.estimate import Estimate as Estimate
+from aeid_struct.identification.estimate import Provenance as Provenance
+from aeid_struct.identification.files import FORMAT as FORMAT
+from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
+from aeid_struct.identification.files import writable_file as writable_file
 from aeid_struct.identification.identifier import ERROR_MODES as ERROR_MODES
-from aeid_struct.identification.identifier import FLAG_FALSE_RATE as FLAG_FALSE_RATE
-from aeid_struct.identification.identifier import FORMAT as FORMAT
-from aeid_struct.identification.identifier import FORMAT_1 as FORMAT_1
 from aeid_struct.identification.identifier import INITIAL_STATES as INITIAL_STATES
-from aeid_struct.identification.identifier import PRETRAINED as PRETRAINED
 from aeid_struct.identification.identifier import SCALE_MODES as SCALE_MODES
-from aeid_struct.identification.identifier import Estimate as Estimate
 from aeid_struct.identification.identifier import Identifier as Identifier
-from aeid_struct.identification.identifier import load_pretrained as load_pretrained
+from aeid_struct.identification.physical import inverse_of_models as inverse_of_models
+from aeid_struct.identification.physical import through_ccf as through_ccf
+from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
+from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
+from aeid_struct.records import Record as Record
 
 __all__ = [
     "ERROR_MODES",
@@ -21,6 +30,12 @@ __all__ = [
     "INITIAL_STATES",
     "Identifier",
     "PRETRAINED",
+    "Provenance",
+    "Record",
     "SCALE_MODES",
+    "excess",
+    "inverse_of_models",
     "load_pretrained",
+    "through_ccf",
+    "writable_file",
 ]

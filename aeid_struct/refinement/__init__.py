@@ -1,20 +1,27 @@
 """Refinement: the CasADi NLP that polishes an estimate in its own structure.
+
+Layer: below ``identification`` (an estimate is taken duck-typed and returned through
+``dataclasses.replace``).
 """
 
-from aeid_struct.refinement.nlp import CacheInfo as CacheInfo
-from aeid_struct.refinement.nlp import RefineConfig as RefineConfig
-from aeid_struct.refinement.nlp import RefineResult as RefineResult
+from aeid_struct.refinement.config import SOLVERS as SOLVERS
+from aeid_struct.refinement.config import CacheInfo as CacheInfo
+from aeid_struct.refinement.config import RefineConfig as RefineConfig
+from aeid_struct.refinement.config import RefineResult as RefineResult
+from aeid_struct.refinement.nlp import Numeric as Numeric
 from aeid_struct.refinement.nlp import cache_info as cache_info
 from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate
 from aeid_struct.refinement.nlp import clear_cache as clear_cache
 from aeid_struct.refinement.nlp import expm as expm
-from aeid_struct.refinement.nlp import refine as refine
-from aeid_struct.refinement.nlp import refine_elements as refine_elements
+from aeid_struct.refinement.solve import refine as refine
+from aeid_struct.refinement.solve import refine_elements as refine_elements
 
 __all__ = [
     "CacheInfo",
+    "Numeric",
     "RefineConfig",
     "RefineResult",
+    "SOLVERS",
     "cache_info",
     "casadi_simulate",
     "clear_cache",

@@ -1,42 +1,35 @@
-"""Measured records: the one place where a user's ``y`` and ``u`` become validated float64 arrays.
+"""The checks of measured records: a user's ``y`` and ``u`` become validated float64 arrays.
 
-Every entry point that reads a record -- ``Identifier.identify``, ``export.OnnxIdentifier``,
-``online.Tracker`` (both engines), ``refine`` and the baselines -- checks it here, so that a bad
-input gets the same answer (the same exception, the same message) whichever way it comes in.
-
-Two kinds of problem, kept apart because a batch treats them differently:
-
-- **structural**, about the argument as a whole: not an array of real numbers (a complex array
-  is refused, never silently cut to its real part), a wrong shape, a batch of no records, an
-  input with another record count than the output. Always a ``ValueError``.
-- **per record**: non-finite samples, an all-zero output (Eq. 15 divides by ``max|y|``) or
-  input, a varying input to an identifier that only reads steps, a scale ratio
-  ``max|y| / max|u|`` that float64 cannot hold (the de-normalisation multiplies the model by
-  it). :meth:`Checked.raise_first` raises the first as a :class:`RecordError` (a
-  ``ValueError`` naming the record); ``Identifier.identify(errors="collect")`` keeps every
-  record's reason instead and identifies the good ones.
-
-:func:`normalise` is Eq. 15 in float64, per record, before anything is cast to float32: a
-record of 1e40 (beyond float32) or 1e-44 (below its normal range) reaches the encoder as the
-same ``y_tilde`` in ``[-1, 1]`` as any other record of its shape.
+Two kinds of problem, kept apart because a batch treats them differently: **structural** ones,
+about the argument as a whole (not real numbers -- a complex array is refused, never silently cut
+to its real part --, a wrong shape, no records, an input with another record count), always
+raise a ``ValueError``; **per record** ones (non-finite samples, an all-zero output or input, a
+varying input to an identifier that reads only steps, a scale ratio ``max|y| / max|u|`` beyond
+float64) are kept per record: raised as a :class:`RecordError` naming the record, or collected
+(``Identifier.identify(errors="collect")``). :func:`normalise` is Eq. 15 in float64, per record.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Checked", "RecordError", "as_array", "as_records", "check_records", "normalise",
-           "overflow_problem", "record_problems", "require_finite", "unit_step"]
+__all__ = ["Checked", "RecordError", "as_array", "as_records", "check_dt", "check_records",
+           "normalise", "overflow_problem", "record_problems", "require_finite", "unit_step"]
 
 
 class RecordError(ValueError):
     """A record that cannot be identified (non-finite, all zero, ...), as opposed to a
     malformed argument.
 
-    Attributes:
-        record: the record's index in its batch (0 for a single record).
+    Parameters
+    ----------
+    message : str
+        What is wrong, naming the argument and the record.
+    record : int
+        The record's index in its batch (0 for a single record); kept as ``self.record``.
     """
 
     def __init__(self, message: str, record: int) -> None:
@@ -51,7 +44,18 @@ def as_array(name: str, value) -> np.ndarray:
     silently, and a model identified from half of the data looks like a good one. So are a
     boolean array (0/1 flags are not a measurement), a masked array with masked samples (numpy
     would read the values under the mask) and a missing sample (None, which numpy's cast
-    turns into NaN)."""
+    turns into NaN).
+
+    Parameters
+    ----------
+    name : str
+        The argument's name in messages.
+    value : array_like or tensor
+
+    Returns
+    -------
+    float64 array, the shape of ``value``
+    """
     if value is None:
         raise ValueError(f"{name} must be an array of real numbers; got None")
     if hasattr(value, "detach") and hasattr(value, "cpu"):   # a torch tensor, grad or GPU
@@ -88,8 +92,15 @@ def as_array(name: str, value) -> np.ndarray:
 
 
 def require_finite(name: str, arr: np.ndarray) -> None:
-    """A ValueError naming the first non-finite entry of a ``(steps,)`` or ``(batch, steps)``
-    record ("at sample k" or "at record r, sample k")."""
+    """A ValueError naming the first non-finite entry of a record ("at sample k" or "at record
+    r, sample k").
+
+    Parameters
+    ----------
+    name : str
+        The argument's name in messages.
+    arr : (steps,) or (batch, steps) array
+    """
     if not np.all(np.isfinite(arr)):
         where = np.argwhere(~np.isfinite(arr))[0]
         labels = ("record", "sample")[-arr.ndim:]
@@ -99,11 +110,28 @@ def require_finite(name: str, arr: np.ndarray) -> None:
 
 def as_records(name: str, value, steps: int, dt: float, *,
                batch: bool = True) -> tuple[np.ndarray, bool]:
-    """The structural check of a record argument: ``(steps,)`` or ``(batch, steps)`` (only
-    ``(steps,)`` without ``batch``) real numbers, at least one record.
+    """The structural check of a record argument: real numbers, at least one record.
 
-    Returns the records as float64 ``(count, steps)`` and whether a batch axis was given.
-    Finiteness is a per-record matter (:func:`record_problems`)."""
+    Finiteness is a per-record matter (:func:`record_problems`).
+
+    Parameters
+    ----------
+    name : str
+        The argument's name in messages.
+    value : (steps,) or (batch, steps) array_like
+        Only ``(steps,)`` without ``batch``.
+    steps : int
+    dt : float
+        Named in messages.
+    batch : bool
+        Whether a batch axis is allowed.
+
+    Returns
+    -------
+    records : (count, steps) float64 array
+    batched : bool
+        Whether a batch axis was given.
+    """
     arr = as_array(name, value)
     ndims = (1, 2) if batch else (1,)
     if arr.ndim not in ndims or arr.shape[-1] != steps:
@@ -120,12 +148,15 @@ def as_records(name: str, value, steps: int, dt: float, *,
 class Checked:
     """Records that passed the structural checks, with each one's problem.
 
-    Attributes:
-        y: float64 ``(count, steps)``.
-        u: float64 ``(count, steps)`` (a ``(steps,)`` input broadcast over the batch), or None
-            for a unit step.
-        batched: whether ``y`` came with a batch axis.
-        problems: per record, why it cannot be identified, or None for a good record.
+    Attributes
+    ----------
+    y : (count, steps) float64 array
+    u : (count, steps) float64 array or None
+        A ``(steps,)`` input broadcast over the batch; None for a unit step.
+    batched : bool
+        Whether ``y`` came with a batch axis.
+    problems : tuple of count (str or None)
+        Per record, why it cannot be identified, or None for a good record.
     """
 
     y: np.ndarray
@@ -155,14 +186,25 @@ def check_records(y, u, *, steps: int, dt: float, reads_u: bool, batch: bool = T
     """Check an output record set ``y`` and its input ``u`` for an identifier of ``steps``
     samples at ``dt`` (module docstring).
 
-    Args:
-        y: ``(steps,)`` or ``(batch, steps)`` (only ``(steps,)`` without ``batch``).
-        u: like ``y``, ``(steps,)`` for a whole batch, or None (a unit step).
-        reads_u: whether the identifier reads ``u`` (otherwise ``u`` must be a constant step).
-        names: the arguments' names in messages (``("y[1]", "u[1]")`` for a second record).
+    Parameters
+    ----------
+    y : (steps,) or (batch, steps) array
+        Only ``(steps,)`` without ``batch``.
+    u : like ``y``, (steps,) for a whole batch, or None
+        None is a unit step.
+    steps, dt : int, float
+        The record format of the identifier (named in messages).
+    reads_u : bool
+        Whether the identifier reads ``u`` (otherwise ``u`` must be a constant step).
+    batch : bool
+        Whether a batch axis is allowed.
+    names : (str, str)
+        The arguments' names in messages (``("y[1]", "u[1]")`` for a second record).
 
-    Returns:
-        :class:`Checked`. Structural problems raise a ValueError.
+    Returns
+    -------
+    Checked
+        Each record's problem; structural problems raise a ValueError.
     """
     yname, uname = names
     y2, batched = as_records(yname, y, steps, dt, batch=batch)
@@ -180,10 +222,25 @@ def check_records(y, u, *, steps: int, dt: float, reads_u: bool, batch: bool = T
 
 def record_problems(y2: np.ndarray, u2: np.ndarray | None, *, reads_u: bool,
                     names: tuple[str, str] = ("y", "u")) -> tuple[str | None, ...]:
-    """Why each record of ``y2 (count, steps)`` with input ``u2`` (same shape, or None for a
-    unit step) cannot be identified; None for a good one. The first problem of a record, in
-    the order: ``y`` non-finite, ``y`` all zero, ``u`` non-finite, ``u`` all zero, ``u``
-    varying for an identifier that does not read it, ``max|y| / max|u|`` beyond float64."""
+    """Why each record cannot be identified; None for a good one.
+
+    The first problem of a record, in the order: ``y`` non-finite, ``y`` all zero, ``u``
+    non-finite, ``u`` all zero, ``u`` varying for an identifier that does not read it,
+    ``max|y| / max|u|`` beyond float64.
+
+    Parameters
+    ----------
+    y2 : (count, steps) float64 array
+    u2 : (count, steps) float64 array or None
+        None is a unit step.
+    reads_u : bool
+    names : (str, str)
+        The arguments' names in messages.
+
+    Returns
+    -------
+    tuple of count (str or None)
+    """
     yname, uname = names
     count = y2.shape[0]
     finite_y = np.isfinite(y2).all(axis=1)
@@ -239,9 +296,21 @@ def _problem(r: int, count: int, y: np.ndarray, u: np.ndarray | None, reads_u: b
 
 
 def overflow_problem(r: int, gain: float, yname: str = "y") -> str:
-    """The reason of a good record ``r`` whose identified model is not finite: the
-    de-normalisation multiplies ``c, d`` by ``gain = max|y| / max|u|`` (Eq. 15 and linearity),
-    and for a record of 1e308 the product lies beyond float64."""
+    """The reason of a good record whose identified model is not finite: the de-normalisation
+    multiplies ``c, d`` by ``gain = max|y| / max|u|`` (Eq. 15 and linearity), and for a record
+    of 1e308 the product lies beyond float64.
+
+    Parameters
+    ----------
+    r : int
+        The record's index.
+    gain : float
+    yname : str
+
+    Returns
+    -------
+    str
+    """
     return (f"{yname} must have a scale the identified model can hold in float64: de-normalised "
             f"by max|{yname}| / max|u| = {gain:.3g} (Eq. 15), its c or d at record {r} lies "
             f"beyond float64's range; rescale {yname} (e.g. to other units)")
@@ -251,12 +320,16 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
     """Eq. 15 per record, in float64: ``y_tilde = 2 y / y_bar - 1`` with ``y_bar = max|y|``,
     and ``u / u_bar`` with ``u_bar = max|u|`` (ones and ``u_bar = 1`` for a unit step).
 
-    Args:
-        y2, u2: good records (:func:`record_problems`), float64 ``(count, steps)``; u2 may be
-            None.
+    Parameters
+    ----------
+    y2 : (count, steps) float64 array
+        Good records (:func:`record_problems`).
+    u2 : (count, steps) float64 array or None
 
-    Returns:
-        ``y_tilde, u_tilde`` ``(count, steps)`` in ``[-1, 1]``, ``y_bar, u_bar`` ``(count,)``.
+    Returns
+    -------
+    y_tilde, u_tilde : (count, steps) arrays in [-1, 1]
+    y_bar, u_bar : (count,) arrays
     """
     y_bar = np.abs(y2).max(axis=1)
     # y / y_bar first: 2 y overflows for |y| near float64's largest number
@@ -284,3 +357,24 @@ def unit_step(shape: int | tuple[int, ...]) -> np.ndarray:
     u : (steps,) or (count, steps) float64 array of ones
     """
     return np.ones(shape, dtype=np.float64)
+
+
+def check_dt(dt) -> float:
+    """``dt`` as a positive finite float, or a ValueError naming it.
+
+    Parameters
+    ----------
+    dt : number
+        A sample time; a bool or a string is refused (no silent casts).
+
+    Returns
+    -------
+    float
+    """
+    try:
+        value = float(dt) if not isinstance(dt, (bool, str)) else math.nan
+    except (TypeError, ValueError, RuntimeError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"dt must be a positive finite number; got {dt!r}")
+    return value

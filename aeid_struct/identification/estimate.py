@@ -1,0 +1,383 @@
+"""An identified model (:class:`Estimate`) and where it comes from (:class:`Provenance`).
+
+An Estimate holds the validated :class:`~aeid_struct.records.Record` it was made from and refers
+to its provenance (one object per identifier) instead of copying the identifier's fields; its
+fit, response, initial state and physical parameters are computed on first access, so that a
+plain identification costs one encoder pass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from aeid_struct.identification import calibration
+from aeid_struct.identification.physical import inverse_of_models
+from aeid_struct.metrics import nrmse_fit
+from aeid_struct.records import Record
+from aeid_struct.simulation import initial_state, simulate
+from aeid_struct.structures import CCF
+
+__all__ = ["Estimate", "Provenance"]
+
+
+@dataclass(frozen=True, eq=False)
+class Provenance:
+    """What an estimate inherits from the identifier (or method) that made it; built once per
+    identifier and shared by its estimates.
+
+    Attributes
+    ----------
+    structure : Structure or None
+        The structure the model is in, where known, so that ``refine(estimate)`` needs no
+        further argument.
+    inverse : casadi.Function, ("elements", names) or None
+        Where the physical parameters come from: a CCF -> parameters map, or the elements
+        themselves (a ``Physical`` structure); None for none.
+    initial : {"rest", "fitted"}
+        ``"rest"``: the records start from rest; ``"fitted"``: mid-motion, the initial state is
+        fitted by least squares.
+    training_range : dict or None
+        The identifier's calibrated training range (``Identifier.training_range``), or None
+        where unknown; see ``Estimate.outside``.
+    """
+
+    structure: object = None
+    inverse: object = None
+    initial: str = "rest"
+    training_range: dict | None = None
+
+
+#: The old positional order of ``Estimate(...)`` (kept for code written before Provenance).
+_POSITIONAL = ("A", "b", "c", "d", "elements", "y", "u", "dt", "seconds", "refined", "info",
+               "_inverse")
+#: The old keywords: the record's and the provenance's fields, which an Estimate now refers to.
+_OLD = {"y", "u", "dt", "structure", "initial", "training_range", "_inverse"}
+
+
+@dataclass(frozen=True, eq=False, init=False)
+class Estimate:
+    """An identified continuous-time model (batched or single), built with keywords.
+
+    Parameters
+    ----------
+    *legacy
+        The old positional form ``Estimate(A, b, c, d, elements, y, u, dt, seconds, refined,
+        info, _inverse)``, still accepted.
+    A : (batch, n, n) or (n, n) float64 array
+        A several-record estimate (``records = R > 1``) has a record axis after the batch axis
+        (``(batch, R, n, n)`` or ``(R, n, n)``), likewise ``b, c, d``.
+    b, c : (batch, n) or (n,) float64 arrays
+    d : (batch,) array or float
+    elements : dict name -> (batch,) array or float
+        The structure's named elements (e.g. ``a0``, ``c1``, ``k``).
+    record : Record
+        The records the estimate was made from (checked once, at the boundary).
+    provenance : Provenance
+        Structure, physical parameters' source, initial state mode, training range.
+    seconds : float
+        Wall time of the identification.
+    refined : bool
+        Whether a CasADi refinement polished the estimate.
+    info : dict
+        Diagnostics (refinement iterations, loss, ...).
+    errors : tuple of (str or None), optional
+        Set by ``Identifier.identify(errors="collect")``: per record of ``y``, why it could not
+        be identified, or None for a good one (its model rows are NaN). None when every record
+        was good by ``errors="raise"``.
+    **old
+        The old keywords ``y, u, dt`` (a new record) and ``structure, initial,
+        training_range, _inverse`` (a changed provenance), also through ``dataclasses.replace``.
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    elements: dict
+    record: Record = field(repr=False)
+    provenance: Provenance = field(repr=False)
+    seconds: float = 0.0
+    refined: bool = False
+    info: dict = field(default_factory=dict)
+    errors: tuple | None = None
+
+    def __init__(self, *legacy, A=None, b=None, c=None, d=None, elements=None, record=None,
+                 provenance=None, seconds=0.0, refined=False, info=None, errors=None, **old):
+        values = _arguments(legacy, {"A": A, "b": b, "c": c, "d": d, "elements": elements,
+                                     "seconds": seconds, "refined": refined, "info": info}, old)
+        values["info"] = {} if values["info"] is None else values["info"]
+        values["record"] = _record(record, old, np.ndim(values["A"]))
+        values["provenance"] = _provenance(provenance, old)
+        values["errors"] = errors
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
+
+    # -- the record and the provenance ---------------------------------------------------------
+    @property
+    def y(self):
+        """The outputs the estimate was made from: ``(steps,)`` or ``(batch, steps)`` (a tuple
+        of ``R`` for several records)."""
+        return self.record.given(self.record.y)
+
+    @property
+    def u(self):
+        """The inputs, shaped like ``y`` (a unit step where none was given)."""
+        return self.record.given(self.record.u)
+
+    @property
+    def dt(self):
+        """Sample time (a tuple of ``R`` for several records)."""
+        return self.record.times
+
+    @property
+    def structure(self):
+        """The structure the model is in, or None (:class:`Provenance`)."""
+        return self.provenance.structure
+
+    @property
+    def initial(self) -> str:
+        """``"rest"`` or ``"fitted"`` (:class:`Provenance`)."""
+        return self.provenance.initial
+
+    @property
+    def training_range(self):
+        """The identifier's training range, or None (:class:`Provenance`)."""
+        return self.provenance.training_range
+
+    @property
+    def _inverse(self):
+        return self.provenance.inverse
+
+    @property
+    def records(self) -> int:
+        """Records the estimate was made from jointly (1, or ``R`` for a tuple of records)."""
+        return self.record.records
+
+    @property
+    def batched(self) -> bool:
+        """Whether the estimate has a batch axis."""
+        return self.record.batched
+
+    # -- derived on first access ---------------------------------------------------------------
+    @cached_property
+    def y_hat(self):
+        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
+        return self._per_record(
+            lambda A, b, c, d, u, y, x, dt: simulate(A, b, c, d, u, dt, x0=x),
+            lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
+
+    @cached_property
+    def x0(self):
+        """The state at the first sample: zeros for a record from rest, else the least-squares
+        initial state (``simulation.initial_state``); ``(n,)`` / ``(batch, n)``, a tuple of
+        them for several records."""
+        x0 = self._x0()
+        if x0 is not None:
+            return x0
+        if self.records == 1:
+            return np.zeros(np.shape(self.b))                 # (n,) or (batch, n)
+        return tuple(np.zeros(np.shape(self.b[..., r, :])) for r in range(self.records))
+
+    @cached_property
+    def fit(self):
+        """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record (a float,
+        ``(batch,)``, or ``(R,)`` / ``(batch, R)``); NaN where undefined (a constant record,
+        one set aside by ``errors="collect"``); such records are flagged ``outside``."""
+        if self.records == 1:
+            fit = nrmse_fit(self.y, self.y_hat)
+            return fit if self.batched else float(fit[0])
+        fit = np.stack([nrmse_fit(y, h) for y, h in zip(self.y, self.y_hat, strict=True)], 1)
+        return fit if self.batched else fit[0]
+
+    @cached_property
+    def physical(self) -> dict:
+        """Physical parameters by name: a ``Physical`` structure's elements, or a canonical
+        structure's model through its CasADi inverse map (e.g. the leg's CCF -> k, d, m);
+        empty otherwise."""
+        return _physical(self)
+
+    @cached_property
+    def excess(self):
+        """How far the estimate lies beyond the identifier's training range, in units of its
+        held-out error (``calibration.excess`` over the free elements and physical
+        parameters): a float or ``(batch,)``; None without a training range."""
+        rng = self.training_range
+        if not rng:
+            return None
+        out = calibration.excess({**self.elements, **(self.physical or {})}, rng)
+        return out if self.batched else float(out)
+
+    @cached_property
+    def outside(self):
+        """Whether the estimate lies outside the identifier's training range (the calibrated
+        rule, ``calibration.outside``): a bool or ``(batch,)``; None without a calibrated
+        range (``training.recalibrate`` adds it)."""
+        rng = self.training_range
+        if not rng or "excess" not in rng:
+            return None
+        good = self._good
+        if good is not None and not self.batched:
+            good = good[0]
+        flags = calibration.outside(self.excess, self.fit, rng, self.records, good)
+        return flags if self.batched else bool(flags)
+
+    # -- batches -------------------------------------------------------------------------------
+    def take(self, index) -> Estimate:
+        """The estimates of some records of a batch.
+
+        Parameters
+        ----------
+        index : int, int array, slice or (batch,) bool mask
+
+        Returns
+        -------
+        Estimate
+            Unbatched for an int.
+        """
+        if not self.batched or self.records != 1:
+            raise ValueError("take needs a batched estimate of one record per system")
+        count = len(self.A)
+        try:
+            rows = np.atleast_1d(np.arange(count)[index])
+        except (IndexError, TypeError, ValueError) as err:
+            raise ValueError(f"index must select records of this batch of {count} records (an "
+                             f"int, an int array, a slice or a ({count},) bool mask); got "
+                             f"{index!r}: {err}") from None
+        errors = None if self.errors is None else tuple(self.errors[i] for i in rows)
+        return dataclasses.replace(
+            self, A=self.A[index], b=self.b[index], c=self.c[index], d=self.d[index],
+            elements={k: np.asarray(v)[index] for k, v in self.elements.items()},
+            record=self.record.take(index), errors=errors)
+
+    def to_control(self):
+        """The model as python-control state space.
+
+        Returns
+        -------
+        control.StateSpace, or a list of them
+            A list for a batch (per batch row and record for several records).
+        """
+        return _state_spaces(self)
+
+    # -- helpers -------------------------------------------------------------------------------
+    @property
+    def _good(self) -> np.ndarray | None:
+        """``(batch,)`` bool (``(1,)`` unbatched): the records identified, where
+        ``errors="collect"`` set some aside; None when every record is good."""
+        if self.errors is None or all(e is None for e in self.errors):
+            return None
+        return np.array([e is None for e in self.errors], dtype=bool)
+
+    def _on_good(self, fn, *args, out):
+        """``fn(*args)`` on the good records only, NaN of shape ``out`` for the others."""
+        good = self._good
+        if good is None:
+            return fn(*args)
+        result = np.full(out, np.nan)
+        if not self.batched or not good.any():
+            return result          # an unbatched estimate with errors is a bad record
+        rows = np.flatnonzero(good)
+        result[rows] = fn(*(None if a is None else np.asarray(a)[rows] for a in args))
+        return result
+
+    def _per_record(self, fn, shape, x0=None):
+        """``fn(A, b, c, d, u, y, x0, dt)`` of each record on the good rows: one result, or a
+        tuple of ``R`` for several records; ``shape(r)`` the result's shape."""
+        if self.records == 1:
+            return self._on_good(lambda A, b, c, d, u, y, x: fn(A, b, c, d, u, y, x, self.dt),
+                                 self.A, self.b, self.c, self.d, self.u, self.y, x0,
+                                 out=shape(0))
+        return tuple(self._on_good(
+            lambda A, b, c, d, u, y, x, r=r: fn(A, b, c, d, u, y, x, self.dt[r]),
+            self.A[..., r, :, :], self.b[..., r, :], self.c[..., r, :], self.d[..., r],
+            self.u[r], self.y[r], None if x0 is None else x0[r], out=shape(r))
+            for r in range(self.records))
+
+    def _x0(self):
+        """The fitted initial state(s), or None for records from rest."""
+        if self.initial != "fitted":
+            return None
+        if "_x0_fitted" not in self.__dict__:
+            self.__dict__["_x0_fitted"] = self._per_record(
+                lambda A, b, c, d, u, y, x, dt: initial_state(A, b, c, d, u, y, dt),
+                lambda r: np.shape(self.b if self.records == 1 else self.b[..., r, :]))
+        return self.__dict__["_x0_fitted"]
+
+
+def _arguments(legacy: tuple, values: dict, old: dict) -> dict:
+    """The Estimate's own fields from the old positional form ``legacy`` and the keywords
+    ``values``; the old positional ``y, u, dt, _inverse`` go to ``old`` (in place)."""
+    if len(legacy) > len(_POSITIONAL):
+        raise TypeError(f"Estimate takes at most {len(_POSITIONAL)} positional arguments (the "
+                        f"old form); got {len(legacy)}")
+    given = dict(zip(_POSITIONAL, legacy, strict=False))   # a prefix of the old order
+    values = {k: given.get(k, v) for k, v in values.items()}
+    old.update({k: given[k] for k in ("y", "u", "dt", "_inverse") if k in given})
+    unknown = sorted(set(old) - _OLD)
+    if unknown:
+        raise TypeError(f"Estimate got unexpected keyword arguments {unknown}")
+    if any(values[k] is None for k in ("A", "b", "c", "d", "elements")):
+        raise TypeError("Estimate needs A, b, c, d and elements")
+    return values
+
+
+def _state_spaces(est: Estimate):
+    """``Estimate.to_control``."""
+    import control
+
+    def one(A, b, c, d):
+        n = A.shape[0]
+        return control.ss(A, b.reshape(n, 1), c.reshape(1, n), np.reshape(d, (1, 1)))
+
+    if est.records > 1:   # a list per record (per batch row and record when batched)
+        A, b, c, d = (np.asarray(x) for x in (est.A, est.b, est.c, est.d))
+        rows = [(A, b, c, d)] if not est.batched else list(zip(A, b, c, d, strict=True))
+        out = [[one(*m) for m in zip(*row, strict=True)] for row in rows]
+        return out if est.batched else out[0]
+    if not est.batched:
+        return one(est.A, est.b, est.c, est.d)
+    return [one(*m) for m in zip(est.A, est.b, est.c, est.d, strict=True)]
+
+
+def _record(record: Record | None, old: dict, ndim: int) -> Record:
+    """The estimate's record: ``record``, or one of the old keywords ``y, u, dt`` (over
+    ``record``'s where both are given)."""
+    if record is not None and not {"y", "u", "dt"} & set(old):
+        return record
+    if record is None and "y" not in old:
+        raise TypeError("Estimate needs a record (or the old y, u, dt)")
+    y = old["y"] if "y" in old else record.given(record.y)
+    u = old["u"] if "u" in old else (None if record is None else record.given(record.u))
+    dt = old["dt"] if "dt" in old else (None if record is None else record.times)
+    return Record.of(y, u, dt, batched=ndim == (4 if isinstance(y, tuple) else 3))
+
+
+def _provenance(provenance: Provenance | None, old: dict) -> Provenance:
+    """``provenance`` (default: none known) with the old keywords' changes."""
+    provenance = Provenance() if provenance is None else provenance
+    changes = {("inverse" if k == "_inverse" else k): old[k]
+               for k in ("structure", "initial", "training_range", "_inverse") if k in old}
+    return dataclasses.replace(provenance, **changes) if changes else provenance
+
+
+def _physical(est: Estimate) -> dict:
+    """``Estimate.physical``: name -> float or ``(batch,)``."""
+    inverse = est.provenance.inverse
+    if inverse is None:
+        return {}
+    if isinstance(inverse, tuple) and inverse[0] == "elements":
+        return {name: est.elements[name] for name in inverse[1]}
+    A = np.asarray(est.A, dtype=np.float64)
+    A = A[None] if A.ndim == 2 else A
+    count, n = A.shape[0], A.shape[-1]
+    b = np.asarray(est.b, dtype=np.float64).reshape(count, n)
+    c = np.asarray(est.c, dtype=np.float64).reshape(count, n)
+    d = np.asarray(est.d, dtype=np.float64).reshape(count)
+    result = inverse_of_models(inverse, A, b, c, d, isinstance(est.structure, CCF))
+    if not est.batched:
+        result = {k: float(v[0]) for k, v in result.items()}
+    return result

@@ -1,0 +1,154 @@
+"""The batch-1 forward pass: one record through an identifier without per-operation torch
+overhead (the encoder in numpy, the structure as a frozen TorchScript trace)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import torch
+
+from aeid_struct.records import normalise
+from aeid_struct.structures import Physical
+
+__all__ = ["Batch1", "fast_path"]
+
+_NUMPY_ACTIVATIONS = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}
+
+
+class Batch1:
+    """One record through the identifier without per-operation torch overhead.
+
+    The encoder is evaluated in numpy (float64 copies of the weights): average pooling by a
+    reshape, each "same" convolution as one matmul over a strided im2col view, then the dense
+    layers; the structure (theta -> elements -> A, b, c, d) runs as a frozen TorchScript trace
+    (or eagerly for CasADi-backed structures). A call ``(y (steps,), u (steps,) or None)``
+    returns float64 ``A (1, n, n), b, c (1, n), d (1,), elements (1, q)``, in measured units
+    like ``Identifier.system``.
+
+    Parameters
+    ----------
+    ident : Identifier
+        A single-record identifier whose encoder has a numpy activation (tanh, relu).
+    """
+
+    def __init__(self, ident):
+        enc = ident.encoder
+        cfg = enc.config
+        if cfg.activation not in _NUMPY_ACTIVATIONS:
+            raise ValueError(f"no numpy path for activation {cfg.activation!r}")
+        self.act = _NUMPY_ACTIVATIONS[cfg.activation]
+        sd = {k: v.detach().double().numpy() for k, v in enc.state_dict().items()}
+        self.cfg = cfg
+        self.pad = cfg.kernel // 2
+        self.length = cfg.steps // cfg.pool
+        self.window = np.arange(cfg.kernel)[:, None] + np.arange(self.length)[None, :]
+        self.convs = [(sd[f"main.{2 * i}.weight"].reshape(cfg.width, -1),
+                       sd[f"main.{2 * i}.bias"][:, None]) for i in range(cfg.depth)]
+        self.shortcut = (sd["shortcut.0.weight"].reshape(cfg.width, -1),
+                         sd["shortcut.0.bias"][:, None])
+        self.dense = [(sd[f"head.{2 * i}.weight"], sd[f"head.{2 * i}.bias"])
+                      for i in range(len(cfg.dense) + 1)]
+        self.mean = ident.theta_mean.double().numpy()
+        self.scale = ident.theta_scale.double().numpy()
+        self.ident = ident
+        self.mask = ident._output_mask.double().numpy()[0]
+        structure = ident.structure
+
+        class _Structure(torch.nn.Module):
+            def forward(self, theta):
+                el = structure.elements(theta)
+                sys = structure.assemble(el)
+                return sys.A, sys.b, sys.c, sys.d, el
+
+        self.structure = _Structure().eval()
+        if not isinstance(structure, Physical):
+            with warnings.catch_warnings(), torch.no_grad():
+                warnings.simplefilter("ignore")
+                self.structure = torch.jit.freeze(torch.jit.trace(
+                    self.structure, (torch.zeros(1, structure.p, dtype=torch.float64),),
+                    check_trace=False))
+
+    def _conv(self, h: np.ndarray, W: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """'Same' 1-D convolution (Eq. 8) + activation: ``h (C, L) -> (O, L)``."""
+        C, L, p = h.shape[0], self.length, self.pad
+        hp = np.zeros((C, L + 2 * p))
+        hp[:, p: p + L] = h
+        # im2col by one gather: cols[c, k, l] = hp[c, l + k], laid out as torch's (O, C, K)
+        return self.act(W @ hp[:, self.window].reshape(C * self.cfg.kernel, L) + b)
+
+    def __call__(self, y: np.ndarray, u: np.ndarray | None):
+        cfg = self.cfg
+        y_tilde, u_tilde, y_bar, u_bar = normalise(y[None], None if u is None else u[None])
+        gain = float(y_bar[0] / u_bar[0])
+        x = np.concatenate([y_tilde, u_tilde]) if cfg.inputs else y_tilde     # Eq. 15
+        if cfg.pool > 1:
+            x = x[:, : self.length * cfg.pool].reshape(x.shape[0], self.length,
+                                                       cfg.pool).mean(axis=2)
+        h = x
+        for W, b in self.convs:
+            h = self._conv(h, W, b)
+        z = np.concatenate([h, self._conv(x, *self.shortcut)]).ravel()
+        if cfg.features:
+            ident = self.ident
+            z = np.append(z, (np.log(gain) - ident.feature_mean) / ident.feature_scale)
+        for i, (W, b) in enumerate(self.dense):
+            z = W @ z + b
+            if i < len(self.dense) - 1:
+                z = self.act(z)
+        theta = torch.from_numpy((self.mean + self.scale * z)[None])
+        with torch.no_grad():
+            A, b, c, d, el = (t.numpy() for t in self.structure(theta))
+        if self.ident.scale == "denormalise":
+            c, d = c * gain, d * gain
+            # a product, not el * (1 + mask (gain - 1)), which is 0 for gain = 1e-44
+            el = np.where(self.mask > 0, el * gain, el)
+        return A, b, c, d, el
+
+
+def fast_path(ident):
+    """The batch-1 path of ``ident``: a :class:`Batch1`, or None where it does not apply.
+
+    Why: one record costs about a hundred small tensor operations, and at batch 1 PyTorch spends
+    far more time dispatching them than computing. The path is rebuilt when the weights change
+    (parameter version counters), compared with the eager path when it is built, and skipped
+    (None) where it does not apply or does not agree.
+
+    Parameters
+    ----------
+    ident : Identifier
+
+    Returns
+    -------
+    Batch1 or None
+    """
+    if ident.records > 1:
+        return None
+    version = tuple(p._version for p in ident._params)
+    if ident._fast_path is not None and ident._fast_path[0] == version:
+        return ident._fast_path[1]
+    try:
+        fast = Batch1(ident)
+        ok = _agrees(ident, fast)
+    except Exception:  # any structure or layer the fast path does not cover: eager path
+        fast, ok = None, False
+    ident._fast_path = (version, fast if ok else None)
+    return ident._fast_path[1]
+
+
+def _agrees(ident, fast: Batch1) -> bool:
+    """Whether ``fast`` gives the eager path's model of a random record (to float32)."""
+    g = torch.Generator().manual_seed(0)
+    y = torch.cumsum(torch.rand(1, ident.steps, generator=g), dim=1)
+    u = 0.5 + torch.rand(1, ident.steps, generator=g)
+    was_training = ident.encoder.training
+    ident.encoder.eval()
+    try:
+        with torch.no_grad():
+            sys, el = ident._forward(y, u)
+    finally:
+        ident.encoder.train(was_training)
+    ref = [t.double().numpy() for t in (sys.A, sys.b, sys.c, sys.d, el)]
+    got = fast(y.numpy()[0].astype(np.float64), u.numpy()[0].astype(np.float64))
+    return all(np.allclose(a, b, rtol=1e-4, atol=1e-6 * (1 + np.abs(a).max()))
+               for a, b in zip(ref, got, strict=True))

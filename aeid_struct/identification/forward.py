@@ -1,0 +1,232 @@
+"""The identification pass of checked records: Eq. 15 per record in float64, the encoder, the
+structure, the exact de-normalisation, and the :class:`Estimate` (records that cannot be
+identified set aside with NaN model rows)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+import torch
+
+from aeid_struct.identification.estimate import Estimate
+from aeid_struct.identification.fast_path import fast_path
+from aeid_struct.records import Record, normalise, overflow_problem
+from aeid_struct.structures import System
+
+__all__ = ["differentiable", "encode", "estimate_of", "identify_record"]
+
+
+def differentiable(ident, y, u, *, raw: bool = False):
+    """The differentiable pass of tensors (training uses it): Eq. 15, the encoder, the
+    structure and the exact de-normalisation, in torch.
+
+    Parameters
+    ----------
+    ident : Identifier
+    y, u : (batch, steps) tensors, or sequences of R of them
+    raw : bool
+        Also return the encoder's standardised outputs.
+
+    Returns
+    -------
+    System, elements (batch, q) tensor[, z (batch, p) tensor]
+        In measured units.
+    """
+    ys, us = (tuple(y), tuple(u)) if ident.records > 1 else ((y,), (u,))
+    y_bar = torch.stack([r.abs().amax(dim=1) for r in ys], 1)     # (batch, R)
+    u_bar = torch.stack([r.abs().amax(dim=1) for r in us], 1)
+    x = []
+    for r, (y_r, u_r) in enumerate(zip(ys, us, strict=True)):
+        channels = [2.0 * y_r / y_bar[:, r, None] - 1.0]         # Eq. 15
+        if ident.inputs:
+            channels.append(u_r / u_bar[:, r, None])
+        x.append(torch.stack(channels, dim=1))
+    features = None
+    gain = y_bar / u_bar                                          # (batch, R)
+    if ident.scale == "feature":
+        mean, spread = (f.to(gain.dtype) for f in ident._features)
+        features = (torch.log(gain) - mean) / spread
+    sys, elements, z = ident._decode(x, features)
+    if ident.scale == "denormalise":
+        gain = gain[:, 0]
+        # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
+        sys = System(sys.A, sys.b, sys.c * gain[:, None].to(sys.c.dtype),
+                     sys.d * gain.to(sys.d.dtype))
+        mask = ident._output_mask.to(elements.dtype)
+        elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
+    return (sys, elements, z) if raw else (sys, elements)
+
+
+def identify_record(ident, record: Record, start: float, errors: str) -> Estimate:
+    """The Estimate of a checked record (``Identifier.identify`` after its checks).
+
+    Parameters
+    ----------
+    ident : Identifier
+    record : Record
+        From ``records.check_record``, with each system's problem.
+    start : float
+        ``time.perf_counter()`` when the identification began.
+    errors : {"raise", "collect"}
+
+    Returns
+    -------
+    Estimate
+    """
+    if errors == "raise":
+        record.raise_first()
+    good = record.good
+    with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
+        model = _on_rows(ident, record, good)
+    if record.records == 1:
+        record = dataclasses.replace(record, problems=_overflowed(record, good, model))
+        if errors == "raise":
+            record.raise_first()
+    return estimate_of(ident, record, model, start, None if errors == "raise"
+                       else record.problems)
+
+
+def _on_rows(ident, record: Record, good: np.ndarray) -> tuple:
+    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False; one
+    single record through the batch-1 path (``fast_path``), the others batched."""
+    ys, us, rows = record.y, record.u, np.flatnonzero(good)
+    if not good.all():
+        ys, us = [v[rows] for v in ys], [v[rows] for v in us]
+    parts = None
+    if rows.size:
+        fast = fast_path(ident) if len(ys) == 1 and ys[0].shape[0] == 1 else None
+        parts = fast(ys[0][0], us[0][0]) if fast is not None else encode(ident, list(ys),
+                                                                             list(us))
+    if good.all():
+        return parts
+    R, count = record.records, record.count
+    n, q = ident.structure.n, len(ident.structure.element_names)
+    axis = () if R == 1 else (R,)
+    model = tuple(np.full((count, *axis, *shape), math.nan)
+                  for shape in ((n, n), (n,), (n,), ())) + (np.full((count, q), math.nan),)
+    if parts is not None:
+        for whole, part in zip(model, parts, strict=True):
+            whole[rows] = part
+    return model
+
+
+def encode(ident, ys: list, us: list) -> tuple:
+    """Float64 ``A, b, c, d, elements`` of good records through the encoder, in chunks,
+    without gradients.
+
+    Eq. 15 runs per record in float64 (``records.normalise``) and only the normalised records,
+    in ``[-1, 1]``, and the standardised scale features are cast to the encoder's float32; the
+    model is de-normalised in float64. So one record of 1e40 (beyond float32) or 1e-44 (below
+    its normal range) among others gives what it gives alone.
+
+    Parameters
+    ----------
+    ident : Identifier
+    ys, us : lists of R (count, steps_r) float64 arrays
+        Good records (``us`` entries may be None: a unit step).
+
+    Returns
+    -------
+    A : (count, n, n) or (count, R, n, n)
+    b, c : (count, n) or (count, R, n)
+    d : (count,) or (count, R)
+    elements : (count, q)
+    """
+    count = ys[0].shape[0]
+    x, gains = [], []
+    for y2, u2 in zip(ys, us, strict=True):
+        y_tilde, u_tilde, y_bar, u_bar = normalise(y2, u2)
+        channels = [y_tilde, u_tilde] if ident.inputs else [y_tilde]
+        x.append(torch.from_numpy(np.stack(channels, axis=1).astype(np.float32)))
+        gains.append(y_bar / u_bar)
+    gain = np.stack(gains, axis=1)                                   # (count, R)
+    features = None
+    if ident.scale == "feature":
+        mean, spread = (f.numpy() for f in ident._features)
+        features = torch.from_numpy(((np.log(gain) - mean) / spread).astype(np.float32))
+    A, b, c, d, el = _decoded(ident, x, features, count)
+    if ident.scale == "denormalise":
+        # Exact de-normalisation (linearity), in float64: the structure described
+        # u/u_bar -> y/y_bar. A product, not el * (1 + mask (g - 1)), which is 0 for g=1e-44.
+        g = gain[:, 0]
+        c, d = c * g[:, None], d * g
+        el = np.where(ident._output_mask.numpy()[0] > 0, el * g[:, None], el)
+    return A, b, c, d, el
+
+
+def _decoded(ident, x: list, features, count: int) -> tuple:
+    """The structure's float64 model of normalised records ``x``, before de-normalisation."""
+    # Small batches are dominated by per-operation overhead, which a second thread only adds
+    # to (thread wake-ups); large ones gain from both cores.
+    threads = torch.get_num_threads()
+    if count <= 16 and threads > 1:
+        torch.set_num_threads(1)
+    try:
+        with torch.no_grad():
+            # Chunks of 1024 records keep the activations in cache (faster than one pass over
+            # a batch of many thousands).
+            parts = []
+            for i in range(0, count, 1024):
+                sys, el, _ = ident._decode([v[i: i + 1024] for v in x],
+                                           None if features is None else features[i: i + 1024])
+                parts.append((sys.A, sys.b, sys.c, sys.d, el))
+            return tuple(torch.cat(t).numpy().astype(np.float64)
+                         for t in zip(*parts, strict=True))
+    finally:
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
+
+
+def _overflowed(record: Record, good: np.ndarray, model: tuple) -> tuple:
+    """The record's problems with a reason added for each good record whose identified model
+    is not finite, and its model rows set to NaN (in place).
+
+    Why: the de-normalisation multiplies ``c, d`` by ``max|y| / max|u|`` (Eq. 15 and
+    linearity); a record of 1e308 has a model whose ``c`` lies beyond float64 (inf), which
+    must not come back as an estimate."""
+    problems = record.problems
+    finite = np.ones(len(problems), dtype=bool)
+    for part in model:
+        finite &= np.isfinite(part.reshape(len(problems), -1)).all(axis=1)
+    bad = good & ~finite
+    if not bad.any():
+        return problems
+    out = list(problems)
+    y2, u2 = record.y[0], record.u[0]
+    u_bar = np.abs(u2).max(axis=1)
+    for r in np.flatnonzero(bad):
+        out[r] = overflow_problem(r, np.abs(y2[r]).max() / u_bar[r])
+        for part in model:
+            part[r] = math.nan
+    return tuple(out)
+
+
+def estimate_of(ident, record: Record, model: tuple, start: float, errors) -> Estimate:
+    """Wrap float64 ``A (count, ...), b, c, d, elements (count, q)`` of ``record`` as the
+    Estimate (unbatched where the record is).
+
+    Parameters
+    ----------
+    ident : Identifier
+    record : Record
+    model : tuple of arrays
+    start : float
+    errors : tuple or None
+
+    Returns
+    -------
+    Estimate
+    """
+    A, b, c, d, el = model
+    names = ident.structure.element_names
+    if record.batched:
+        elements = {name: el[:, i] for i, name in enumerate(names)}
+    else:
+        elements = dict(zip(names, el[0].tolist(), strict=True))
+        A, b, c, d = A[0], b[0], c[0], (float(d[0]) if record.records == 1 else d[0])
+    return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=record,
+                    provenance=ident.provenance, seconds=time.perf_counter() - start,
+                    errors=errors)

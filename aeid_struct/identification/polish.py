@@ -1,0 +1,71 @@
+"""``Identifier.identify(refine=...)``: the estimate handed down to the refinement
+(``aeid_struct.refinement``), for every record or exactly the flagged ones."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from aeid_struct.identification.estimate import Estimate
+from aeid_struct.refinement import refine
+
+__all__ = ["polish"]
+
+
+def polish(est: Estimate, mode) -> Estimate:
+    """Refine an identifier's estimate.
+
+    Parameters
+    ----------
+    est : Estimate
+        From ``Identifier.identify`` (its structure and record on board).
+    mode : {True, "auto"}
+        True: every record identified (records set aside by ``errors="collect"`` are kept as
+        they are); ``"auto"``: exactly the records flagged ``outside`` the training range.
+
+    Returns
+    -------
+    Estimate
+        With ``info["refined_rows"]`` for ``"auto"`` or a partial refinement.
+    """
+    if mode == "auto":
+        return _flagged(est)
+    if est._good is not None:      # errors="collect" set records aside: refine the rest
+        return _rows(est, est._good)
+    return refine(est)
+
+
+def _flagged(est: Estimate) -> Estimate:
+    """Refine exactly the records flagged ``outside`` (and identified: a record set aside by
+    ``errors="collect"`` has nothing to start from)."""
+    flags = est.outside
+    if flags is None:
+        raise ValueError("refine='auto' needs an identifier that knows its calibrated "
+                         "training range (trained by this version of train(), a shipped "
+                         "one, or one passed through training.recalibrate)")
+    good = est._good
+    if not est.batched:
+        if not flags or (good is not None and not good[0]):
+            return dataclasses.replace(est, info={**est.info, "refined_rows": False})
+        est = refine(est)
+        return dataclasses.replace(est, info={**est.info, "refined_rows": True})
+    return _rows(est, flags if good is None else flags & good)
+
+
+def _rows(est: Estimate, mask: np.ndarray) -> Estimate:
+    """Refine the records ``mask (batch,)`` of a batched estimate, keep the others;
+    ``info["refined_rows"]`` is ``mask``, ``info["refine"]`` the refinement's info."""
+    rows = np.flatnonzero(mask)
+    if rows.size == 0:
+        return dataclasses.replace(est, info={**est.info, "refined_rows": mask})
+    sub = refine(est.take(rows))
+    A, b, c, d = (np.array(x, copy=True) for x in (est.A, est.b, est.c, est.d))
+    A[rows], b[rows], c[rows], d[rows] = sub.A, sub.b, sub.c, sub.d
+    elements = {k: np.array(v, copy=True) for k, v in est.elements.items()}
+    for k in elements:
+        elements[k][rows] = sub.elements[k]
+    return dataclasses.replace(
+        est, A=A, b=b, c=c, d=d, elements=elements, refined=True,
+        seconds=est.seconds + sub.info["seconds"].sum(),
+        info={**est.info, "refined_rows": mask, "refine": sub.info})

@@ -1,0 +1,39 @@
+"""Measured records: the one place where a user's ``y`` and ``u`` become validated float64 arrays.
+
+Every entry point that reads a record -- ``Identifier.identify``, ``export.OnnxIdentifier``,
+``online.Tracker`` (both engines), ``refine`` and the baselines -- checks it here, so that a bad
+input gets the same answer (the same exception, the same message) whichever way it comes in.
+:func:`check_record` checks a user's records once into a frozen :class:`Record` (``y, u, dt``
+per record, the batch flag, each system's problem); everything behind the boundary (the
+encoder pass, the ``Estimate``, the refinement) takes that value and checks nothing again.
+"""
+
+from aeid_struct.records.checks import Checked as Checked
+from aeid_struct.records.checks import RecordError as RecordError
+from aeid_struct.records.checks import as_array as as_array
+from aeid_struct.records.checks import as_records as as_records
+from aeid_struct.records.checks import check_dt as check_dt
+from aeid_struct.records.checks import check_records as check_records
+from aeid_struct.records.checks import normalise as normalise
+from aeid_struct.records.checks import overflow_problem as overflow_problem
+from aeid_struct.records.checks import record_problems as record_problems
+from aeid_struct.records.checks import require_finite as require_finite
+from aeid_struct.records.checks import unit_step as unit_step
+from aeid_struct.records.record import Record as Record
+from aeid_struct.records.record import check_record as check_record
+
+__all__ = [
+    "Checked",
+    "Record",
+    "RecordError",
+    "as_array",
+    "as_records",
+    "check_dt",
+    "check_record",
+    "check_records",
+    "normalise",
+    "overflow_problem",
+    "record_problems",
+    "require_finite",
+    "unit_step",
+]
