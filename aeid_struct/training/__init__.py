@@ -3,8 +3,9 @@
 
 Modules: ``families`` (the true systems), ``excitation`` (the inputs), ``datasets`` (simulated
 records and the per-record time grid), ``config`` (``TrainConfig``), ``objective`` (Eq. 14 on
-Eq. 15-normalised records), ``tensors`` (the run's records as tensors), ``loop`` (``train``), ``checkpoints``, ``calibration`` (the training
-range and flag thresholds) and ``progress`` (the budget, the progress line, the warning).
+Eq. 15-normalised records), ``tensors`` (the run's records as tensors), ``loop`` (``train``),
+``checkpoints``, ``calibration`` (the training range and flag thresholds) and ``progress`` (the
+budget, the progress line, the warning).
 """
 
 from aeid_struct.training.calibration import recalibrate as recalibrate
