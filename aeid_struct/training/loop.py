@@ -4,9 +4,9 @@
 split and scales), the model (encoder, identifier, optimiser, random streams, a resumed
 checkpoint), the epochs (gradient steps on Eq. 14, ``objective.batch_loss``), the held-out
 evaluation that picks the weights, and the finish (best weights, history, training range).
-Choices the paper leaves open: 80/20 split (paper Sec. IV); Adam with a short warm-up and a cosine decay over an epoch or wall-time budget;
-gradient-norm clipping, and batches whose loss or gradient is not finite are skipped and
-counted; float32.
+Choices the paper leaves open: 80/20 split (paper Sec. IV); Adam with a short warm-up and a
+cosine decay over an epoch or wall-time budget; gradient-norm clipping, and batches whose loss
+or gradient is not finite are skipped and counted; float32.
 """
 
 from __future__ import annotations
