@@ -91,16 +91,15 @@ def through_ccf(A: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
     -------
     dict name -> (N,) array
     """
-    # The model -> CCF conversion of the structures package (its one implementation); the
-    # public names come with the structures split (ccf_coefficients, ccf_matrices).
-    from aeid_struct.structures.base import _ccf_coefficients, _ccf_matrices
+    # the one model -> CCF conversion (structures.realisation, over symbolic.realisation)
+    from aeid_struct.structures import ccf_coefficients, ccf_matrices
 
     finite = (np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1)
               & np.all(np.isfinite(c), axis=1) & np.isfinite(d))
     out = {name: np.full(A.shape[0], math.nan) for name in inverse.name_out()}
     rows = np.flatnonzero(finite)
     if rows.size:
-        Ac, bc, cc = _ccf_matrices(*_ccf_coefficients(A[rows], b[rows], c[rows]))
+        Ac, bc, cc = ccf_matrices(*ccf_coefficients(A[rows], b[rows], c[rows]))
         for name, value in apply_inverse(inverse, Ac, bc, cc, d[rows]).items():
             out[name][rows] = value
     return out

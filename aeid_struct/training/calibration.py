@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aeid_struct.identification import FLAG_FALSE_RATE, Identifier
-from aeid_struct.identification.identifier import _excess
+from aeid_struct.identification import FLAG_FALSE_RATE, Identifier, excess
 from aeid_struct.training.datasets import Records, holdout_split, records
 
 
@@ -101,7 +100,7 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
                                      float(np.nanpercentile(err, 90))]
     # The flag thresholds (Estimate.outside): the quantiles of excess and fit on these
     # in-range records that flag FLAG_FALSE_RATE of them each.
-    excess = _excess({**est.elements, **(est.physical or {})}, out)
-    out["excess"] = float(np.nanquantile(excess, 1.0 - FLAG_FALSE_RATE))
+    beyond = excess({**est.elements, **(est.physical or {})}, out)
+    out["excess"] = float(np.nanquantile(beyond, 1.0 - FLAG_FALSE_RATE))
     out["fit"] = float(np.nanquantile(est.fit, FLAG_FALSE_RATE))
     return out
