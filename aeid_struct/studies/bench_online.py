@@ -1,7 +1,7 @@
 """The online benchmark (``aeid-struct bench-online``): everything issue 6's targets name,
 measured side by side in one run.
 
-- **Tracker** (:func:`bench_tracker`): the wear scenario of ``online.wear_study`` (a running leg,
+- **Tracker** (:func:`bench_tracker`): the wear scenario of ``studies.wear.wear_study`` (a running leg,
   k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, 1 % noise) for several seeds: RMS tracking error of the
   smoothed k, d, m, alarm time against the true 5 % crossing, and the update time per window
   (one window identified, smoothed and checked) on one core, for each engine.
@@ -42,7 +42,8 @@ def bench_tracker(ident, *, seconds: float = 120.0, noise: float = 0.01, seeds=(
                   engines=("onnx", "identifier"), config=None) -> list[dict]:
     """One row per engine and seed: ``rms`` (k, d, m %), ``drift_time``, ``alarm_time``,
     ``delay`` (s) and ``latency_ms`` (median update)."""
-    from aeid_struct.online import TrackerConfig, wear_study
+    from aeid_struct.online import TrackerConfig
+    from aeid_struct.studies.wear import wear_study
 
     config = config or TrackerConfig(watch=("k",))
     rows = []
