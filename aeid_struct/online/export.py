@@ -1,37 +1,12 @@
 """Deployment: an identifier as one TorchScript or ONNX file that needs neither this library nor
 Python's training code to identify a record.
 
-:func:`to_torchscript` traces the whole identification of one record -- the normalisation of
-Eq. 15, the encoder, the structure's constraint maps and assembly, the exact de-normalisation --
-into a frozen TorchScript module and saves it. Loaded with ``torch.jit.load`` (in Python, or in
-C++ through libtorch), it maps ``y (steps,)`` and ``u (steps,)`` (float32) to
-``A (n, n), b (n,), c (n,), d ()`` and the structure's elements ``(q,)``, the same numbers as
-``Identifier.identify`` to float32 precision.
-
-What it covers: identifiers of one record whose structure is assembled by torch operations
-(``CCF``, ``MCF``, fixed elements). A ``Physical`` structure evaluates its CasADi map through a
-Python callback, which TorchScript cannot hold: export the CasADi map itself (its C code,
-``symbolic.leg.generate_c``) beside a canonical identifier instead. The module identifies one
-record per call -- the online use -- and does not compute the fitted initial state or the
-physical parameters (both are cheap functions of the returned model).
-
-Measured (``leg-stable``, one thread, median of 500 calls): 0.18 ms per record through the loaded
-module, against 0.37 ms for ``Identifier.identify`` (which also validates the record and builds
-an ``Estimate``); largest relative difference of ``A, c`` over 50 noisy leg records 2e-7.
-PyTorch 2.13 marks ``torch.jit`` deprecated in favour of ``torch.export``; it still loads and
-runs, and the format is the one libtorch reads.
-
-:func:`to_onnx` writes the same computation as an ONNX graph (opset 17) with the record format and
-the CasADi inverse map in its metadata -- as a reference to a named map (``aeid_struct.maps``),
-never as a serialised Function, which could run code when read; :class:`OnnxIdentifier` runs it
-with onnxruntime and numpy alone (CasADi only for the physical parameters). Both need the
-optional ``onnx`` extra (``pip install "aeid-struct[onnx]"``: ``onnx``, ``onnxruntime``). Why the
-TorchScript-based ONNX exporter (``dynamo=False``) and not ``torch.export``: the structures
-validate their elements with data-dependent branches (``if bad.any(): raise``) that
-``torch.export`` refuses to trace; tracing records the branch taken for valid elements, which is
-the deployed behaviour.
-Measured (``leg-stable-window``, one thread, median of 2000 calls, ``aeid-struct bench-online``):
-see ``pretrained/README.md``.
+:func:`to_torchscript` traces the whole identification of one record (the normalisation of
+Eq. 15, the encoder, the structure's constraint maps and assembly, the exact de-normalisation)
+into a frozen TorchScript module; :func:`to_onnx` writes the same computation as an ONNX graph
+with the record format and the inverse map (a reference to a named map) in its metadata, which
+:class:`OnnxIdentifier` runs with onnxruntime and numpy alone. Their latencies are measured by
+``aeid-struct bench-online``.
 """
 
 from __future__ import annotations
@@ -94,15 +69,39 @@ def _file_to_write(path) -> Path:
 
 
 def to_torchscript(ident, path) -> Path:
-    """Save ``ident`` as a frozen TorchScript module at ``path`` (module docstring).
+    """Save ``ident`` as a frozen TorchScript module at ``path``.
 
-    Args:
-        ident: an ``Identifier`` of one record with a torch-assembled structure.
-        path: the file to write (conventionally ``.pt``).
+    Loaded with ``torch.jit.load`` (in Python, or in C++ through libtorch), the module maps
+    ``y (steps,)`` and ``u (steps,)`` (float32; ``u = torch.ones(steps)`` for a unit step) to
+    ``A (n, n), b (n,), c (n,), d ()`` and the structure's elements ``(q,)``, the numbers of
+    ``Identifier.identify`` to float32 precision. It identifies one record per call and does
+    not compute the fitted initial state or the physical parameters (both are cheap functions
+    of the returned model).
 
-    Returns:
-        The path written. The module's ``forward(y, u)`` takes float32 ``(steps,)`` tensors
-        (``u = torch.ones(steps)`` for a unit step) and returns ``(A, b, c, d, elements)``.
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record whose structure is assembled by torch operations (``CCF``,
+        ``MCF``, fixed elements). A ``Physical`` structure evaluates its CasADi map through a
+        Python callback, which TorchScript cannot hold: export the CasADi map itself (its C
+        code, ``symbolic.leg.generate_c``) beside a canonical identifier instead.
+    path : str or Path
+        The file to write (conventionally ``.pt``).
+
+    Returns
+    -------
+    Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported, or a path that cannot be written.
+
+    Notes
+    -----
+    PyTorch marks ``torch.jit`` deprecated in favour of ``torch.export``; it still loads and
+    runs, and the format is the one libtorch reads.
     """
     _exportable(ident)
     path = _file_to_write(path)
@@ -117,15 +116,36 @@ def to_torchscript(ident, path) -> Path:
 
 
 def onnx_bytes(ident) -> bytes:
-    """The ONNX model (bytes) of ``ident``'s identification of one record, with the record format
-    and the inverse map (a reference, ``aeid_struct.maps.to_entry``) in its metadata
-    (``to_onnx``)."""
+    """The ONNX model of ``ident``'s identification of one record (:func:`to_onnx`), as bytes.
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record with a torch-assembled structure.
+
+    Returns
+    -------
+    bytes
+        The model (opset 17), with the record format and the inverse map (a reference,
+        ``structures.to_entry``) in its ``aeid`` metadata.
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported.
+
+    Notes
+    -----
+    The TorchScript-based ONNX exporter (``dynamo=False``), not ``torch.export``: the
+    structures validate their elements with data-dependent branches (``if bad.any(): raise``)
+    that ``torch.export`` refuses to trace; tracing records the branch taken for valid elements,
+    which is the deployed behaviour.
+    """
     import io
 
     import onnx
 
-    from aeid_struct.structures import CCF
-    from aeid_struct.structures import maps as maps
+    from aeid_struct.structures import CCF, to_entry
 
     _exportable(ident)
     module = _OneRecord(ident).eval()
@@ -141,7 +161,7 @@ def onnx_bytes(ident) -> bytes:
         "format": ONNX_FORMAT, "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
         "initial": ident.initial, "elements": list(ident.structure.element_names),
         "inverse": None if inverse is None or isinstance(inverse, tuple)
-        else maps.to_entry(inverse),
+        else to_entry(inverse),
         "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
         "structure": ident.structure.config(),
         "ccf": isinstance(ident.structure, CCF),
@@ -153,19 +173,55 @@ def onnx_bytes(ident) -> bytes:
 
 
 def to_onnx(ident, path) -> Path:
-    """Save ``ident`` as an ONNX model at ``path`` (module docstring).
+    """Save ``ident`` as an ONNX model at ``path``.
 
-    Args:
-        ident: an ``Identifier`` of one record with a torch-assembled structure.
-        path: the file to write (conventionally ``.onnx``).
+    The graph's inputs are ``y, u``: float32 ``(steps,)``; its outputs ``A (n, n), b (n,),
+    c (n,), d ()`` and ``elements (q,)``. The inverse map is stored as a reference to a named
+    map (``structures.to_entry``), never as a serialised Function, which could run code when
+    read. :class:`OnnxIdentifier` reads it; both need the optional ``onnx`` extra
+    (``pip install "aeid-struct[onnx]"``).
 
-    Returns:
-        The path written. Inputs ``y, u``: float32 ``(steps,)``; outputs ``A (n, n), b (n,),
-        c (n,), d ()`` and ``elements (q,)``. :class:`OnnxIdentifier` reads it.
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record with a torch-assembled structure.
+    path : str or Path
+        The file to write (conventionally ``.onnx``).
+
+    Returns
+    -------
+    Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported, or a path that cannot be written.
     """
     path = _file_to_write(path)
     path.write_bytes(onnx_bytes(ident))
     return path
+
+
+def inverse_names(inverse) -> tuple[str, ...] | None:
+    """The outputs of an inverse map.
+
+    Parameters
+    ----------
+    inverse : casadi.Function or None
+        A CCF ``(A, B, C, D)`` -> physical parameters map.
+
+    Returns
+    -------
+    tuple of str or None
+        Its output names; empty for no map; None for an object without ``name_out``.
+    """
+    if inverse is None:
+        return ()
+    try:
+        return tuple(inverse.name_out())
+    except AttributeError:
+        return None
 
 
 def _model_bytes(model) -> tuple[bytes, str]:
@@ -213,31 +269,45 @@ def _check_onnx_header(header: dict, source: str) -> None:
 
 
 class OnnxIdentifier:
-    """Identification from an exported ONNX file (``to_onnx``) with onnxruntime and numpy.
+    """Identification from an exported ONNX file (:func:`to_onnx`) with onnxruntime and numpy.
 
-    Args:
-        model: the ``.onnx`` path, or the model's bytes (``onnx_bytes``).
-        threads: onnxruntime's intra-op threads (1: the one-core latency of online use).
-        maps: name -> casadi.Function: a user inverse map the metadata names (not a named map
-            of ``aeid_struct.maps``), passed again; it must have the SHA-256 recorded.
-        trust: deserialise a user inverse map, or the inverse of an export in the format before
-            named maps (``ONNX_FORMAT_1``), from the metadata. A serialised CasADi Function can
-            run shell commands when it is read: only for files you trust.
+    Parameters
+    ----------
+    model : str or Path or bytes
+        The ``.onnx`` path, or the model's bytes (:func:`onnx_bytes`).
+    threads : int
+        onnxruntime's intra-op threads (1: the one-core latency of online use).
+    maps : dict of str to casadi.Function, optional
+        A user inverse map the metadata names (not a named map of ``structures``), passed
+        again; it must have the SHA-256 recorded.
+    trust : bool
+        Deserialise a user inverse map, or the inverse of an export in the format before named
+        maps (``ONNX_FORMAT_1``), from the metadata. A serialised CasADi Function can run shell
+        commands when it is read: only for files you trust.
 
-    Attributes:
-        steps, dt, inputs, initial: the record format the identifier was trained on.
-        element_names: the structure's elements, in the order of the ``elements`` output.
+    Attributes
+    ----------
+    steps, dt, inputs, initial
+        The record format the identifier was trained on.
+    element_names : tuple of str
+        The structure's elements, in the order of the ``elements`` output.
+
+    Raises
+    ------
+    ValueError
+        A file that is not an aeid-struct ONNX export, a metadata entry of the wrong type, or
+        an inverse map that is neither named nor passed in ``maps``.
     """
 
     def __init__(self, model, threads: int = 1, *, maps: dict | None = None,
                  trust: bool = False) -> None:
         import onnxruntime as ort
 
-        from aeid_struct.structures import maps as _maps
+        from aeid_struct.structures import check_maps, from_entry
 
         if not (isinstance(threads, int) and threads >= 1):
             raise ValueError(f"threads must be a positive integer; got {threads!r}")
-        _maps.check_maps(maps, trust)
+        check_maps(maps, trust)
         raw, source = _model_bytes(model)
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads
@@ -282,21 +352,47 @@ class OnnxIdentifier:
         self._inverse = None
         if header.get("inverse"):
             try:
-                self._inverse = _maps.from_entry(header["inverse"], "'inverse'", maps=maps,
+                self._inverse = from_entry(header["inverse"], "'inverse'", maps=maps,
                                                  trust=trust)
             except ValueError as err:
                 raise ValueError(f"{source}: {err}") from None
+
+    @property
+    def physical_names(self) -> tuple[str, ...] | None:
+        """The physical parameters :meth:`physical` returns (empty: none; None: an inverse map
+        whose outputs cannot be named without evaluating it)."""
+        if self._physical_elements:
+            return tuple(self._physical_elements)
+        return inverse_names(self._inverse)
 
     def __repr__(self) -> str:
         return (f"OnnxIdentifier(steps={self.steps}, dt={self.dt}, inputs={self.inputs}, "
                 f"elements={self.element_names})")
 
     def __call__(self, y, u=None) -> dict[str, np.ndarray]:
-        """Identify a record: ``y, u (steps,)`` (u = None: a unit step) -> float64
-        ``A (n, n), b (n,), c (n,), d ()`` and ``elements (q,)``, the numbers of
-        ``Identifier.identify`` to float32 precision; a batch ``y (batch, steps)`` (with ``u``
-        like it, or ``(steps,)`` for all) gives each with a leading batch axis.
+        """Identify a record, or a batch of them.
 
+        Parameters
+        ----------
+        y : (steps,) or (batch, steps) array_like
+            The output record(s).
+        u : (steps,) or (batch, steps) array_like, optional
+            The input (None: a unit step; ``(steps,)`` for every record of a batch).
+
+        Returns
+        -------
+        dict of str to ndarray
+            float64 ``A (n, n), b (n,), c (n,), d ()`` and ``elements (q,)``, the numbers of
+            ``Identifier.identify`` to float32 precision; a leading batch axis for a batch.
+
+        Raises
+        ------
+        ValueError
+            Records refused by ``records.check_records`` (a ``records.RecordError`` for a
+            per-record problem), or a scale ratio outside float32's range.
+
+        Notes
+        -----
         The records are checked by ``records.check_records``, as ``Identifier.identify`` checks
         them: the same inputs are refused with the same ValueError and message (a complex or
         misshapen array, a batch of no records; per record, as a ``records.RecordError``:
@@ -346,9 +442,24 @@ class OnnxIdentifier:
         return out if checked.batched else {k: v[0] for k, v in out.items()}
 
     def physical(self, model: dict) -> dict:
-        """Physical parameters of a model returned by ``__call__`` (through the stored inverse
-        map, or elements that are physical parameters): floats, or ``(batch,)`` arrays for a
-        batched model; empty when the export has none."""
+        """Physical parameters of a model returned by ``__call__``.
+
+        Parameters
+        ----------
+        model : dict
+            What ``__call__`` returned.
+
+        Returns
+        -------
+        dict of str to float or (batch,) ndarray
+            Through the stored inverse map, or the elements that are physical parameters;
+            empty when the export has none.
+
+        Raises
+        ------
+        ValueError
+            ``model`` is not such a dict.
+        """
         need = ("elements",) if self._physical_elements or self._inverse is None \
             else ("A", "b", "c", "d", "elements")
         if not isinstance(model, dict) or any(k not in model for k in need):
