@@ -75,11 +75,18 @@ OUTPUTS = ("leg-stable.aeid", "leg-unstable.aeid", "fig3_leg_scenario.png",
 class Evaluation:
     """Table I metrics of one identifier, scenario and overall (mean over the validation set).
 
-    Attributes:
-        subsystem: "stable" or "unstable".
-        scenario, overall: metric name -> value (step, magnitude_db, phase_rad, k, d, m in %).
-        per_system: metric name -> ``(count,)`` values over the validation set.
-        latency_ms: median batch-1 identification time; throughput: identifications/s batched.
+    Attributes
+    ----------
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+    scenario, overall : dict of str to float
+        Metric name -> value (step, magnitude_db, phase_rad, and k, d, m in %).
+    per_system : dict of str to (count,) ndarray
+        Metric name -> its values over the validation set.
+    latency_ms : float
+        Median batch-1 identification time [ms].
+    throughput : float
+        Identifications per second, batched.
     """
 
     subsystem: str
@@ -94,17 +101,41 @@ def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
                     count: int = 10_000, noise=0.0, checkpoint=None, progress: bool = True,
                     epochs: int | None = None, min_epochs: int = 1,
                     target_loss: float | None = None):
-    """The study's training settings for one subsystem: a wall-time budget (which cannot end
-    the run before ``min_epochs``), or an epoch budget (reproducible whatever else the machine
-    is doing) when ``epochs`` is given; ``target_loss``: the expected best held-out loss
-    (``TrainConfig``).
+    """The study's training settings for one subsystem, on one torch thread.
 
-    One torch thread. Why: the network is small, and a second thread buys nothing on a quiet
-    machine but costs up to 10x on a busy one, where the two threads wait for each other's
-    core (measured on the unstable leg beside other work: 16-75 s per epoch on two threads,
-    2.6-4.3 s on one).
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"``, ``"unstable"`` or ``"joint"``.
+    seconds : float or None
+        A wall-time budget [s], which cannot end the run before ``min_epochs``.
+    seed : int
+        Seed of the records, the initial weights and the batches.
+    count : int
+        Simulated training records.
+    noise : float or tuple of float
+        Measurement noise level, or a range drawn per record.
+    checkpoint : str or Path, optional
+        A checkpoint to resume from.
+    progress : bool
+        Print training progress.
+    epochs : int, optional
+        An epoch budget instead of the wall-time one (reproducible whatever else the machine
+        is doing).
+    min_epochs : int
+        The floor of a wall-time budget.
+    target_loss : float, optional
+        The expected best held-out loss (``TrainConfig``).
+
+    Returns
+    -------
+    training.TrainConfig
     """
     from aeid_struct.training import TrainConfig
+
+    # One torch thread: the network is small, and a second thread buys nothing on a quiet
+    # machine but costs many times over on a busy one, where the two threads wait for each
+    # other's core.
 
     dt, steps = _grid(subsystem)
     if epochs is not None:
@@ -124,18 +155,41 @@ def _grid(subsystem: str):
 
 
 def leg_structure(subsystem: str):
-    """The paper's structure: CCF of order 2 (Descartes' constraint for the stable subsystem;
-    the unstable one has a0 = -g/L < 0, so the constraint would exclude the truth)."""
+    """The paper's structure for a leg subsystem.
+
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+
+    Returns
+    -------
+    structures.CCF
+        Of order 2, with Descartes' constraint for the stable subsystem (the unstable one has
+        ``a0 = -g/L < 0``, so the constraint would exclude the truth).
+    """
     from aeid_struct.structures import CCF
 
     return CCF(2, descartes=(subsystem == "stable"))
 
 
 def leg_encoder(subsystem: str):
-    """The encoder of the shipped leg identifiers: the paper's architecture (three convolutions
-    and a shortcut, then two dense layers), 12 convolution and 48 dense neurons instead of 8 and
-    10, on the record average-pooled to 50 samples (pool 6 for 300 samples, 2 for 100): the
-    responses are smooth, and pooling divides the convolution cost for batch throughput."""
+    """The encoder of the shipped leg identifiers.
+
+    The paper's architecture (three convolutions and a shortcut, then two dense layers) with
+    48 dense neurons instead of 10, on the record average-pooled to 50 samples (pool 6 for 300
+    samples, 2 for 100): the responses are smooth, and pooling divides the convolution cost for
+    batch throughput.
+
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"``, ``"unstable"`` or ``"joint"``.
+
+    Returns
+    -------
+    encoder.EncoderConfig
+    """
     from aeid_struct.encoder import EncoderConfig
 
     pool = tuple(s // 50 for s in _grid(subsystem)[1]) if subsystem == "joint" \
@@ -148,7 +202,22 @@ def train_leg(subsystem: str, *, seconds: float | None, seed: int = 0, count: in
               noise=0.0, checkpoint=None, progress: bool = True, command: str = "",
               epochs: int | None = None, min_epochs: int = 1,
               target_loss: float | None = None):
-    """Train one leg identifier with the study's settings (``training_config``)."""
+    """Train one leg identifier with the study's settings.
+
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+    seconds, seed, count, noise, checkpoint, progress, epochs, min_epochs, target_loss
+        As :func:`training_config` takes them.
+    command : str
+        The command line, recorded in the identifier's ``meta``.
+
+    Returns
+    -------
+    Identifier
+        With :func:`leg_structure`, :func:`leg_encoder` and the leg's CasADi inverse.
+    """
     from aeid_struct.training import train
 
     inverse = LegFamily(subsystem=subsystem).inverse()
@@ -182,7 +251,27 @@ def _timing(ident, y: np.ndarray) -> tuple[float, float]:
 
 def evaluate(ident, subsystem: str, *, count: int = 500, seed: int = 12345,
              noise: float = 0.0, timing: bool = True) -> Evaluation:
-    """Table I metrics of ``ident`` on ``count`` fresh systems and on the paper's scenario."""
+    """Table I metrics of ``ident`` on ``count`` fresh systems and on the paper's scenario.
+
+    Parameters
+    ----------
+    ident : Identifier
+        A leg identifier of the subsystem's record grid (``RECORDS``).
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+    count : int
+        Fresh validation systems.
+    seed : int
+        Their seed.
+    noise : float
+        Measurement noise of their records.
+    timing : bool
+        Also measure the latency and throughput (else nan).
+
+    Returns
+    -------
+    Evaluation
+    """
     dt, steps = RECORDS[subsystem]
     family = LegFamily(subsystem=subsystem)
     val = records(family, count, steps=steps, dt=dt, noise=noise, seed=seed)
@@ -212,7 +301,17 @@ def evaluate(ident, subsystem: str, *, count: int = 500, seed: int = 12345,
 
 
 def table(evals: list[Evaluation]) -> str:
-    """Table I, ours beside the paper's, as markdown."""
+    """Table I, ours beside the paper's, as markdown.
+
+    Parameters
+    ----------
+    evals : list of Evaluation
+        One per subsystem.
+
+    Returns
+    -------
+    str
+    """
     rows = [("step", "Step error", "{:.2e}"), ("magnitude_db", "Magnitude (dB)", "{:.3f}"),
             ("phase_rad", "Phase (rad)", "{:.2e}"), ("k", "Δk (%)", "{:.3f}"),
             ("d", "Δd (%)", "{:.3f}"), ("m", "Δm (%)", "{:.3f}")]
@@ -239,9 +338,17 @@ def figure3(idents: dict, path, source: str = "identifiers given",
             sources: dict | None = None) -> None:
     """Paper Fig. 3 for the scenario: step and Bode, true vs identified, both subsystems.
 
-    ``source`` says where the identifiers came from (trained in this run, or shipped) and goes
-    into the figure's title with the scenario; ``sources``: subsystem -> which identifier it is
-    (e.g. "shipped leg-stable", "trained 138 epochs"), in the panel titles.
+    Parameters
+    ----------
+    idents : dict of str to Identifier
+        Subsystem -> its identifier.
+    path : str or Path
+        The PNG to write.
+    source : str
+        Where the identifiers came from (trained in this run, or shipped), in the figure's
+        title with the scenario.
+    sources : dict of str to str, optional
+        Subsystem -> which identifier it is (e.g. "shipped leg-stable"), in the panel titles.
     """
     from aeid_struct.evaluation import LEG_SIGNALS, Comparison, fig3
 
@@ -266,7 +373,28 @@ def figure3(idents: dict, path, source: str = "identifiers given",
 
 def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
             validation: int = 200):
-    """Paper Fig. 4: step error vs training-set size; each size trains for ``seconds_each``."""
+    """Paper Fig. 4: step error vs training-set size, both subsystems.
+
+    Parameters
+    ----------
+    sizes : sequence of int
+        Training-set sizes [records].
+    seconds_each : float
+        Training budget per size and subsystem [s].
+    seed : int
+        Training seed.
+    path : str or Path
+        The PNG to write.
+    progress : bool
+        Print training progress.
+    validation : int
+        Validation systems per point.
+
+    Returns
+    -------
+    dict of str to (len(sizes),) ndarray
+        Subsystem -> the overall mean step error at each size.
+    """
     from aeid_struct.evaluation import fig4
 
     errors = {}
@@ -297,26 +425,14 @@ def _shipped_sha256(name: str) -> str:
                           ).hexdigest()
 
 
-def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
-        fig4_seconds: float = 30.0, validation: int = 500, progress: bool = True,
-        save: bool = True, command: str = "", epochs: int | None = None) -> dict:
-    """The whole study; returns the JSON-able result and writes figures, JSON and (trained,
-    ``save``) the identifiers into ``<out>/trained`` or ``<out>/pretrained``.
-
-    The folder first loses the study's files (``OUTPUTS``) of an earlier run, so that what is
-    in it came from this run. The result's ``run`` says which run it was (command, UTC date,
-    seed, budget, each identifier's file or shipped name with its SHA-256, and ``files``: every
-    file written); ``train_epochs`` the epochs each identifier trained; ``warnings`` what fell
-    short (``training.UndertrainedWarning``: a budget that fit fewer than ``MIN_EPOCHS``
-    epochs, a held-out loss above ``TARGET_LOSS``).
-    """
+def _identifiers(*, pretrained: bool, seconds: float, seed: int, folder: Path,
+                 progress: bool, save: bool, command: str, epochs: int | None):
+    """Load or train both identifiers: ``(idents, train_seconds, train_epochs, identifiers,
+    notes, written)``, all by subsystem but ``notes`` (under-training warnings) and
+    ``written`` (identifier files saved)."""
     from aeid_struct.identification import load_pretrained
     from aeid_struct.training import UndertrainedWarning
 
-    folder = Path(out) / ("pretrained" if pretrained else "trained")
-    folder.mkdir(parents=True, exist_ok=True)
-    for name in OUTPUTS:
-        (folder / name).unlink(missing_ok=True)
     written: list[Path] = []
     idents, train_seconds, train_epochs, identifiers, notes = {}, {}, {}, {}, []
     for subsystem in ("stable", "unstable"):
@@ -345,6 +461,67 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
             path = ident.save(folder / f"{name}.aeid")
             written.append(Path(path))
             identifiers[subsystem].update(file=str(path), sha256=_sha256(path))
+    return idents, train_seconds, train_epochs, identifiers, notes, written
+
+
+def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
+        fig4_seconds: float = 30.0, validation: int = 500, progress: bool = True,
+        save: bool = True, command: str = "", epochs: int | None = None) -> dict:
+    """The whole study: identifiers, Table I, Fig. 3 (and Fig. 4), written into a run folder.
+
+    The folder, ``<out>/trained`` or ``<out>/pretrained``, first loses the study's files
+    (``OUTPUTS``) of an earlier run, so that what is in it came from this run.
+
+    Parameters
+    ----------
+    pretrained : bool
+        Evaluate the shipped identifiers instead of training.
+    seconds : float
+        Training budget for both identifiers together [s] (each trains at least
+        ``MIN_EPOCHS``).
+    seed : int
+        Seed of the training data (and of the run's records).
+    out : str or Path
+        The parent folder of the run folder.
+    fig4_sizes : sequence of int, optional
+        Training-set sizes for Fig. 4 (None: no Fig. 4).
+    fig4_seconds : float
+        Training budget per size and subsystem for Fig. 4 [s].
+    validation : int
+        Fresh validation systems per subsystem.
+    progress : bool
+        Print training progress.
+    save : bool
+        Save trained identifiers into the run folder.
+    command : str
+        The command line that started the run, recorded in the JSON.
+    epochs : int, optional
+        Train each identifier for this many epochs instead of a time budget.
+
+    Returns
+    -------
+    dict
+        JSON-able: ``table`` (Table I per subsystem), ``markdown``, ``train_seconds``,
+        ``train_epochs``, ``warnings`` (``training.UndertrainedWarning``: a budget that fit
+        fewer than ``MIN_EPOCHS`` epochs, a held-out loss above ``TARGET_LOSS``), ``paper``,
+        ``fig4`` (with ``fig4_sizes``) and ``run``: which run it was (command, UTC date, seed,
+        budget, each identifier's file or shipped name with its SHA-256, and ``files``: every
+        file written).
+
+    Warns
+    -----
+    training.UndertrainedWarning
+        Each of the ``warnings``.
+    """
+    from aeid_struct.training import UndertrainedWarning
+
+    folder = Path(out) / ("pretrained" if pretrained else "trained")
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in OUTPUTS:
+        (folder / name).unlink(missing_ok=True)
+    idents, train_seconds, train_epochs, identifiers, notes, written = _identifiers(
+        pretrained=pretrained, seconds=seconds, seed=seed, folder=folder, progress=progress,
+        save=save, command=command, epochs=epochs)
     for note in notes:
         warnings.warn(note, UndertrainedWarning, stacklevel=2)
     evals = [evaluate(idents[s], s, count=validation) for s in ("stable", "unstable")]
