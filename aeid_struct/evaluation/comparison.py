@@ -42,19 +42,25 @@ class Comparison:
     ----------
     name : str
         The panel title.
-    true, est : tuple
-        ``(A (n, n), b (n,), c (n,), d)`` of one system each.
+    true : tuple
+        ``(A (n, n), b (n,), c (n,), d)`` of the true system.
+    est : tuple
+        ``(A, b, c, d)`` of the identified one.
     dt : float
         The sample time of the step response [s].
     steps : int
         Its samples.
     extra : dict of str to tuple, optional
         Further identified models to draw (label -> ``(A, b, c, d)``), e.g. "refined".
-    u_name, u_unit, y_name, y_unit : str
-        The input and output quantities and their units (e.g. ``**LEG_SIGNALS["stable"]``);
-        they label the axes (the step is one unit of ``u_unit``, the Bode magnitude is in dB
-        relative to 1 ``y_unit``/``u_unit``). Empty units say so on the axis rather than
+    u_name : str
+        The input quantity, e.g. ``"force F"`` (``**LEG_SIGNALS["stable"]`` gives all four).
+    u_unit : str
+        Its unit: the step is one unit of it. Empty units say so on the axis rather than
         leaving it bare.
+    y_name : str
+        The output quantity.
+    y_unit : str
+        Its unit; the Bode magnitude is in dB relative to 1 ``y_unit``/``u_unit``.
 
     Raises
     ------

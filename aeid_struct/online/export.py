@@ -287,8 +287,14 @@ class OnnxIdentifier:
 
     Attributes
     ----------
-    steps, dt, inputs, initial
-        The record format the identifier was trained on.
+    steps : int
+        Samples per record the identifier was trained on.
+    dt : float
+        Their sample time [s].
+    inputs : bool
+        Whether it reads ``u``.
+    initial : str
+        ``"rest"`` or ``"fitted"`` (records that start mid-motion).
     element_names : tuple of str
         The structure's elements, in the order of the ``elements`` output.
 

@@ -2,9 +2,9 @@
 measured side by side in one run.
 
 - **Tracker** (:func:`bench_tracker`): the wear scenario of ``studies.wear.wear_study`` (a
-  running leg, k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, 1 % noise) for several seeds: RMS tracking error of the
-  smoothed k, d, m, alarm time against the true 5 % crossing, and the update time per window
-  (one window identified, smoothed and checked) on one core, for each engine.
+  running leg, k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, 1 % noise) for several seeds: RMS tracking
+  error of the smoothed k, d, m, alarm time against the true 5 % crossing, and the update time
+  per window (one window identified, smoothed and checked) on one core, for each engine.
 - **Latency** (:func:`bench_latency`): one record through ``Identifier.identify`` (numpy encoder),
   the TorchScript file, the ONNX file under onnxruntime, and the ONNX file plus the physical
   parameters; one thread, the calls taking turns, median and 95th percentile.

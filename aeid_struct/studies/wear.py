@@ -83,8 +83,10 @@ class WearResult:
         Time of each window's last sample [s].
     true : dict of str to (W,) ndarray
         The true parameter at the middle of each window.
-    estimate, smoothed : dict of str to (W,) ndarray
-        The tracker's raw and smoothed estimates.
+    estimate : dict of str to (W,) ndarray
+        The tracker's raw window estimates.
+    smoothed : dict of str to (W,) ndarray
+        Its smoothed estimates.
     alarm : (W,) bool ndarray
         The tracker's alarm after each window.
     drift_time : float
