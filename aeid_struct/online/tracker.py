@@ -210,7 +210,7 @@ class Tracker:
     def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
                  *, engine: str = "auto") -> None:
         from aeid_struct.identification import Identifier
-        from aeid_struct.online.export import OnnxIdentifier
+        from aeid_struct.online.onnx import OnnxIdentifier
 
         if not isinstance(config, TrackerConfig):
             raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
@@ -374,7 +374,7 @@ class Tracker:
 def _physical_names(identifier) -> tuple[str, ...] | None:
     """The physical parameters the identifier's estimates carry (an inverse map's outputs, or a
     Physical structure's elements), or None where that cannot be told without identifying."""
-    from aeid_struct.online.export import OnnxIdentifier, inverse_names
+    from aeid_struct.online.onnx import OnnxIdentifier, inverse_names
 
     if isinstance(identifier, OnnxIdentifier):
         return identifier.physical_names
