@@ -10,7 +10,7 @@ import numpy as np
 
 from aeid_struct.records import RecordError, check_records, normalise, overflow_problem
 
-#: The metadata format written: the inverse map as a reference (``aeid_struct.maps``).
+#: The metadata format written: the inverse map as a reference to a named map (``structures``).
 ONNX_FORMAT = "aeid-struct-onnx-2"
 #: The format before named maps (the inverse serialised inline): read with ``trust=True``.
 ONNX_FORMAT_1 = "aeid-struct-onnx-1"

@@ -11,7 +11,7 @@ measured side by side in one run.
 - **Arbitrary excitation** (:func:`bench_excitation`): per input kind (steps of random height and
   timing, PRBS, multisines, filtered noise) and noise level, the encoder alone and the encoder +
   refinement (variable projection of the initial state for windows): median k, d, m errors,
-  Table I step error, failures and milliseconds per record (``scorecard.score``).
+  Table I step error, failures and milliseconds per record (``evaluation.score``).
 - **Flags** (:func:`bench_flags`): the share of estimates ``Estimate.outside`` flags for legs
   inside the identifier's training range (false flags) and for legs with one parameter 10, 20,
   30 % beyond its range (``hi (1 + f)`` or ``lo (1 - f)``), and the mean k, d, m errors before and
@@ -215,7 +215,7 @@ def _outside_family(ranges: dict, name: str, f: float, count: int,
 
 @dataclass(frozen=True)
 class _Given:
-    """A family of given systems, so that ``data.records`` simulates them like any family."""
+    """A family of given systems, so that ``training.records`` simulates them like any family."""
 
     systems: Systems
     records: int = 1

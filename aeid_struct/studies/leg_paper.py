@@ -271,7 +271,7 @@ def _sha256(path: Path) -> str:
 
 
 def _shipped_sha256(name: str) -> str:
-    """The SHA-256 of a shipped identifier's file (``identify.load_pretrained``)."""
+    """The SHA-256 of a shipped identifier's file (``identification.load_pretrained``)."""
     from importlib.resources import files
 
     return hashlib.sha256((files("aeid_struct.pretrained") / f"{name}.aeid").read_bytes()
