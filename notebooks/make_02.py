@@ -50,10 +50,10 @@ import torch
 from IPython.display import Markdown, display
 
 import aeid_struct as ae
-from aeid_struct.studies import knowledge as knowledge
-from aeid_struct.evaluation import plots as plots
-from aeid_struct.evaluation import scorecard as scorecard
+from aeid_struct import evaluation, studies
 from symbolic import leg
+
+knowledge = studies.knowledge     # the leg's partial-knowledge identifiers
 
 FAST = os.environ.get("AEID_FAST") == "1"
 torch.set_num_threads(1)                  # the budget below is measured on one core
@@ -150,7 +150,7 @@ def show(title, table_scores, noisy, columns=COLUMNS):
     picked = [s for (name, n), group in table_scores.items() if n == noisy for s in group]
     display(Markdown(f"**{title}, {'5 % noise' if noisy else 'noise-free'}** "
                      f"(Δ: absolute % error over the valid estimates)\n\n"
-                     + scorecard.table(picked, columns)))
+                     + evaluation.table(picked, columns)))
 
 
 for noisy in (False, True):
@@ -164,7 +164,7 @@ for noisy in (False, True):
   hold d at the middle of its range, which says nothing).
 * A joint identifier appears twice, once per record: the step errors are those of each decoded
   subsystem; the parameter errors are the same (one parameter set)."""),
-    ("code", r"""fig = plots.knowledge_bars(
+    ("code", r"""fig = evaluation.knowledge_bars(
     {("noise-free" if not n else "5 % noise"): [s for (name, nn), g in scores.items() if nn == n
                                                for s in g[:1]] for n in (False, True)},
     parameters=("k", "d", "m"), path="partial_knowledge.png")

@@ -55,10 +55,9 @@ import torch
 from IPython.display import Markdown, display
 
 import aeid_struct as ae
-from aeid_struct.training import families as data
-from aeid_struct.evaluation import plots as plots
-from aeid_struct.evaluation import scorecard as scorecard
-from aeid_struct.studies import leg_paper as study
+from aeid_struct import evaluation, studies, training
+
+study = studies.leg_paper         # the paper's robot-leg study (Sec. IV)
 
 FAST = os.environ.get("AEID_FAST") == "1"
 torch.set_num_threads(1)                  # one core: the budgets below are measured on one
@@ -135,7 +134,7 @@ leg_inverse = ae.LegFamily(subsystem="stable").inverse()     # CCF (A, B, C, D) 
 
 
 def validation(family, dt, steps):
-    return {noise: data.records(family, VALIDATION, steps=steps, dt=dt, noise=level, seed=2024)
+    return {noise: training.records(family, VALIDATION, steps=steps, dt=dt, noise=level, seed=2024)
             for noise, level in (("noise-free", 0.0), ("5 % noise", 0.05))}
 
 
@@ -177,7 +176,7 @@ for fam_name, spec in FAMILIES.items():
                                        encoder=spec["encoder"],
                                        inverse=spec["inverse"] if s_name == "CCF" else None))
             runs[fam_name, s_name, clip_name] = idents
-            summaries = [scorecard.training_summary(i) for i in idents]
+            summaries = [evaluation.training_summary(i) for i in idents]
             print(f"{fam_name:10s} {s_name} {clip_name:7s}: max grad norm "
                   f"{max(s['grad_norm_max'] for s in summaries):9.3g}, best held-out loss "
                   f"{np.median([s['best_holdout'] for s in summaries]):.2e}, "
@@ -190,11 +189,11 @@ Gradient norms are measured *before* clipping, so the unclipped and clipped runs
 kind of number. A run counts as diverged when its final held-out loss is not finite or above
 10× its best; skipped batches had a non-finite loss or gradient (an overflowing simulation).
 The worst run's best held-out loss shows a run that never converged."""),
-    ("code", r"""display(Markdown(scorecard.training_table(
-    {f"{f} · {s} · {c}": [scorecard.training_summary(i) for i in idents]
+    ("code", r"""display(Markdown(evaluation.training_table(
+    {f"{f} · {s} · {c}": [evaluation.training_summary(i) for i in idents]
      for (f, s, c), idents in runs.items()})))"""),
     ("code", r"""for fam_name in FAMILIES:
-    fig = plots.training_curves(
+    fig = evaluation.training_curves(
         {f"{s} · {c}": [i.meta["history"] for i in runs[fam_name, s, c]]
          for s in ("CCF", "MCF") for c in CLIPS})
     fig.suptitle(f"{fam_name}: held-out loss and largest gradient norm per epoch (one line "
@@ -220,12 +219,13 @@ scale used now:"""),
     ("code", r"""spec = FAMILIES["4th order"]
 mcf4 = spec["structures"]["MCF"]
 for seed, ident in zip(SEEDS, runs["4th order", "MCF", "clip 1"], strict=True):
-    s = data.records(spec["family"], COUNT, steps=spec["steps"], dt=spec["dt"], seed=seed).systems
+    s = training.records(spec["family"], COUNT, steps=spec["steps"], dt=spec["dt"],
+                         seed=seed).systems
     el = mcf4.elements_of(s.A, s.b, s.c, s.d).numpy()
     c0 = el[:, mcf4.element_names.index("c0")]
     gap = np.abs(el[:, 0] - el[:, 1]).min()
     used = float(ident.theta_scale[mcf4.free_names.index("c0")])   # train()'s output scale
-    summary = scorecard.training_summary(ident)
+    summary = evaluation.training_summary(ident)
     print(f"seed {seed}: residue c0 median |c0| {np.median(np.abs(c0)):.3g}, std {c0.std():.3g},"
           f" scale used {used:.3g}; closest real poles {gap:.1e} apart;"
           f" max grad norm {summary['grad_norm_max']:.3g},"
@@ -243,10 +243,10 @@ and their mean k, d, m errors."""),
 for (fam_name, s_name, clip_name), idents in runs.items():
     spec = FAMILIES[fam_name]
     for noise, records in spec["validation"].items():
-        per_seed = [scorecard.score(ident, records, name=f"seed {seed}",
-                                    inverse=spec["inverse"])
+        per_seed = [evaluation.score(ident, records, name=f"seed {seed}",
+                                     inverse=spec["inverse"])
                     for seed, ident in zip(SEEDS, idents, strict=True)]
-        scores[fam_name, s_name, clip_name, noise] = scorecard.pool(
+        scores[fam_name, s_name, clip_name, noise] = evaluation.pool(
             per_seed, name=f"{s_name} · {clip_name} · {noise}")
 
 columns = ("count", "step_mean", "step_median", "step_p90", "fit_median", "stable_share",
@@ -254,12 +254,12 @@ columns = ("count", "step_mean", "step_median", "step_p90", "fit_median", "stabl
 leg_columns = columns + ("valid_share", "k_mean", "d_mean", "m_mean")
 for fam_name in FAMILIES:
     rows = [v for k, v in scores.items() if k[0] == fam_name]
-    display(Markdown(f"**{fam_name}**\n\n" + scorecard.table(
+    display(Markdown(f"**{fam_name}**\n\n" + evaluation.table(
         rows, columns=leg_columns if fam_name == "stable leg" else columns)))"""),
     ("code", r"""fig, axes = plt.subplots(1, 3, figsize=(16, 4.2))
 for ax, fam_name in zip(axes, FAMILIES, strict=True):
-    plots.error_cdf([scores[fam_name, s, "clip 1", noise] for s in ("CCF", "MCF")
-                     for noise in ("noise-free", "5 % noise")], metric="step", ax=ax)
+    evaluation.error_cdf([scores[fam_name, s, "clip 1", noise] for s in ("CCF", "MCF")
+                          for noise in ("noise-free", "5 % noise")], metric="step", ax=ax)
     ax.set_title(f"{fam_name}: step error, clipped runs, all seeds")
 plt.show()"""),
     ("md", r"""### Stress: can the CCF's outputs leave the left half-plane?
@@ -271,19 +271,20 @@ whose poles decay more slowly than any in training (0.3–1 /s instead of 0.5–
 for fam_name in ("3rd order", "4th order"):
     spec = FAMILIES[fam_name]
     grid = dict(steps=spec["steps"], dt=spec["dt"])
-    sets = {"20 % noise": data.records(spec["family"], VALIDATION, noise=0.2, seed=2024, **grid),
-            "decay 0.3-1 /s": data.records(dataclasses.replace(spec["family"], decay=(0.3, 1.0)),
-                                           VALIDATION, seed=2025, **grid)}
+    slow = dataclasses.replace(spec["family"], decay=(0.3, 1.0))
+    sets = {"20 % noise": training.records(spec["family"], VALIDATION, noise=0.2, seed=2024,
+                                           **grid),
+            "decay 0.3-1 /s": training.records(slow, VALIDATION, seed=2025, **grid)}
     for set_name, records in sets.items():
         spec["validation"][set_name] = records          # scored below, not in the tables above
         for s_name in ("CCF", "MCF"):
-            stress[fam_name, s_name, "clip 1", set_name] = scorecard.pool(
-                [scorecard.score(i, records, name=str(seed))
+            stress[fam_name, s_name, "clip 1", set_name] = evaluation.pool(
+                [evaluation.score(i, records, name=str(seed))
                  for seed, i in zip(SEEDS, runs[fam_name, s_name, "clip 1"], strict=True)],
                 name=f"{fam_name} · {s_name} · {set_name}")
-display(Markdown(scorecard.table(list(stress.values()),
-                                 columns=("count", "step_median", "stable_share",
-                                          "pole_real_max"))))
+display(Markdown(evaluation.table(list(stress.values()),
+                                  columns=("count", "step_median", "stable_share",
+                                           "pole_real_max"))))
 
 everything = {**scores, **stress}
 unstable = {k: int((~s.per_record["stable"]).sum()) for k, s in everything.items()}
@@ -294,9 +295,9 @@ print(f"unstable CCF estimates: {sum(unstable[k] for k in ccf_keys)} of "
 # the CCF case closest to instability, beside the MCF on the same records; grey: true poles
 worst = max(ccf_keys, key=lambda k: everything[k].summary()["pole_real_max"])
 truth = np.linalg.eigvals(FAMILIES[worst[0]]["validation"][worst[3]].systems.A)
-fig = plots.pole_map([everything[worst], everything[(worst[0], "MCF") + worst[2:]]],
-                     reference=np.tile(truth, (len(SEEDS), 1)),
-                     max_records=len(everything[worst]))
+fig = evaluation.pole_map([everything[worst], everything[(worst[0], "MCF") + worst[2:]]],
+                          reference=np.tile(truth, (len(SEEDS), 1)),
+                          max_records=len(everything[worst]))
 fig.suptitle(f"{worst[0]}, {worst[3]}: estimated poles, all seeds", y=1.02)
 plt.show()"""),
     ("md", r"""## Conclusion

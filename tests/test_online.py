@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.online.tracker import Tracker, TrackerConfig, wearing_leg
+from aeid_struct.online.tracker import Tracker, TrackerConfig
+from aeid_struct.studies.wear import wearing_leg
 
 
 class _Stub:
@@ -119,8 +120,8 @@ def _window_identifier():
 
 
 def test_wear_study_scenario_truth_and_outputs(tmp_path):
-    from aeid_struct.evaluation import plots as plots
-    from aeid_struct.online.tracker import wear_study
+    from aeid_struct.studies.figures import wear_figure
+    from aeid_struct.studies.wear import wear_study
 
     ident = _window_identifier()
     cfg = TrackerConfig(hop=100, baseline=3)
@@ -137,7 +138,7 @@ def test_wear_study_scenario_truth_and_outputs(tmp_path):
     assert set(result.rms) == {"k", "d", "m"} and all(np.isfinite(list(result.rms.values())))
     assert result.latency_ms > 0
     path = tmp_path / "wear.png"
-    plots.wear(result, path)
+    wear_figure(result, path)
     assert path.stat().st_size > 10_000
 
 
@@ -170,7 +171,7 @@ def test_only_watched_parameters_raise_the_alarm():
 
 @pytest.mark.slow
 def test_shipped_window_identifier_tracks_a_wearing_leg():
-    from aeid_struct.online.tracker import wear_study
+    from aeid_struct.studies.wear import wear_study
 
     ident = ae.load_pretrained("leg-stable-window")
     assert ident.initial == "fitted" and ident.inputs

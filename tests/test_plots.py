@@ -8,10 +8,13 @@ import re
 import numpy as np
 import pytest
 
+from aeid_struct.evaluation import comparison as comparison
 from aeid_struct.evaluation import plots as plots
 from aeid_struct.evaluation.scorecard import Score
 from aeid_struct.metrics import FREQUENCIES
-from aeid_struct.online.tracker import TrackerConfig, WearResult
+from aeid_struct.online.tracker import TrackerConfig
+from aeid_struct.studies.figures import wear_figure
+from aeid_struct.studies.wear import WearResult
 
 UNIT = re.compile(r"\[[^\]]+\]")          # "[m]", "[N s/m]", "[dB re 1 m/N]"
 
@@ -214,15 +217,15 @@ def test_fig3_phase_limits_are_multiples_of_45_deg_around_the_data_whatever_the_
 
 
 def test_limits_closed_forms_and_errors():
-    assert plots._limits([-180.0], step=45, margin=10, span=90) == (-225.0, -135.0)
-    assert plots._limits([0.0, -180.0], step=45, margin=10, span=90) == (-225.0, 45.0)
+    assert comparison._limits([-180.0], step=45, margin=10, span=90) == (-225.0, -135.0)
+    assert comparison._limits([0.0, -180.0], step=45, margin=10, span=90) == (-225.0, 45.0)
     # -6 +- 3 rounds out to (-10, 0); widened a step at a time where the data sit nearer the
     # edge (4 below against 6 above: down first, then up)
-    assert plots._limits([-6.0], step=10, margin=3, span=30) == (-20.0, 10.0)
+    assert comparison._limits([-6.0], step=10, margin=3, span=30) == (-20.0, 10.0)
     # nothing finite to contain: the margin around 0, rounded out
-    assert plots._limits([np.nan, np.inf], step=10, margin=3, span=20) == (-10.0, 10.0)
+    assert comparison._limits([np.nan, np.inf], step=10, margin=3, span=20) == (-10.0, 10.0)
     with pytest.raises(ValueError, match="step must be a positive number; got 0"):
-        plots._limits([1.0], step=0, margin=1, span=1)
+        comparison._limits([1.0], step=0, margin=1, span=1)
 
 
 def test_fig3_without_units_says_so_and_bad_arguments_are_named():
@@ -322,7 +325,7 @@ def _wear_result():
 def test_wear_draws_units_the_alarm_threshold_and_the_alarm(tmp_path):
     path = tmp_path / "wear.png"
     config = TrackerConfig(threshold=0.1, baseline=3, watch=("k",))
-    fig = plots.wear(_wear_result(), path, config=config, title="wear, 1 % noise, seed 0")
+    fig = wear_figure(_wear_result(), path, config=config, title="wear, 1 % noise, seed 0")
     assert path.stat().st_size > 10_000
     _assert_units(fig)
     ax_k, ax_d, ax_m = fig.axes
@@ -344,23 +347,24 @@ def test_wear_draws_units_the_alarm_threshold_and_the_alarm(tmp_path):
     legend = [t.get_text() for t in fig.legends[0].get_texts()]
     assert "alarm threshold: reference ±10%" in legend and "alarm raised" in legend
     with pytest.raises(ValueError, match="config must be an online.TrackerConfig; got dict"):
-        plots.wear(_wear_result(), config={"threshold": 0.1})
+        wear_figure(_wear_result(), config={"threshold": 0.1})
 
 
 def test_track_command_draws_its_own_threshold(tmp_path, monkeypatch):
     from aeid_struct.cli.main import main
 
     drawn = {}
-    real = plots.wear
+    real = wear_figure
 
     def spy(result, path=None, **kw):
         drawn["fig"] = real(result, path, **kw)
         drawn["config"] = kw.get("config")
         return drawn["fig"]
 
-    import aeid_struct.evaluation as evaluation
+    from aeid_struct import studies
 
-    monkeypatch.setattr(evaluation, "wear", spy)
+    # the command takes the figure through the studies package's namespace: spy there
+    monkeypatch.setattr(studies.figures, "wear_figure", spy)
     assert main(["track", "--seconds", "8", "--threshold", "0.08", "--engine", "identifier",
                  "--out", str(tmp_path)]) == 0
     assert drawn["config"].threshold == 0.08 and drawn["config"].watch == ("k",)

@@ -1,37 +1,9 @@
 """Scorecard: how an identifier does on a validation record set, and how its training went.
 
 A :class:`Score` holds per-record measures of one identifier's estimates against the true
-systems behind a ``data.Records`` set; :meth:`Score.summary` condenses them, :func:`table` lays
-several scores side by side as markdown, :func:`training_summary` and :func:`training_table` do
-the same for the training histories that ``train()`` records.
-
-Per-record measures (``Score.per_record``, each ``(N,)``):
-
-- ``step``: the paper's Table-I step error (``metrics.step_error``) of the estimate's unit-step
-  response against the true system's, both simulated exactly (FOH) on the record grid
-  ``t_k = k dt``, ``k < steps``. A response that overflows (an unstable estimate) counts as
-  ``inf``: infinitely wrong, not missing.
-- ``fit``: NRMSE fit in % (``metrics.nrmse_fit``) of the estimate's response to the record's own
-  input ``u`` against the noise-free record ``y_clean`` (so noise does not cap it below 100 %);
-  ``-inf`` where that response overflows.
-- ``stable``: ``max Re(eig A) < 0`` of the estimate (False for a non-finite ``A``).
-- ``magnitude_db``, ``phase_rad``: the Bode errors of ``metrics.bode_errors`` over
-  ``metrics.FREQUENCIES``.
-- where the true systems carry physical parameters (``Systems.params``, e.g. the leg's k, d, m)
-  and the estimate yields them: one ``100 |p_hat - p| / |p|`` column per parameter, and
-  ``valid``: every recovered parameter finite and positive.
-
-Where the physical parameters come from: ``Estimate.physical`` (a ``Physical`` structure, or a
-canonical one trained with a CasADi ``inverse``), unless ``score`` is given an ``inverse``
-(a casadi.Function CCF ``A, B, C, D`` -> parameters, like ``LegFamily.inverse()``). Then every
-estimate is first converted to the bottom-row CCF of its transfer function
-(``CCF(n).elements_of``: characteristic polynomial and Markov parameters) and the inverse is
-applied to that. The parameters are functions of the transfer function only (for the stable leg
-``m = 1/c_0``, ``k = a_0 m``, ``d = a_1 m``), so this recovers them from any realisation, e.g.
-a modal (MCF) estimate, and gives CCF estimates the same numbers as ``Estimate.physical``.
-
-Identification and the per-record measures are small private functions of one record set, so
-that scores of identifiers that read several records per system can reuse them.
+systems behind a ``training.Records`` set (:func:`score`); :meth:`Score.summary` condenses them,
+:func:`table` lays several scores side by side as markdown, :func:`training_summary` and
+:func:`training_table` do the same for the training histories that ``train()`` records.
 """
 
 from __future__ import annotations
@@ -44,6 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aeid_struct.evaluation.history import DIVERGED_FACTOR as DIVERGED_FACTOR
+from aeid_struct.evaluation.history import training_summary as training_summary
+from aeid_struct.evaluation.history import training_table as training_table
 from aeid_struct.metrics import (
     FREQUENCIES,
     bode_errors,
@@ -51,7 +26,7 @@ from aeid_struct.metrics import (
     parameter_errors,
     step_error,
 )
-from aeid_struct.simulation.foh import OverflowWarning, simulate
+from aeid_struct.simulation import simulate
 from aeid_struct.training import Records
 
 __all__ = ["Score", "pool", "score", "table", "training_summary", "training_table"]
@@ -84,15 +59,36 @@ _MEASURES = ("step", "fit", "stable", "magnitude_db", "phase_rad", "valid")
 
 @dataclass(frozen=True)
 class Score:
-    """Per-record measures of one identifier on one record set (see the module docstring).
+    """Per-record measures of one identifier on one record set.
 
-    Attributes:
-        name: a label for tables and figures.
-        per_record: measure -> ``(N,)`` array: ``step``, ``fit``, ``stable`` (bool),
-            ``magnitude_db``, ``phase_rad``, and where physical parameters are compared one
-            ``%`` error per parameter (``k``, ``d``, ``m``) plus ``valid`` (bool).
-        poles: ``(N, n)`` complex poles of the estimates (nan for a non-finite ``A``).
-        seconds: wall time of identifying the whole set (one batched call).
+    Attributes
+    ----------
+    name : str
+        A label for tables and figures.
+    per_record : dict of str to (N,) ndarray
+        The measures below, one value per record.
+    poles : (N, n) complex ndarray
+        Poles of the estimates (nan for a non-finite ``A``).
+    seconds : float
+        Wall time of identifying the whole set (one batched call) [s].
+
+    Notes
+    -----
+    The per-record measures:
+
+    - ``step``: the paper's Table-I step error (``metrics.step_error``) of the estimate's
+      unit-step response against the true system's, both simulated exactly (FOH) on the record
+      grid ``t_k = k dt``. A response that overflows (an unstable estimate) counts as ``inf``:
+      infinitely wrong, not missing.
+    - ``fit``: NRMSE fit in % (``metrics.nrmse_fit``) of the estimate's response to the
+      record's own input against the noise-free record ``y_clean`` (so noise does not cap it
+      below 100 %); ``-inf`` where that response overflows.
+    - ``stable``: ``max Re(eig A) < 0`` of the estimate (False for a non-finite ``A``).
+    - ``magnitude_db``, ``phase_rad``: the Bode errors of ``metrics.bode_errors`` over
+      ``metrics.FREQUENCIES``.
+    - where the true systems carry physical parameters (``Systems.params``, e.g. the leg's
+      k, d, m) and the estimate yields them: one ``100 |p_hat - p| / |p|`` column per
+      parameter, and ``valid``: every recovered parameter finite and positive.
     """
 
     name: str
@@ -111,16 +107,19 @@ class Score:
     def summary(self) -> dict[str, float]:
         """Means, medians and shares over the records.
 
-        Returns a dict with ``count``; ``step_mean``, ``step_median``, ``step_p90`` (90th
-        percentile, the order statistic at or above that rank) of the step error, over all
-        records (``inf`` counts: an overflowing estimate makes the mean ``inf``, the median
-        shows the typical record);
-        ``fit_mean``, ``fit_median``; ``stable_share`` (fraction of estimates with
-        ``Re(eig A) < 0``); ``magnitude_db_mean``, ``phase_rad_mean`` over the records whose
-        Bode error is finite; ``pole_real_max``, the largest real part of any estimated pole
-        (the worst stability margin; > 0 for an unstable estimate); ``ms_per_record``; and,
-        where parameters are compared, ``valid_share`` and per parameter ``<p>_mean``,
-        ``<p>_median`` over the *valid* rows only (nan if none is valid).
+        Returns
+        -------
+        dict of str to float
+            ``count``; ``step_mean``, ``step_median``, ``step_p90`` (90th
+            percentile, the order statistic at or above that rank) of the step error, over all
+            records (``inf`` counts: an overflowing estimate makes the mean ``inf``, the median
+            shows the typical record);
+            ``fit_mean``, ``fit_median``; ``stable_share`` (fraction of estimates with
+            ``Re(eig A) < 0``); ``magnitude_db_mean``, ``phase_rad_mean`` over the records whose
+            Bode error is finite; ``pole_real_max``, the largest real part of any estimated pole
+            (the worst stability margin; > 0 for an unstable estimate); ``ms_per_record``; and,
+            where parameters are compared, ``valid_share`` and per parameter ``<p>_mean``,
+            ``<p>_median`` over the *valid* rows only (nan if none is valid).
         """
         r = self.per_record
         out: dict[str, float] = {"count": len(self)}
@@ -155,22 +154,39 @@ def score(ident, records: Records, *, name: str, refine: bool = False,
           inverse=None, record: int | None = None) -> Score:
     """Identify every record of ``records`` with ``ident`` and score the estimates.
 
-    Args:
-        ident: an ``Identifier`` (anything with ``dt``, ``steps`` and
-            ``identify(y, u, refine=) -> Estimate``).
-        records: the validation set (``data.records``); ``y`` is what the identifier sees (noisy
-            where the set has noise), ``y_clean`` and ``systems`` are the truth.
-        name: the label of the score.
-        refine: polish every estimate with the CasADi refinement (``identify(refine=True)``).
-        inverse: optional casadi.Function from a CCF ``A, B, C, D`` to physical parameters;
-            then the estimates are converted to CCF through their transfer function first (see
-            the module docstring). Without it ``Estimate.physical`` is used.
-        record: for an identifier of several records (``ident.records = R > 1``, e.g. the joint
-            leg), which record's decoded system to score (0 .. R-1); the identifier reads all of
-            them, and the physical parameters (one set) are scored with every record.
+    Parameters
+    ----------
+    ident : Identifier
+        Anything with ``dt``, ``steps`` and ``identify(y, u, refine=) -> Estimate``.
+    records : training.Records
+        The validation set (``training.records``); ``y`` is what the identifier sees (noisy
+        where the set has noise), ``y_clean`` and ``systems`` are the truth.
+    name : str
+        The label of the score.
+    refine : bool
+        Polish every estimate with the CasADi refinement (``identify(refine=True)``).
+    inverse : casadi.Function, optional
+        A CCF ``A, B, C, D`` -> physical parameters map. Then every estimate is first converted
+        to the bottom-row CCF of its transfer function (characteristic polynomial and Markov
+        parameters) and the map applied to that: the parameters are functions of the transfer
+        function only (for the stable leg ``m = 1/c_0``, ``k = a_0 m``, ``d = a_1 m``), so this
+        recovers them from any realisation, e.g. a modal estimate. Without it
+        ``Estimate.physical`` is used.
+    record : int, optional
+        For an identifier of several records (``ident.records = R > 1``, e.g. the joint leg),
+        which record's decoded system to score (0 .. R-1); the identifier reads all of them,
+        and the physical parameters (one set) are scored with every record.
 
-    Returns:
-        The ``Score``; parameter columns where both the truth and the estimate have parameters.
+    Returns
+    -------
+    Score
+        Parameter columns where both the truth and the estimate have parameters.
+
+    Raises
+    ------
+    ValueError
+        An argument of the wrong kind, records off the identifier's grid, or an inverse map
+        of another order.
     """
     R = getattr(ident, "records", 1)
     if R > 1:
@@ -256,9 +272,10 @@ def _accuracy(model: tuple, records: Records) -> dict[str, np.ndarray]:
     steps = records.u.shape[1]
     step_input = np.ones(steps)
     y_true = simulate(sys.A, sys.b, sys.c, sys.d, step_input, records.dt)
-    # An unstable estimate may overflow: it is scored below, so the decoder's warning is noise.
+    # An unstable estimate may overflow: it is scored below, so the decoder's warning (its
+    # OverflowWarning, a RuntimeWarning) is noise.
     with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", OverflowWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)
         y_step = simulate(*model, step_input, records.dt)
         # step records (the usual case) need no second simulation
         y_hat = y_step if np.all(records.u == 1.0) else simulate(*model, records.u, records.dt)
@@ -298,8 +315,27 @@ def _valid(params: Mapping[str, np.ndarray]) -> np.ndarray:
 
 
 def pool(scores: Sequence[Score], *, name: str) -> Score:
-    """One score over the records of several (e.g. the identifiers of several training seeds on
-    the same validation set): per-record arrays and poles concatenated, seconds added."""
+    """One score over the records of several, e.g. the identifiers of several training seeds on
+    the same validation set.
+
+    Parameters
+    ----------
+    scores : sequence of Score
+        Scores with the same measures.
+    name : str
+        The label of the pooled score.
+
+    Returns
+    -------
+    Score
+        Per-record arrays and poles concatenated (poles padded with nan to the largest
+        order), seconds added.
+
+    Raises
+    ------
+    ValueError
+        No score, or scores with different measures.
+    """
     scores = list(scores)
     if not scores or not all(isinstance(s, Score) for s in scores):
         raise ValueError("scores must be a non-empty sequence of Score")
@@ -319,8 +355,25 @@ def pool(scores: Sequence[Score], *, name: str) -> Score:
 
 
 def table(scores: Sequence[Score], columns: Sequence[str] = DEFAULT_COLUMNS) -> str:
-    """A markdown table, one row per score, one column per summary key (``COLUMNS`` names the
-    keys with their headers; a key a score lacks shows as ``-``)."""
+    """A markdown table, one row per score, one column per summary key.
+
+    Parameters
+    ----------
+    scores : sequence of Score
+        One row each.
+    columns : sequence of str
+        Keys of ``COLUMNS`` (which names them with their headers); a key a score lacks shows
+        as ``-``.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ValueError
+        No score, or an unknown column.
+    """
     scores = list(scores)
     if not scores or not all(isinstance(s, Score) for s in scores):
         raise ValueError("scores must be a non-empty sequence of Score")
@@ -343,81 +396,3 @@ def _format(value, fmt: str) -> str:
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
     return fmt.format(value)
-
-
-# ---------------------------------------------------------------------------------------------
-# Training
-# ---------------------------------------------------------------------------------------------
-#: Held-out loss above this multiple of its best counts as diverged.
-DIVERGED_FACTOR = 10.0
-
-
-def training_summary(ident) -> dict:
-    """What ``train()``'s history says about the run (``ident.meta["history"]``, or a history
-    dict itself).
-
-    Returns a dict: ``epochs``; ``seconds`` (wall time); ``final_holdout`` (held-out loss of the
-    last epoch) and ``best_holdout`` (lowest finite one, whose weights ``train`` returned);
-    ``grad_norm_max`` (largest gradient norm before clipping, over all epochs) and
-    ``grad_norm_median`` (median of the per-epoch medians); ``skipped`` (batches skipped for a
-    non-finite loss or gradient, in total); ``diverged``: the final held-out loss is not finite
-    or exceeds ``DIVERGED_FACTOR`` times the best.
-    """
-    history = ident if isinstance(ident, Mapping) else getattr(ident, "meta", {}).get("history")
-    needed = ("holdout_loss", "grad_norm_max", "grad_norm_median", "skipped", "seconds")
-    if not isinstance(history, Mapping) or any(k not in history for k in needed):
-        raise ValueError("ident must be a trained Identifier (meta['history'] from train()) or "
-                         f"a history dict with {', '.join(needed)}")
-    held = np.asarray(history["holdout_loss"], dtype=np.float64)
-    if held.size == 0:
-        raise ValueError("ident's history must cover at least one epoch; got none")
-    finite = held[np.isfinite(held)]
-    best = float(finite.min()) if finite.size else math.inf
-    final = float(held[-1])
-    gmax = np.asarray(history["grad_norm_max"], dtype=np.float64)
-    gmed = np.asarray(history["grad_norm_median"], dtype=np.float64)
-    with np.errstate(all="ignore"):
-        grad_max = float(np.nanmax(gmax)) if np.any(~np.isnan(gmax)) else math.nan
-        grad_med = float(np.nanmedian(gmed)) if np.any(~np.isnan(gmed)) else math.nan
-    return {
-        "epochs": int(held.size),
-        "seconds": float(history["seconds"][-1]),
-        "final_holdout": final,
-        "best_holdout": best,
-        "grad_norm_max": grad_max,
-        "grad_norm_median": grad_med,
-        "skipped": int(np.sum(history["skipped"])),
-        "diverged": bool(not math.isfinite(final) or final > DIVERGED_FACTOR * best),
-    }
-
-
-def training_table(runs: Mapping[str, Sequence[dict]]) -> str:
-    """A markdown table of training stability, one row per label, each with the
-    ``training_summary`` dicts of its runs (e.g. seeds): runs, diverged runs, skipped batches
-    (total), the largest gradient norm (max over runs), the median per-epoch median gradient
-    norm (median over runs), best held-out loss (median and worst over runs) and seconds per
-    run (mean)."""
-    if not isinstance(runs, Mapping) or not runs:
-        raise ValueError("runs must be a non-empty mapping label -> list of training_summary")
-    lines = ["| run | runs | diverged | skipped batches | max grad norm | median grad norm | "
-             "best held-out loss (median) | (worst) | s / run |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for label, summaries in runs.items():
-        summaries = list(summaries)
-        if not summaries:
-            raise ValueError(f"runs[{label!r}] must hold at least one training summary")
-        col = {k: np.array([s[k] for s in summaries], dtype=np.float64)
-               for k in ("grad_norm_max", "grad_norm_median", "best_holdout", "seconds")}
-        with np.errstate(all="ignore"):
-            cells = [
-                str(len(summaries)),
-                str(sum(bool(s["diverged"]) for s in summaries)),
-                str(sum(int(s["skipped"]) for s in summaries)),
-                f"{np.nanmax(col['grad_norm_max']):.3g}",
-                f"{np.nanmedian(col['grad_norm_median']):.3g}",
-                f"{np.median(col['best_holdout']):.2e}",
-                f"{np.max(col['best_holdout']):.2e}",
-                f"{np.mean(col['seconds']):.1f}",
-            ]
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)

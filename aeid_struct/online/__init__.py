@@ -1,20 +1,26 @@
 """Online use: the sliding-window tracker and deployment files (TorchScript, ONNX).
 
-
 The deployment names (``to_onnx``, ``OnnxIdentifier``, ...) are imported on first use (PEP 562):
-their module needs torch, and the tracker's configuration must stay cheap to import (the
-command line reads its defaults while building ``--help``).
+their modules need torch or onnxruntime, and the tracker's configuration must stay cheap to
+import (the command line reads its defaults while building ``--help``). The wear scenario that
+exercises the tracker is a study: ``aeid_struct.studies.wear``.
 """
 
 from importlib import import_module
+from typing import TYPE_CHECKING
 
 from aeid_struct.online.tracker import PushError as PushError
 from aeid_struct.online.tracker import Tracker as Tracker
 from aeid_struct.online.tracker import TrackerConfig as TrackerConfig
 from aeid_struct.online.tracker import Update as Update
-from aeid_struct.online.tracker import WearResult as WearResult
-from aeid_struct.online.tracker import wear_study as wear_study
-from aeid_struct.online.tracker import wearing_leg as wearing_leg
+
+if TYPE_CHECKING:  # static analysers and the documentation see the lazy names
+    from aeid_struct.online.export import onnx_bytes as onnx_bytes
+    from aeid_struct.online.export import to_onnx as to_onnx
+    from aeid_struct.online.export import to_torchscript as to_torchscript
+    from aeid_struct.online.onnx import ONNX_FORMAT as ONNX_FORMAT
+    from aeid_struct.online.onnx import ONNX_FORMAT_1 as ONNX_FORMAT_1
+    from aeid_struct.online.onnx import OnnxIdentifier as OnnxIdentifier
 
 __all__ = [
     "ONNX_FORMAT",
@@ -24,22 +30,19 @@ __all__ = [
     "Tracker",
     "TrackerConfig",
     "Update",
-    "WearResult",
     "onnx_bytes",
     "to_onnx",
     "to_torchscript",
-    "wear_study",
-    "wearing_leg",
 ]
 
-#: names of :mod:`aeid_struct.online.export`, imported when first used
-_EXPORT = frozenset({"ONNX_FORMAT", "ONNX_FORMAT_1", "OnnxIdentifier", "onnx_bytes", "to_onnx",
-                     "to_torchscript"})
+#: deployment names -> the module that defines them, imported when first used
+_LAZY = {"ONNX_FORMAT": "onnx", "ONNX_FORMAT_1": "onnx", "OnnxIdentifier": "onnx",
+         "onnx_bytes": "export", "to_onnx": "export", "to_torchscript": "export"}
 
 
 def __getattr__(name: str):
-    if name in _EXPORT:
-        value = getattr(import_module("aeid_struct.online.export"), name)
+    if name in _LAZY:
+        value = getattr(import_module(f"aeid_struct.online.{_LAZY[name]}"), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -3,42 +3,8 @@
 The paper's purpose is to identify a system during use, e.g. to follow the wear of a robot leg.
 :class:`Tracker` keeps the last ``steps`` samples of a stream (the identifier's record format),
 identifies every ``hop`` samples the window that just ended in one encoder pass, smooths the
-physical-parameter estimates and raises a change alarm when they drift.
-
-Initial state. A window cut from a running system does not start from rest. The identifier must
-therefore be one trained on such windows: ``TrainConfig(warmup=..., initial="fitted")``, whose
-decoder fits the window's initial state by linear least squares (``decoder.initial_state``), so
-that the encoder only has to output the structure's parameters. The tracker never needs the
-state itself (its estimates' ``x0`` is there when asked for).
-
-Smoothing and alarm. Each parameter ``p`` is first taken as the running median of its last
-``TrackerConfig.median`` window estimates, ``q_j = median(p_{j-M+1}, .., p_j)`` (M = 1: the
-estimate itself), then smoothed by an exponential moving average,
-``s_j = s_{j-1} + alpha (q_j - s_{j-1})`` (``alpha = TrackerConfig.smoothing``). Why the median:
-the window estimates have heavy tails (a stretch of weakly exciting input puts several windows
-off together), which an average passes on and a median does not. The reference
-is the median of the first ``baseline`` window estimates (not of the smoothed values, which
-are still settling from the first estimate then); the alarm is raised once
-``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive windows for any
-parameter, and stays raised (a change alarm, not a level indicator) until :meth:`Tracker.reset`.
-
-Bad stretches of a stream. A window that the identifier cannot identify -- the checks of
-``records.check_records``, the same for both engines: an input that is zero over the whole window
-(a leg at rest), a varying input to a step identifier, ... -- or whose estimate is not finite
-gives an :class:`Update` with ``error`` set (its reason) and NaN estimates; it leaves the
-smoothing, the reference and the alarm as they were, and the stream goes on: every sample of a
-chunk is consumed. Samples that are not finite (or not real) are refused by ``push`` before it
-consumes any of its chunk. Anything else that fails while a window is identified (the engine
-itself) raises a :class:`PushError` that says how many samples of the chunk were consumed
-(``consumed``) and carries the updates produced before it (``updates``): push the rest,
-``u[consumed:]``, to go on.
-
-Engine. ``Tracker(engine="onnx")`` exports the identifier once to ONNX (``export.onnx_bytes``)
-and identifies each window with onnxruntime on one thread, then maps the model to physical
-parameters with the identifier's CasADi inverse; ``engine="identifier"`` calls
-``Identifier.identify`` (numpy encoder, a full ``Estimate``); ``"auto"`` (default) takes onnx
-when onnxruntime is installed. Same numbers to float32 precision; the update times of both
-are in ``pretrained/README.md``.
+physical-parameter estimates and raises a change alarm when they drift (the rules are in its
+docstring).
 """
 
 from __future__ import annotations
@@ -57,16 +23,29 @@ from aeid_struct.records import RecordError, as_array
 class TrackerConfig:
     """How the tracker windows, smooths and alarms; validates itself.
 
-    Attributes:
-        hop: samples between two identifications (window starts), >= 1.
-        smoothing: the moving-average weight ``alpha`` in (0, 1] (1 = no smoothing).
-        median: window estimates in the running median taken before the moving average
-            (1 = none).
-        threshold: relative drift of a smoothed parameter from its reference that alarms.
-        baseline: windows whose estimates' median is the reference.
-        patience: consecutive windows over the threshold before the alarm is raised.
-        parameters: the physical parameters to track (empty: all the estimate has).
-        watch: those of them whose drift raises the alarm (empty: all tracked ones).
+    Attributes
+    ----------
+    hop : int
+        Samples between two identifications (window starts), >= 1.
+    smoothing : float
+        The moving-average weight ``alpha`` in (0, 1] (1 = no smoothing).
+    median : int
+        Window estimates in the running median taken before the moving average (1 = none).
+    threshold : float
+        Relative drift of a smoothed parameter from its reference that alarms, > 0.
+    baseline : int
+        Windows whose estimates' median is the reference.
+    patience : int
+        Consecutive windows over the threshold before the alarm is raised.
+    parameters : tuple of str
+        The physical parameters to track (empty: all the estimate has).
+    watch : tuple of str
+        Those of them whose drift raises the alarm (empty: all tracked ones).
+
+    Raises
+    ------
+    ValueError
+        A field of the wrong type or out of its range, named.
     """
 
     hop: int = 50
@@ -107,17 +86,25 @@ class TrackerConfig:
 class Update:
     """One identified window.
 
-    Attributes:
-        t: time of the window's last sample, s (stream time, ``k dt``).
-        estimate: the physical parameters of this window alone, name -> value.
-        smoothed: their moving averages.
-        drift: ``smoothed / reference - 1`` per parameter (nan until the reference exists).
-        alarm: whether the change alarm is raised (it stays raised).
-        seconds: wall time of the identification.
-        error: None for an identified window; else why it could not be identified (the
-            message of the identifier's check, or a non-finite estimate): then ``estimate``
-            holds NaN for each tracked parameter known so far, and ``smoothed``, ``drift``,
-            ``alarm`` are the tracker's state, unchanged by this window.
+    Attributes
+    ----------
+    t : float
+        Time of the window's last sample [s] (stream time, ``k dt``).
+    estimate : dict of str to float
+        The physical parameters of this window alone.
+    smoothed : dict of str to float
+        Their moving averages.
+    drift : dict of str to float
+        ``smoothed / reference - 1`` per parameter (nan until the reference exists).
+    alarm : bool
+        Whether the change alarm is raised (it stays raised).
+    seconds : float
+        Wall time of the identification [s].
+    error : str or None
+        None for an identified window; else why it could not be identified (the message of
+        the identifier's check, or a non-finite estimate): then ``estimate`` holds NaN for each
+        tracked parameter known so far, and ``smoothed``, ``drift``, ``alarm`` are the
+        tracker's state, unchanged by this window.
     """
 
     t: float
@@ -130,12 +117,17 @@ class Update:
 
 
 class PushError(ValueError):
-    """A failure of the engine while ``Tracker.push`` identified a window (module docstring).
+    """A failure of the engine while ``Tracker.push`` identified a window.
 
-    Attributes:
-        consumed: samples of the chunk taken into the stream, the failed window's last one
-            included; the stream goes on with ``u[consumed:], y[consumed:]``.
-        updates: the updates of the windows completed before the failure.
+    Parameters
+    ----------
+    message : str
+        What failed.
+    consumed : int
+        Samples of the chunk taken into the stream, the failed window's last one included; the
+        stream goes on with ``u[consumed:], y[consumed:]``.
+    updates : list of Update
+        The updates of the windows completed before the failure.
     """
 
     def __init__(self, message: str, consumed: int, updates: list) -> None:
@@ -159,21 +151,66 @@ class _State:
 
 
 class Tracker:
-    """Sliding-window identification of a stream (module docstring).
+    """Sliding-window identification of a stream.
 
-    Args:
-        identifier: an ``Identifier`` whose estimates have physical parameters (a physical
-            structure, or a canonical one with a CasADi inverse), trained on windows that start
-            mid-motion (``initial="fitted"``) and, for arbitrary inputs, reading ``u``.
-            An ``export.OnnxIdentifier`` works too (then the engine is that file).
-        config: a :class:`TrackerConfig`.
-        engine: ``"auto"``, ``"onnx"`` or ``"identifier"`` (module docstring).
+    Parameters
+    ----------
+    identifier : Identifier or OnnxIdentifier
+        An identifier whose estimates have physical parameters (a physical structure, or a
+        canonical one with a CasADi inverse), trained on windows that start mid-motion
+        (``initial="fitted"``) and, for arbitrary inputs, reading ``u``. An ``OnnxIdentifier``
+        works too (then the engine is that file).
+    config : TrackerConfig
+        How the tracker windows, smooths and alarms.
+    engine : str
+        ``"auto"`` (default: onnx when onnxruntime is installed), ``"onnx"`` or
+        ``"identifier"``.
+
+    Raises
+    ------
+    ValueError
+        An identifier of the wrong kind (several records, records from rest, parameters that
+        ``config`` names and it never gives), or an unknown engine.
+
+    Notes
+    -----
+    *Initial state.* A window cut from a running system does not start from rest. The
+    identifier must therefore be one trained on such windows: ``TrainConfig(warmup=...,
+    initial="fitted")``, whose decoder fits the window's initial state by linear least squares
+    (``simulation.initial_state``), so that the encoder only has to output the structure's
+    parameters.
+
+    *Smoothing and alarm.* Each parameter ``p`` is first taken as the running median of its
+    last ``TrackerConfig.median`` window estimates, ``q_j = median(p_{j-M+1}, .., p_j)``, then
+    smoothed by an exponential moving average, ``s_j = s_{j-1} + alpha (q_j - s_{j-1})``
+    (``alpha = TrackerConfig.smoothing``). The median because window estimates have heavy
+    tails (a stretch of weakly exciting input puts several windows off together), which an
+    average passes on and a median does not. The reference is the median of the first
+    ``baseline`` window estimates (not of the smoothed values, still settling then); the alarm
+    is raised once ``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive
+    windows for any watched parameter, and stays raised (a change alarm, not a level
+    indicator) until :meth:`reset`.
+
+    *Bad stretches of a stream.* A window that the identifier cannot identify (the checks of
+    ``records.check_records``, the same for both engines: an input that is zero over the whole
+    window, a varying input to a step identifier, ...) or whose estimate is not finite gives an
+    :class:`Update` with ``error`` set and NaN estimates; it leaves the smoothing, the
+    reference and the alarm as they were, and the stream goes on. Samples that are not finite
+    (or not real) are refused by :meth:`push` before it consumes any of its chunk. Anything
+    else that fails while a window is identified (the engine itself) raises a
+    :class:`PushError` that says how many samples of the chunk were consumed.
+
+    *Engine.* ``"onnx"`` exports the identifier once to ONNX (``online.onnx_bytes``) and
+    identifies each window with onnxruntime on one thread, then maps the model to physical
+    parameters with the identifier's CasADi inverse; ``"identifier"`` calls
+    ``Identifier.identify`` (a full ``Estimate``). Both give the same numbers to float32
+    precision.
     """
 
     def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
                  *, engine: str = "auto") -> None:
         from aeid_struct.identification import Identifier
-        from aeid_struct.online.export import OnnxIdentifier
+        from aeid_struct.online.onnx import OnnxIdentifier
 
         if not isinstance(config, TrackerConfig):
             raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
@@ -209,15 +246,28 @@ class Tracker:
         self._s = _State(np.zeros(self.steps), np.zeros(self.steps))
 
     def push(self, u, y) -> list[Update]:
-        """Feed samples ``u, y (k,)`` (any number, in stream order); returns the updates of the
-        windows completed by them (one per ``hop`` samples once the first window is full),
-        including windows that could not be identified (``Update.error``).
+        """Feed samples of the stream, in order.
 
-        Raises:
-            ValueError: ``u, y`` not 1-D real arrays of one length, or not finite; nothing of
-                the chunk is consumed.
-            PushError: the engine failed on a window; ``consumed`` and ``updates`` say how far
-                the chunk went (module docstring).
+        Parameters
+        ----------
+        u, y : (k,) array_like
+            Any number of input and output samples.
+
+        Returns
+        -------
+        list of Update
+            The updates of the windows completed by these samples (one per ``hop`` samples once
+            the first window is full), windows that could not be identified included
+            (``Update.error``).
+
+        Raises
+        ------
+        ValueError
+            ``u, y`` not 1-D real arrays of one length, or not finite; nothing of the chunk is
+            consumed.
+        PushError
+            The engine failed on a window; ``consumed`` and ``updates`` say how far the chunk
+            went.
         """
         u = np.atleast_1d(as_array("u", u))
         y = np.atleast_1d(as_array("y", y))
@@ -324,24 +374,14 @@ class Tracker:
 def _physical_names(identifier) -> tuple[str, ...] | None:
     """The physical parameters the identifier's estimates carry (an inverse map's outputs, or a
     Physical structure's elements), or None where that cannot be told without identifying."""
-    from aeid_struct.online.export import OnnxIdentifier
+    from aeid_struct.online.onnx import OnnxIdentifier, inverse_names
 
     if isinstance(identifier, OnnxIdentifier):
-        if identifier._physical_elements:
-            return tuple(identifier._physical_elements)
-        inverse = identifier._inverse
-    else:
-        source = identifier._physical_source() if hasattr(identifier, "_physical_source") \
-            else None
-        if isinstance(source, tuple):
-            return tuple(source[1])
-        inverse = source
-    if inverse is None:
-        return ()
-    try:
-        return tuple(inverse.name_out())
-    except AttributeError:
-        return None
+        return identifier.physical_names
+    source = identifier._physical_source() if hasattr(identifier, "_physical_source") else None
+    if isinstance(source, tuple):
+        return tuple(source[1])
+    return inverse_names(source)
 
 
 def _check_names(identifier, config: TrackerConfig) -> None:
@@ -377,144 +417,3 @@ def _onnx_runner(identifier, required: bool):
         if required:
             raise
         return None
-
-
-def wearing_leg(k, d, m, u, dt: float) -> np.ndarray:
-    """The translational leg subsystem with slowly varying parameters: the response ``y (N,)``
-    to ``u (N,)`` from rest, for ``k, d, m (N,)`` given per sample.
-
-    Simulated in the physical state (position, velocity) ``m x'' + d x' + k x = u``, ``y = x``,
-    which stays continuous when the parameters change (a CCF state would not: its output row is
-    ``1/m``). On each sample interval the parameters are held at their value at its start and
-    the input is first-order-hold, discretised exactly (Eq. 10). For constant parameters this
-    is ``G1 = (1/m) / (s^2 + (d/m) s + k/m)`` from rest, as ``simulate`` gives it.
-    """
-    import torch
-
-    from aeid_struct.simulation.foh import _discretise
-
-    k, d, m, u = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (k, d, m, u))
-    N = u.shape[0]
-    if not (k.shape == d.shape == m.shape == (N,)):
-        raise ValueError(f"k, d, m must have one value per sample of u ({N}); got "
-                         f"{k.shape}, {d.shape}, {m.shape}")
-    if np.any(k <= 0) or np.any(m <= 0) or np.any(d < 0):
-        raise ValueError("k, m must be positive and d non-negative")
-    A = np.zeros((N, 2, 2))
-    A[:, 0, 1] = 1.0
-    A[:, 1, 0] = -k / m
-    A[:, 1, 1] = -d / m
-    b = np.stack([np.zeros(N), 1.0 / m], axis=1)
-    Phi, g1, g2 = (t.numpy() for t in _discretise(torch.from_numpy(A), torch.from_numpy(b), dt))
-    # A loop over the samples: the parameters change every sample, and the decoder's log-depth
-    # scan needs one transition matrix for the whole record. 12,000 samples take ~40 ms.
-    x = np.zeros(2)
-    y = np.empty(N)
-    du = np.diff(u, append=u[-1])
-    for i in range(N):
-        y[i] = x[0]
-        x = Phi[i] @ x + g1[i] * u[i] + g2[i] * du[i]
-    return y
-
-
-@dataclass(frozen=True)
-class WearResult:
-    """A tracked wear scenario (:func:`wear_study`).
-
-    Attributes:
-        t: ``(W,)`` time of each window's last sample, s.
-        true: name -> ``(W,)`` true parameter at the middle of each window.
-        estimate, smoothed: name -> ``(W,)`` the tracker's raw and smoothed estimates.
-        alarm: ``(W,)`` bool, the tracker's alarm after each window.
-        drift_time: when the true k first left its start value by more than the tracker's
-            threshold, s; alarm_time: when the alarm was first raised (nan if never).
-        rms: name -> RMS relative error (%) of the smoothed estimate after the baseline windows.
-        latency_ms: median wall time of one tracker update (one window identified, smoothed
-            and checked), as ``Tracker.push`` takes it.
-        engine: the tracker's engine (``"onnx"`` or ``"identifier"``).
-    """
-
-    t: np.ndarray
-    true: dict
-    estimate: dict
-    smoothed: dict
-    alarm: np.ndarray
-    drift_time: float
-    alarm_time: float
-    rms: dict
-    latency_ms: float
-    engine: str = "identifier"
-
-    @property
-    def delay(self) -> float:
-        """Alarm delay after the true drift crossed the threshold, s (nan without an alarm)."""
-        return self.alarm_time - self.drift_time
-
-
-def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed: int = 0,
-               config: TrackerConfig = TrackerConfig(),  # noqa: B008
-               engine: str = "auto") -> WearResult:
-    """A running leg that wears, tracked window by window.
-
-    Scenario: the translational subsystem driven by a random binary force (levels +-1 held
-    3-12 samples) for ``seconds``, already running when tracking starts (the force has acted for
-    one window length before ``t = 0``: a running leg is not at rest); k stays at 25 N/m for
-    the first quarter, falls linearly to 20 N/m until three quarters of the time and stays
-    there; d rises from 2.5 to 3.5 kg/s over the same span; m = 1 kg. White measurement noise
-    of ``noise * max|y|``. The samples are pushed to a :class:`Tracker` in chunks of one hop,
-    as a controller would.
-    """
-    import time as _time
-
-    import torch
-
-    if not seconds > 0:
-        raise ValueError(f"seconds must be positive; got {seconds!r}")
-    dt = identifier.dt
-    N, before = int(round(seconds / dt)), identifier.steps
-    t = np.arange(N) * dt
-    ramp = np.clip((t / seconds - 0.25) / 0.5, 0.0, 1.0)
-    k, d, m = 25.0 - 5.0 * ramp, 2.5 + 1.0 * ramp, np.ones(N)
-    rng = np.random.default_rng(seed)
-    ends = np.cumsum(rng.integers(3, 13, size=N + before))
-    level = rng.choice([-1.0, 1.0], size=N + before)
-    u = level[np.searchsorted(ends, np.arange(N + before), side="right")]
-    pad = np.ones(before)
-    y = wearing_leg(np.concatenate([k[0] * pad, k]), np.concatenate([d[0] * pad, d]),
-                    np.concatenate([m[0] * pad, m]), u, dt)[before:]
-    u = u[before:]
-    y = y + noise * np.abs(y).max() * rng.normal(size=N)
-    tracker = Tracker(identifier, config, engine=engine)
-    updates, times = [], []
-    # One core, as on a robot's processor: torch's other threads (idle-spinning after the
-    # simulation above) would otherwise compete with the tracker for the second core of a
-    # two-core machine (measured: 0.24-0.52 ms per update against 0.16-0.34 ms).
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        for i in range(0, N, config.hop):
-            t0 = _time.perf_counter()
-            got = tracker.push(u[i: i + config.hop], y[i: i + config.hop])
-            if got:
-                times.append((_time.perf_counter() - t0) / len(got))
-            updates += got
-    finally:
-        torch.set_num_threads(threads)
-    if not updates:
-        raise ValueError(f"seconds must cover at least one window of {identifier.steps} samples")
-    ts = np.array([up.t for up in updates])
-    mid = np.clip(np.round((ts - (identifier.steps - 1) * dt / 2) / dt).astype(int), 0, N - 1)
-    names = list(updates[0].estimate)
-    truth = {"k": k, "d": d, "m": m}
-    true = {p: truth[p][mid] for p in names if p in truth}
-    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
-    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
-    alarm = np.array([up.alarm for up in updates])
-    crossed = np.flatnonzero(np.abs(k / k[0] - 1) > config.threshold)
-    drift_time = float(t[crossed[0]]) if crossed.size else math.nan
-    alarm_time = float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
-    after = slice(config.baseline, None)
-    rms = {p: float(100 * np.sqrt(np.mean((smooth[p][after] / true[p][after] - 1) ** 2)))
-           for p in true}
-    return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
-                      1e3 * float(np.median(times)), tracker.engine)

@@ -164,7 +164,17 @@ def bench_decoder(
 
 
 def format_decoder_table(rows: Sequence[DecoderTiming]) -> str:
-    """A markdown table of ``bench_decoder`` rows (forward + backward, milliseconds)."""
+    """A markdown table of decoder timings (forward + backward, milliseconds).
+
+    Parameters
+    ----------
+    rows : sequence of DecoderTiming
+        What :func:`bench_decoder` returned.
+
+    Returns
+    -------
+    str
+    """
     lines = [
         "| batch | steps | dtype | default: chunked (ms) | Markov + FFT (ms) | odd-even scan (ms) "
         "| per-step loop (ms) | speedup (loop / default) |",
@@ -256,17 +266,33 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
     n4sid (nfoursid, exact FOH conversion), least squares and the CasADi NLP from a generic
     cold start. Also the encoder's batched throughput.
 
-    Returns a JSON-able dict: ``results``, one entry per (subsystem, noise, method) with
-    ``step_mean`` (mean Table I step error against the noise-free truth over the records the
-    method did not fail on), ``step_median`` (over all), ``params`` (mean absolute % error of
-    k, d, m over non-failed records), ``failure_rate`` (exception, invalid parameters or step
-    error > 0.05, see ``baselines.failure``), ``median_ms``/``p95_ms`` per identification and
-    ``encoder_speedup`` (this method's median time over the encoder's, same records);
-    ``throughput_per_s`` of the encoder at batch 4096.
+    Parameters
+    ----------
+    count : int
+        Systems per subsystem and noise level.
+    noises : tuple of float
+        Noise levels, standard deviation as a share of ``max|y|``.
+    subsystems : tuple of str
+        Leg subsystems (``"stable"``, ``"unstable"``).
+    seed : int
+        Seed of the systems and the noise.
+    progress : bool
+        Print one line per method.
+
+    Returns
+    -------
+    dict
+        JSON-able: ``results``, one entry per (subsystem, noise, method) with ``step_mean``
+        (mean Table I step error against the noise-free truth over the records the method did
+        not fail on), ``step_median`` (over all), ``params`` (mean absolute % error of k, d, m
+        over non-failed records), ``failure_rate`` (exception, invalid parameters or step error
+        > 0.05, see ``baselines.failure``), ``median_ms``/``p95_ms`` per identification and
+        ``encoder_speedup`` (this method's median time over the encoder's, same records);
+        ``throughput_per_s`` of the encoder at batch 4096.
     """
     from threadpoolctl import threadpool_limits
 
-    from aeid_struct.baselines import classical as baselines
+    from aeid_struct import baselines
     from aeid_struct.identification import load_pretrained
     from aeid_struct.studies.leg_paper import RECORDS
     from aeid_struct.training import LegFamily, records
@@ -370,8 +396,19 @@ def _cell(values: dict, name: str, fmt: str) -> str:
 
 
 def format_identification_table(bench: dict, *, legend: bool = True) -> str:
-    """Markdown table of ``bench_identification``, with the column definitions
-    (``IDENTIFICATION_LEGEND``) under it unless ``legend=False``."""
+    """A markdown table of the identification benchmark.
+
+    Parameters
+    ----------
+    bench : dict
+        What :func:`bench_identification` returned.
+    legend : bool
+        Put the column definitions (``IDENTIFICATION_LEGEND``) under the table.
+
+    Returns
+    -------
+    str
+    """
     lines = ["| subsystem | noise | method | step error (mean, ok) | step error (median, all) "
              "| Δk % (median, ok) | Δd % | Δm % | failures | median ms | p95 ms "
              "| baseline / encoder time |",

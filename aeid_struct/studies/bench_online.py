@@ -1,17 +1,17 @@
 """The online benchmark (``aeid-struct bench-online``): everything issue 6's targets name,
 measured side by side in one run.
 
-- **Tracker** (:func:`bench_tracker`): the wear scenario of ``online.wear_study`` (a running leg,
-  k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, 1 % noise) for several seeds: RMS tracking error of the
-  smoothed k, d, m, alarm time against the true 5 % crossing, and the update time per window
-  (one window identified, smoothed and checked) on one core, for each engine.
+- **Tracker** (:func:`bench_tracker`): the wear scenario of ``studies.wear.wear_study`` (a
+  running leg, k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, 1 % noise) for several seeds: RMS tracking
+  error of the smoothed k, d, m, alarm time against the true 5 % crossing, and the update time
+  per window (one window identified, smoothed and checked) on one core, for each engine.
 - **Latency** (:func:`bench_latency`): one record through ``Identifier.identify`` (numpy encoder),
   the TorchScript file, the ONNX file under onnxruntime, and the ONNX file plus the physical
   parameters; one thread, the calls taking turns, median and 95th percentile.
 - **Arbitrary excitation** (:func:`bench_excitation`): per input kind (steps of random height and
   timing, PRBS, multisines, filtered noise) and noise level, the encoder alone and the encoder +
   refinement (variable projection of the initial state for windows): median k, d, m errors,
-  Table I step error, failures and milliseconds per record (``scorecard.score``).
+  Table I step error, failures and milliseconds per record (``evaluation.score``).
 - **Flags** (:func:`bench_flags`): the share of estimates ``Estimate.outside`` flags for legs
   inside the identifier's training range (false flags) and for legs with one parameter 10, 20,
   30 % beyond its range (``hi (1 + f)`` or ``lo (1 - f)``), and the mean k, d, m errors before and
@@ -40,9 +40,31 @@ def _percent(est: dict, truth: dict, names=("k", "d", "m")) -> dict[str, np.ndar
 
 def bench_tracker(ident, *, seconds: float = 120.0, noise: float = 0.01, seeds=(0, 1, 2),
                   engines=("onnx", "identifier"), config=None) -> list[dict]:
-    """One row per engine and seed: ``rms`` (k, d, m %), ``drift_time``, ``alarm_time``,
-    ``delay`` (s) and ``latency_ms`` (median update)."""
-    from aeid_struct.online import TrackerConfig, wear_study
+    """The wear scenario per engine and seed.
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of mid-motion windows of the translational leg.
+    seconds : float
+        Scenario length [s].
+    noise : float
+        Measurement noise, a share of ``max|y|``.
+    seeds : tuple of int
+        Scenario seeds.
+    engines : tuple of str
+        Tracker engines (``"onnx"``, ``"identifier"``).
+    config : online.TrackerConfig, optional
+        Default: watch k.
+
+    Returns
+    -------
+    list of dict
+        One row per engine and seed: ``rms`` (k, d, m %), ``drift_time``, ``alarm_time``,
+        ``delay`` [s], ``latency_ms`` (median update) and ``false_alarm``.
+    """
+    from aeid_struct.online import TrackerConfig
+    from aeid_struct.studies.wear import wear_study
 
     config = config or TrackerConfig(watch=("k",))
     rows = []
@@ -58,8 +80,23 @@ def bench_tracker(ident, *, seconds: float = 120.0, noise: float = 0.01, seeds=(
 
 
 def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dict]:
-    """Median and p95 wall time (ms) of one record per path, on one thread (module docstring).
-    Paths whose optional package is missing are left out."""
+    """Median and p95 wall time of one record per path, on one thread (module docstring).
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record with a torch-assembled structure (it is exported).
+    repeats : int
+        Timed calls per path.
+    seed : int
+        Seed of the records.
+
+    Returns
+    -------
+    dict of str to dict
+        Path -> ``median_ms``, ``p95_ms``. Paths whose optional package is missing are left
+        out.
+    """
     import tempfile
     import warnings
     from pathlib import Path
@@ -115,12 +152,36 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
 
 def bench_excitation(ident, family, *, kinds=KINDS, noises=(0.0, 0.01, 0.05), count: int = 100,
                      seed: int = 1000, refine: bool = True) -> list[dict]:
-    """One row per input kind and noise level (module docstring), scored by
-    ``scorecard.score``: per stage (``encoder``, and ``refined`` with ``refine``) the median
-    k, d, m errors (%) over all records, the median step error, the share of failures (invalid
-    parameters or step error > 0.05) and the milliseconds per record. Records have the
-    identifier's format; windows start mid-motion when it was trained on such (its
-    ``warmup``)."""
+    """Parameter and step errors under arbitrary inputs, scored by ``evaluation.score``.
+
+    Records have the identifier's format; windows start mid-motion when it was trained on such
+    (its ``warmup``).
+
+    Parameters
+    ----------
+    ident : Identifier
+        A leg identifier that reads ``u``.
+    family : training.LegFamily
+        The legs to simulate.
+    kinds : tuple of str
+        Input kinds (``training.excitation`` names).
+    noises : tuple of float
+        Noise levels, a share of ``max|y|``.
+    count : int
+        Records per row.
+    seed : int
+        Seed of the records.
+    refine : bool
+        Also score the refined estimates.
+
+    Returns
+    -------
+    list of dict
+        One row per input kind and noise level: per stage (``encoder``, and ``refined`` with
+        ``refine``) the median k, d, m errors (%) over all records, the median step error, the
+        share of failures (invalid parameters or step error > 0.05) and the milliseconds per
+        record.
+    """
     from aeid_struct.evaluation import score
 
     warmup = int(ident.meta.get("train", {}).get("config", {}).get("warmup", 0))
@@ -154,7 +215,7 @@ def _outside_family(ranges: dict, name: str, f: float, count: int,
 
 @dataclass(frozen=True)
 class _Given:
-    """A family of given systems, so that ``data.records`` simulates them like any family."""
+    """A family of given systems, so that ``training.records`` simulates them like any family."""
 
     systems: Systems
     records: int = 1
@@ -166,12 +227,37 @@ class _Given:
 def bench_flags(ident, ranges: dict, *, noises=(0.0, 0.01), beyond=(0.1, 0.2, 0.3),
                 count: int = 300, seed: int = 2000, refine: bool = True,
                 subsystem: str = "stable", sides: dict | None = None) -> list[dict]:
-    """One row per noise level and departure (0 = inside the range): the share flagged and,
-    with ``refine``, the mean k, d, m errors (%) before and after ``refine="auto"``.
+    """How often ``Estimate.outside`` flags legs inside and beyond the training range.
 
-    ``sides``: the parameters pushed out and on which side (name -> ``"above"``, ``"below"`` or
-    None for either); default every parameter, either side. For the unstable subsystem only
-    k above and m below keep a leg (``L = l0 - m g / k > 0``), and d is not in its record."""
+    Parameters
+    ----------
+    ident : Identifier
+        A leg identifier with a calibrated training range.
+    ranges : dict of str to (float, float)
+        The parameter ranges of its training family.
+    noises : tuple of float
+        Noise levels, a share of ``max|y|``.
+    beyond : tuple of float
+        Departures beyond a bound, a share of it (``hi (1 + f)`` or ``lo (1 - f)``).
+    count : int
+        Legs per row.
+    seed : int
+        Seed of the legs and records.
+    refine : bool
+        Also compare the errors before and after ``refine="auto"``.
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+    sides : dict of str to str or None, optional
+        The parameters pushed out and on which side (name -> ``"above"``, ``"below"`` or None
+        for either); default every parameter, either side. For the unstable subsystem only k
+        above and m below keep a leg (``L = l0 - m g / k > 0``), and d is not in its record.
+
+    Returns
+    -------
+    list of dict
+        One row per noise level and departure (0 = inside the range): the share flagged and,
+        with ``refine``, the mean k, d, m errors (%) before and after ``refine="auto"``.
+    """
     cfg = ident.meta.get("train", {}).get("config", {})
     kind, warmup = cfg.get("excitation", "step"), int(cfg.get("warmup", 0))
     fam = LegFamily(subsystem=subsystem, ranges=ranges)
@@ -247,7 +333,17 @@ LEGENDS = {
 
 
 def format_tables(result: dict) -> str:
-    """Markdown tables of a ``bench_online`` result."""
+    """Markdown tables of an online benchmark, each with its legend (``LEGENDS``).
+
+    Parameters
+    ----------
+    result : dict
+        What :func:`bench_online` returned (or a part of it).
+
+    Returns
+    -------
+    str
+    """
     out = []
     if "tracker" in result:
         out += _heading("Tracker (wear scenario, one update = one window identified)",
@@ -296,8 +392,25 @@ def format_tables(result: dict) -> str:
 
 def bench_online(*, quick: bool = False, seconds: float = 120.0, noise: float = 0.01,
                  progress: bool = True) -> dict:
-    """The whole benchmark on the shipped identifiers (module docstring); ``quick``: fewer
-    records, one seed, a shorter scenario (for tests)."""
+    """The whole benchmark on the shipped identifiers (module docstring).
+
+    Parameters
+    ----------
+    quick : bool
+        Fewer records, one seed, a shorter scenario (for tests).
+    seconds : float
+        Wear scenario length [s].
+    noise : float
+        Tracker measurement noise, a share of ``max|y|``.
+    progress : bool
+        Print a line per part on stderr.
+
+    Returns
+    -------
+    dict
+        JSON-able: ``tracker``, ``latency``, ``excitation``, ``flags`` and ``targets`` (the
+        issue's targets read off the rest).
+    """
     from aeid_struct.identification import load_pretrained
 
     def say(text):

@@ -49,14 +49,21 @@ NOISE = (0.0, 0.06)
 class Variant:
     """One identifier of the comparison: what it is trained on and what it outputs.
 
-    Attributes:
-        name: ``"<subsystem> / <structure>"``, e.g. ``"unstable / CCF a1=0"``.
-        subsystem: ``"stable"``, ``"unstable"`` or ``"joint"``.
-        structure: the structure the encoder outputs.
-        family: the legs it is trained and evaluated on.
-        known: what the structure takes as known, in words.
-        inverse: CasADi map from a CCF estimate to physical parameters (None for physical
-            structures, whose elements are the parameters).
+    Attributes
+    ----------
+    name : str
+        ``"<subsystem> / <structure>"``, e.g. ``"unstable / CCF a1=0"``.
+    subsystem : str
+        ``"stable"``, ``"unstable"`` or ``"joint"``.
+    structure : Structure
+        The structure the encoder outputs.
+    family : training.LegFamily
+        The legs it is trained and evaluated on.
+    known : str
+        What the structure takes as known, in words.
+    inverse : casadi.Function or None
+        CasADi map from a CCF estimate to physical parameters (None for physical structures,
+        whose elements are the parameters).
     """
 
     name: str
@@ -73,7 +80,20 @@ class Variant:
 
 
 def variants(l0: float = 0.8, g: float = 9.81) -> dict[str, Variant]:
-    """All the comparison's identifiers, by name (module docstring)."""
+    """All the comparison's identifiers (the module docstring's table).
+
+    Parameters
+    ----------
+    l0 : float
+        The leg's rest length [m].
+    g : float
+        Gravity [m/s^2].
+
+    Returns
+    -------
+    dict of str to Variant
+        By name.
+    """
     ranges = {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)}
     m = KNOWN_MASS
     out: list[Variant] = []
@@ -117,15 +137,30 @@ def variants(l0: float = 0.8, g: float = 9.81) -> dict[str, Variant]:
 def train_variant(variant: Variant, *, noisy: bool, count: int, epochs: int, seed: int = 0,
                   cache=None, progress: bool = False):
     """Train (or load from ``cache``) the identifier of ``variant`` with the leg study's
-    settings (``study.training_config``, ``study.leg_encoder``) and an epoch budget.
+    settings (``leg_paper.training_config``, ``leg_paper.leg_encoder``) and an epoch budget.
 
-    Args:
-        variant: from :func:`variants`.
-        noisy: train with measurement noise drawn per record from ``NOISE``.
-        count, epochs, seed: the training budget and seed (same for every variant).
-        cache: a directory; an identifier trained with these settings is saved there and loaded
-            instead of retrained next time (the file name holds every setting).
-        progress: print training progress.
+    Parameters
+    ----------
+    variant : Variant
+        From :func:`variants`.
+    noisy : bool
+        Train with measurement noise drawn per record from ``NOISE``.
+    count, epochs, seed : int
+        The training budget and seed (the same for every variant).
+    cache : str or Path, optional
+        A directory; an identifier trained with these settings is saved there and loaded
+        instead of retrained next time (the file name holds every setting).
+    progress : bool
+        Print training progress.
+
+    Returns
+    -------
+    Identifier
+
+    Raises
+    ------
+    ValueError
+        ``variant`` is not a :class:`Variant`.
     """
     from aeid_struct.identification import Identifier
     from aeid_struct.studies.leg_paper import leg_encoder, training_config
@@ -152,11 +187,26 @@ def train_variant(variant: Variant, *, noisy: bool, count: int, epochs: int, see
 
 def validation(count: int, *, noise: float = 0.0, known_mass: bool = False,
                seed: int = 12345):
-    """Fresh legs for the comparison, each with both records (``data.records`` of the joint
-    family on the study's grids: stable 300 samples at 0.01 s, unstable 100 at 0.005 s).
+    """Fresh legs for the comparison, each with both records.
 
     Single-subsystem identifiers are scored on ``.record(0)`` / ``.record(1)`` of the same set,
-    so every variant sees the same legs. ``known_mass``: legs of mass ``KNOWN_MASS``.
+    so every variant sees the same legs.
+
+    Parameters
+    ----------
+    count : int
+        Legs.
+    noise : float
+        Measurement noise of their records.
+    known_mass : bool
+        Legs of mass ``KNOWN_MASS`` (else the paper's mass range).
+    seed : int
+        Their seed.
+
+    Returns
+    -------
+    training.Records
+        ``training.records`` of the joint family on the study's grids (``leg_paper.RECORDS``).
     """
     from aeid_struct.studies.leg_paper import RECORDS
     from aeid_struct.training import records
@@ -170,10 +220,25 @@ def validation(count: int, *, noise: float = 0.0, known_mass: bool = False,
 
 
 def evaluate(variant: Variant, ident, val, *, label: str = "") -> list:
-    """Scorecards of ``ident`` (trained for ``variant``, or its :func:`least_squares`
-    counterpart) on a :func:`validation` set: one for a single-subsystem identifier (on its
-    record), one per record for a joint one (each with the same k, d, m errors: one parameter
-    set is identified from both records). ``label`` prefixes the scores' names."""
+    """Scorecards of ``ident`` on a :func:`validation` set.
+
+    Parameters
+    ----------
+    variant : Variant
+        What ``ident`` was trained for.
+    ident : Identifier or baselines.Classical
+        Its identifier, or its :func:`least_squares` counterpart.
+    val : training.Records
+        A :func:`validation` set.
+    label : str
+        Prefixes the scores' names.
+
+    Returns
+    -------
+    list of evaluation.Score
+        One for a single-subsystem identifier (on its record), one per record for a joint one
+        (each with the same k, d, m errors: one parameter set is identified from both records).
+    """
     from aeid_struct.evaluation import score
 
     name = f"{label}, {variant.name}" if label else variant.name
@@ -188,12 +253,27 @@ def evaluate(variant: Variant, ident, val, *, label: str = "") -> list:
 
 
 def least_squares(variant: Variant):
-    """The classical counterpart of a single-subsystem ``variant``: output-error least squares
-    (``baselines.least_squares``, from its generic start) in the same structure, record by
-    record behind an identifier's interface (``baselines.Classical``), to score side by side."""
+    """The classical counterpart of a single-subsystem ``variant``, to score side by side.
+
+    Parameters
+    ----------
+    variant : Variant
+        A variant of one subsystem.
+
+    Returns
+    -------
+    baselines.Classical
+        Output-error least squares (``baselines.least_squares``, from its generic start) in
+        the same structure, record by record behind an identifier's interface.
+
+    Raises
+    ------
+    ValueError
+        A joint variant (least squares fits one record).
+    """
     from functools import partial
 
-    from aeid_struct.baselines import classical as baselines
+    from aeid_struct import baselines
     from aeid_struct.studies.leg_paper import RECORDS
 
     if variant.subsystem not in RECORDS:

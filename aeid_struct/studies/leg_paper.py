@@ -1,17 +1,9 @@
 """The robot-leg study of paper Sec. IV: train, evaluate, Table I, Fig. 3 and Fig. 4.
 
-Record settings (the paper gives none; ours):
-
-- stable, translational subsystem ``G1``: ``dt = 0.01 s``, 300 samples (3 s: the slowest decay,
-  ``d/(2m) >= 0.67 /s``, has brought the step response within 15 % of its final value and the
-  oscillation of 3.7-7 rad/s shows 2-3 periods);
-- unstable, rotational subsystem ``G2``: ``dt = 0.005 s``, 100 samples (0.5 s: the response grows
-  like ``e^{p t}`` with ``p = sqrt(g/L)`` in 4-12.4 /s, i.e. by up to ``e^{6.2} = 490``; longer
-  records would only show the exponential, shorter ones hide the slow poles).
-
 Training uses 10^4 simulated step responses per subsystem with (k, d, m) uniform in the paper's
-ranges, 20 % held out; evaluation uses 500 fresh systems from another seed and the paper's
-scenario k = 24.23, d = 2.24, m = 1.01, all noise-free unless asked.
+ranges, 20 % held out; evaluation (``studies.leg_table``, re-exported here) uses 500 fresh
+systems from another seed and the paper's scenario k = 24.23, d = 2.24, m = 1.01, all
+noise-free unless asked.
 
 The main job trains each identifier for half of a wall-time budget, but never for fewer than
 ``MIN_EPOCHS`` epochs (a busy machine then takes longer than the budget), and warns
@@ -30,29 +22,21 @@ import hashlib
 import json
 import time
 import warnings
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from aeid_struct.metrics import FREQUENCIES, bode_errors, parameter_errors, step_error
+from aeid_struct.metrics import FREQUENCIES
 from aeid_struct.simulation import simulate
-from aeid_struct.training import LegFamily, records
-
-#: Record grid per subsystem: (dt, steps).
-RECORDS = {"stable": (0.01, 300), "unstable": (0.005, 100)}
-SCENARIO = {"k": 24.23, "d": 2.24, "m": 1.01}
-
-#: Paper Table I: subsystem -> metric -> (scenario, overall). Phase in rad (paper: 10^-3 rad).
-PAPER = {
-    "stable": {"step": (9.01e-3, 14.82e-3), "magnitude_db": (0.73, 0.89),
-               "phase_rad": (39.72e-3, 28.46e-3), "k": (1.97, 11.68), "d": (3.49, 8.67),
-               "m": (3.89, 14.77)},
-    "unstable": {"step": (15.70e-3, 31.50e-3), "magnitude_db": (4.03, 3.37),
-                 "phase_rad": (0.0, 0.0), "k": (24.19, 26.36), "m": (50.13, 48.32)},
-}
-PAPER_SECONDS = {"encoder_400mhz": 1.194, "n4sid_matlab": 3.682}
+from aeid_struct.studies.leg_table import PAPER as PAPER
+from aeid_struct.studies.leg_table import PAPER_SECONDS as PAPER_SECONDS
+from aeid_struct.studies.leg_table import RECORDS as RECORDS
+from aeid_struct.studies.leg_table import SCENARIO as SCENARIO
+from aeid_struct.studies.leg_table import Evaluation as Evaluation
+from aeid_struct.studies.leg_table import evaluate as evaluate
+from aeid_struct.studies.leg_table import table as table
+from aeid_struct.training import LegFamily
 
 #: The main job's floor per identifier: a wall-time budget never gives fewer epochs. Measured
 #: with epoch budgets (seed 0, 500 validation systems), the overall step error after
@@ -71,40 +55,45 @@ OUTPUTS = ("leg-stable.aeid", "leg-unstable.aeid", "fig3_leg_scenario.png",
            "fig4_error_vs_size.png", "leg_study.json")
 
 
-@dataclass(frozen=True)
-class Evaluation:
-    """Table I metrics of one identifier, scenario and overall (mean over the validation set).
-
-    Attributes:
-        subsystem: "stable" or "unstable".
-        scenario, overall: metric name -> value (step, magnitude_db, phase_rad, k, d, m in %).
-        per_system: metric name -> ``(count,)`` values over the validation set.
-        latency_ms: median batch-1 identification time; throughput: identifications/s batched.
-    """
-
-    subsystem: str
-    scenario: dict
-    overall: dict
-    per_system: dict = field(repr=False)
-    latency_ms: float
-    throughput: float
-
-
 def training_config(subsystem: str, *, seconds: float | None, seed: int = 0,
                     count: int = 10_000, noise=0.0, checkpoint=None, progress: bool = True,
                     epochs: int | None = None, min_epochs: int = 1,
                     target_loss: float | None = None):
-    """The study's training settings for one subsystem: a wall-time budget (which cannot end
-    the run before ``min_epochs``), or an epoch budget (reproducible whatever else the machine
-    is doing) when ``epochs`` is given; ``target_loss``: the expected best held-out loss
-    (``TrainConfig``).
+    """The study's training settings for one subsystem, on one torch thread.
 
-    One torch thread. Why: the network is small, and a second thread buys nothing on a quiet
-    machine but costs up to 10x on a busy one, where the two threads wait for each other's
-    core (measured on the unstable leg beside other work: 16-75 s per epoch on two threads,
-    2.6-4.3 s on one).
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"``, ``"unstable"`` or ``"joint"``.
+    seconds : float or None
+        A wall-time budget [s], which cannot end the run before ``min_epochs``.
+    seed : int
+        Seed of the records, the initial weights and the batches.
+    count : int
+        Simulated training records.
+    noise : float or tuple of float
+        Measurement noise level, or a range drawn per record.
+    checkpoint : str or Path, optional
+        A checkpoint to resume from.
+    progress : bool
+        Print training progress.
+    epochs : int, optional
+        An epoch budget instead of the wall-time one (reproducible whatever else the machine
+        is doing).
+    min_epochs : int
+        The floor of a wall-time budget.
+    target_loss : float, optional
+        The expected best held-out loss (``TrainConfig``).
+
+    Returns
+    -------
+    training.TrainConfig
     """
     from aeid_struct.training import TrainConfig
+
+    # One torch thread: the network is small, and a second thread buys nothing on a quiet
+    # machine but costs many times over on a busy one, where the two threads wait for each
+    # other's core.
 
     dt, steps = _grid(subsystem)
     if epochs is not None:
@@ -124,18 +113,41 @@ def _grid(subsystem: str):
 
 
 def leg_structure(subsystem: str):
-    """The paper's structure: CCF of order 2 (Descartes' constraint for the stable subsystem;
-    the unstable one has a0 = -g/L < 0, so the constraint would exclude the truth)."""
+    """The paper's structure for a leg subsystem.
+
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+
+    Returns
+    -------
+    structures.CCF
+        Of order 2, with Descartes' constraint for the stable subsystem (the unstable one has
+        ``a0 = -g/L < 0``, so the constraint would exclude the truth).
+    """
     from aeid_struct.structures import CCF
 
     return CCF(2, descartes=(subsystem == "stable"))
 
 
 def leg_encoder(subsystem: str):
-    """The encoder of the shipped leg identifiers: the paper's architecture (three convolutions
-    and a shortcut, then two dense layers), 12 convolution and 48 dense neurons instead of 8 and
-    10, on the record average-pooled to 50 samples (pool 6 for 300 samples, 2 for 100): the
-    responses are smooth, and pooling divides the convolution cost for batch throughput."""
+    """The encoder of the shipped leg identifiers.
+
+    The paper's architecture (three convolutions and a shortcut, then two dense layers) with
+    48 dense neurons instead of 10, on the record average-pooled to 50 samples (pool 6 for 300
+    samples, 2 for 100): the responses are smooth, and pooling divides the convolution cost for
+    batch throughput.
+
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"``, ``"unstable"`` or ``"joint"``.
+
+    Returns
+    -------
+    encoder.EncoderConfig
+    """
     from aeid_struct.encoder import EncoderConfig
 
     pool = tuple(s // 50 for s in _grid(subsystem)[1]) if subsystem == "joint" \
@@ -148,7 +160,22 @@ def train_leg(subsystem: str, *, seconds: float | None, seed: int = 0, count: in
               noise=0.0, checkpoint=None, progress: bool = True, command: str = "",
               epochs: int | None = None, min_epochs: int = 1,
               target_loss: float | None = None):
-    """Train one leg identifier with the study's settings (``training_config``)."""
+    """Train one leg identifier with the study's settings.
+
+    Parameters
+    ----------
+    subsystem : str
+        ``"stable"`` or ``"unstable"``.
+    seconds, seed, count, noise, checkpoint, progress, epochs, min_epochs, target_loss
+        As :func:`training_config` takes them.
+    command : str
+        The command line, recorded in the identifier's ``meta``.
+
+    Returns
+    -------
+    Identifier
+        With :func:`leg_structure`, :func:`leg_encoder` and the leg's CasADi inverse.
+    """
     from aeid_struct.training import train
 
     inverse = LegFamily(subsystem=subsystem).inverse()
@@ -160,88 +187,21 @@ def train_leg(subsystem: str, *, seconds: float | None, seed: int = 0, count: in
                  meta={"name": f"leg-{subsystem}", "command": command, "seed": seed})
 
 
-def _timing(ident, y: np.ndarray) -> tuple[float, float]:
-    """Median batch-1 latency (ms) and batched throughput (identifications/s)."""
-    single = y[0]
-    for _ in range(50):
-        ident.identify(single)
-    times = []
-    for i in range(1000):
-        t0 = time.perf_counter()
-        ident.identify(y[i % len(y)])
-        times.append(time.perf_counter() - t0)
-    batch = np.tile(y, (max(1, 4096 // len(y)), 1))[:4096]
-    ident.identify(batch)
-    t0 = time.perf_counter()
-    reps = 3
-    for _ in range(reps):
-        ident.identify(batch)
-    throughput = reps * len(batch) / (time.perf_counter() - t0)
-    return 1e3 * float(np.median(times)), float(throughput)
-
-
-def evaluate(ident, subsystem: str, *, count: int = 500, seed: int = 12345,
-             noise: float = 0.0, timing: bool = True) -> Evaluation:
-    """Table I metrics of ``ident`` on ``count`` fresh systems and on the paper's scenario."""
-    dt, steps = RECORDS[subsystem]
-    family = LegFamily(subsystem=subsystem)
-    val = records(family, count, steps=steps, dt=dt, noise=noise, seed=seed)
-    scen_sys = family.systems(**{k: [v] for k, v in SCENARIO.items()})
-    u = np.ones(steps)
-    y_scen = simulate(scen_sys.A, scen_sys.b, scen_sys.c, scen_sys.d, u, dt)
-    y_all = np.concatenate([y_scen, val.y])
-    y_true = np.concatenate([y_scen, val.y_clean])
-    est = ident.identify(y_all)
-    y_hat = simulate(est.A, est.b, est.c, est.d, u, dt)
-    metrics = {"step": step_error(y_true, y_hat)}
-    true = (np.concatenate([scen_sys.A, val.systems.A]), np.concatenate([scen_sys.b,
-            val.systems.b]), np.concatenate([scen_sys.c, val.systems.c]),
-            np.concatenate([scen_sys.d, val.systems.d]))
-    metrics["magnitude_db"], metrics["phase_rad"] = bode_errors(
-        true, (est.A, est.b, est.c, est.d), FREQUENCIES)
-    params = {k: np.concatenate([[SCENARIO[k]], val.systems.params[k]]) for k in SCENARIO}
-    metrics.update(parameter_errors(params, est.physical))
-    latency, throughput = _timing(ident, val.y) if timing else (float("nan"), float("nan"))
-    return Evaluation(
-        subsystem,
-        {k: float(v[0]) for k, v in metrics.items()},
-        {k: float(np.mean(v[1:])) for k, v in metrics.items()},
-        {k: v[1:] for k, v in metrics.items()},
-        latency, throughput,
-    )
-
-
-def table(evals: list[Evaluation]) -> str:
-    """Table I, ours beside the paper's, as markdown."""
-    rows = [("step", "Step error", "{:.2e}"), ("magnitude_db", "Magnitude (dB)", "{:.3f}"),
-            ("phase_rad", "Phase (rad)", "{:.2e}"), ("k", "Δk (%)", "{:.3f}"),
-            ("d", "Δd (%)", "{:.3f}"), ("m", "Δm (%)", "{:.3f}")]
-    head = "| metric |"
-    sep = "|---|"
-    for ev in evals:
-        for part in ("scenario", "overall"):
-            head += f" {ev.subsystem} {part}: ours | paper |"
-            sep += "---:|---:|"
-    lines = [head, sep]
-    for key, label, fmt in rows:
-        line = f"| {label} |"
-        for ev in evals:
-            paper = PAPER[ev.subsystem].get(key)
-            for i, part in enumerate((ev.scenario, ev.overall)):
-                ours = part.get(key)
-                line += f" {fmt.format(ours) if ours is not None else '-'} |"
-                line += f" {fmt.format(paper[i]) if paper is not None else '-'} |"
-        lines.append(line)
-    return "\n".join(lines)
-
-
 def figure3(idents: dict, path, source: str = "identifiers given",
             sources: dict | None = None) -> None:
     """Paper Fig. 3 for the scenario: step and Bode, true vs identified, both subsystems.
 
-    ``source`` says where the identifiers came from (trained in this run, or shipped) and goes
-    into the figure's title with the scenario; ``sources``: subsystem -> which identifier it is
-    (e.g. "shipped leg-stable", "trained 138 epochs"), in the panel titles.
+    Parameters
+    ----------
+    idents : dict of str to Identifier
+        Subsystem -> its identifier.
+    path : str or Path
+        The PNG to write.
+    source : str
+        Where the identifiers came from (trained in this run, or shipped), in the figure's
+        title with the scenario.
+    sources : dict of str to str, optional
+        Subsystem -> which identifier it is (e.g. "shipped leg-stable"), in the panel titles.
     """
     from aeid_struct.evaluation import LEG_SIGNALS, Comparison, fig3
 
@@ -266,7 +226,28 @@ def figure3(idents: dict, path, source: str = "identifiers given",
 
 def figure4(sizes, *, seconds_each: float, seed: int, path, progress: bool,
             validation: int = 200):
-    """Paper Fig. 4: step error vs training-set size; each size trains for ``seconds_each``."""
+    """Paper Fig. 4: step error vs training-set size, both subsystems.
+
+    Parameters
+    ----------
+    sizes : sequence of int
+        Training-set sizes [records].
+    seconds_each : float
+        Training budget per size and subsystem [s].
+    seed : int
+        Training seed.
+    path : str or Path
+        The PNG to write.
+    progress : bool
+        Print training progress.
+    validation : int
+        Validation systems per point.
+
+    Returns
+    -------
+    dict of str to (len(sizes),) ndarray
+        Subsystem -> the overall mean step error at each size.
+    """
     from aeid_struct.evaluation import fig4
 
     errors = {}
@@ -290,33 +271,21 @@ def _sha256(path: Path) -> str:
 
 
 def _shipped_sha256(name: str) -> str:
-    """The SHA-256 of a shipped identifier's file (``identify.load_pretrained``)."""
+    """The SHA-256 of a shipped identifier's file (``identification.load_pretrained``)."""
     from importlib.resources import files
 
     return hashlib.sha256((files("aeid_struct.pretrained") / f"{name}.aeid").read_bytes()
                           ).hexdigest()
 
 
-def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
-        fig4_seconds: float = 30.0, validation: int = 500, progress: bool = True,
-        save: bool = True, command: str = "", epochs: int | None = None) -> dict:
-    """The whole study; returns the JSON-able result and writes figures, JSON and (trained,
-    ``save``) the identifiers into ``<out>/trained`` or ``<out>/pretrained``.
-
-    The folder first loses the study's files (``OUTPUTS``) of an earlier run, so that what is
-    in it came from this run. The result's ``run`` says which run it was (command, UTC date,
-    seed, budget, each identifier's file or shipped name with its SHA-256, and ``files``: every
-    file written); ``train_epochs`` the epochs each identifier trained; ``warnings`` what fell
-    short (``training.UndertrainedWarning``: a budget that fit fewer than ``MIN_EPOCHS``
-    epochs, a held-out loss above ``TARGET_LOSS``).
-    """
+def _identifiers(*, pretrained: bool, seconds: float, seed: int, folder: Path,
+                 progress: bool, save: bool, command: str, epochs: int | None):
+    """Load or train both identifiers: ``(idents, train_seconds, train_epochs, identifiers,
+    notes, written)``, all by subsystem but ``notes`` (under-training warnings) and
+    ``written`` (identifier files saved)."""
     from aeid_struct.identification import load_pretrained
     from aeid_struct.training import UndertrainedWarning
 
-    folder = Path(out) / ("pretrained" if pretrained else "trained")
-    folder.mkdir(parents=True, exist_ok=True)
-    for name in OUTPUTS:
-        (folder / name).unlink(missing_ok=True)
     written: list[Path] = []
     idents, train_seconds, train_epochs, identifiers, notes = {}, {}, {}, {}, []
     for subsystem in ("stable", "unstable"):
@@ -345,6 +314,67 @@ def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
             path = ident.save(folder / f"{name}.aeid")
             written.append(Path(path))
             identifiers[subsystem].update(file=str(path), sha256=_sha256(path))
+    return idents, train_seconds, train_epochs, identifiers, notes, written
+
+
+def run(*, pretrained: bool, seconds: float, seed: int, out, fig4_sizes=None,
+        fig4_seconds: float = 30.0, validation: int = 500, progress: bool = True,
+        save: bool = True, command: str = "", epochs: int | None = None) -> dict:
+    """The whole study: identifiers, Table I, Fig. 3 (and Fig. 4), written into a run folder.
+
+    The folder, ``<out>/trained`` or ``<out>/pretrained``, first loses the study's files
+    (``OUTPUTS``) of an earlier run, so that what is in it came from this run.
+
+    Parameters
+    ----------
+    pretrained : bool
+        Evaluate the shipped identifiers instead of training.
+    seconds : float
+        Training budget for both identifiers together [s] (each trains at least
+        ``MIN_EPOCHS``).
+    seed : int
+        Seed of the training data (and of the run's records).
+    out : str or Path
+        The parent folder of the run folder.
+    fig4_sizes : sequence of int, optional
+        Training-set sizes for Fig. 4 (None: no Fig. 4).
+    fig4_seconds : float
+        Training budget per size and subsystem for Fig. 4 [s].
+    validation : int
+        Fresh validation systems per subsystem.
+    progress : bool
+        Print training progress.
+    save : bool
+        Save trained identifiers into the run folder.
+    command : str
+        The command line that started the run, recorded in the JSON.
+    epochs : int, optional
+        Train each identifier for this many epochs instead of a time budget.
+
+    Returns
+    -------
+    dict
+        JSON-able: ``table`` (Table I per subsystem), ``markdown``, ``train_seconds``,
+        ``train_epochs``, ``warnings`` (``training.UndertrainedWarning``: a budget that fit
+        fewer than ``MIN_EPOCHS`` epochs, a held-out loss above ``TARGET_LOSS``), ``paper``,
+        ``fig4`` (with ``fig4_sizes``) and ``run``: which run it was (command, UTC date, seed,
+        budget, each identifier's file or shipped name with its SHA-256, and ``files``: every
+        file written).
+
+    Warns
+    -----
+    training.UndertrainedWarning
+        Each of the ``warnings``.
+    """
+    from aeid_struct.training import UndertrainedWarning
+
+    folder = Path(out) / ("pretrained" if pretrained else "trained")
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in OUTPUTS:
+        (folder / name).unlink(missing_ok=True)
+    idents, train_seconds, train_epochs, identifiers, notes, written = _identifiers(
+        pretrained=pretrained, seconds=seconds, seed=seed, folder=folder, progress=progress,
+        save=save, command=command, epochs=epochs)
     for note in notes:
         warnings.warn(note, UndertrainedWarning, stacklevel=2)
     evals = [evaluate(idents[s], s, count=validation) for s in ("stable", "unstable")]

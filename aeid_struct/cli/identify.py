@@ -1,0 +1,228 @@
+"""``aeid-struct identify``: a record file through a trained identifier, with its self-check
+(fit, excess, inside or outside the training range), printed and written as JSON."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from aeid_struct.cli.errors import EXIT_OUTSIDE, InputError
+from aeid_struct.cli.records_io import on_grid, read_record
+
+
+def shipped_names() -> list[str]:
+    """The shipped identifiers' names, listed without importing torch.
+
+    Returns
+    -------
+    list of str
+        The ``.aeid`` files of ``aeid_struct/pretrained`` (the folder
+        ``identification.load_pretrained`` reads), without the suffix, sorted.
+    """
+    from importlib.resources import files
+
+    return sorted(p.name[: -len(".aeid")] for p in files("aeid_struct.pretrained").iterdir()
+                  if p.name.endswith(".aeid"))
+
+
+
+def load_identifier(model: str, option: str):
+    """An identifier from an ``.aeid`` file, or a shipped one by name (a file wins).
+
+    Parameters
+    ----------
+    model : str
+        A file name or a shipped name (:func:`shipped_names`).
+    option : str
+        The option or argument that named it, for the errors.
+
+    Returns
+    -------
+    Identifier
+
+    Raises
+    ------
+    InputError
+        Neither a readable identifier file nor a shipped name.
+    """
+    names = ", ".join(shipped_names())
+    path = Path(model)
+    if path.is_file():
+        from aeid_struct.identification import Identifier
+
+        try:
+            return Identifier.load(path)
+        except ValueError as err:
+            raise InputError(f"{option} {model!r}: {err}") from None
+    if path.is_dir():
+        raise InputError(f"{option}: {model!r} is a folder; expected an identifier file (.aeid) "
+                         f"or a shipped name: {names}")
+    if model in names.split(", "):
+        from aeid_struct.identification import load_pretrained
+
+        return load_pretrained(model)
+    raise InputError(f"{option}: file not found: {model!r} (and it is not a shipped name: "
+                     f"{names})")
+
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    """The ``identify`` subcommand: read the records, identify, print the model and the
+    self-check, write the JSON.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of ``aeid-struct identify``.
+
+    Returns
+    -------
+    int
+        0, or ``EXIT_OUTSIDE`` when an estimate is flagged outside the training range and
+        ``--allow-outside`` is not given.
+
+    Raises
+    ------
+    InputError
+        A wrong model, record file or record.
+    """
+    ident = load_identifier(args.model, "model")
+    R = ident.records
+    steps = ident.steps if R > 1 else (ident.steps,)
+    dts = ident.dt if R > 1 else (ident.dt,)
+    grids = ", ".join(f"{s} samples at dt = {t:g} s" for s, t in zip(steps, dts, strict=True))
+    if len(args.y) != R:
+        raise InputError(f"--y: this identifier reads {R} record{'s' if R > 1 else ''} "
+                         f"(one file per record: {grids}); got {len(args.y)} file(s)")
+    if args.u is not None and len(args.u) != R:
+        raise InputError(f"--u: give one input file per --y file ({R}); got {len(args.u)}")
+    ys = [read_record(f, "--y", "y") for f in args.y]
+    us = [read_record(f, "--u", "u") for f in args.u] if args.u else [None] * R
+    for r in range(R):
+        on_grid(ys[r], "--y", steps[r], dts[r])
+        if us[r] is not None:
+            if ys[r].u is not None:
+                raise InputError(f"--u {us[r].path!r} and the u column of --y "
+                                 f"{ys[r].path!r}: give the input once")
+            on_grid(us[r], "--u", steps[r], dts[r])
+    inputs = [ys[r].u if us[r] is None else us[r].values for r in range(R)]
+    y = ys[0].values if R == 1 else [rec.values for rec in ys]
+    u = inputs[0] if R == 1 else (None if all(v is None for v in inputs) else inputs)
+    refine = {"no": False, "yes": True, "auto": "auto"}[args.refine]
+    try:
+        est = ident.identify(y, u, refine=refine)
+    except ValueError as err:   # the record's content (all zero, non-finite, a varying u, ...)
+        raise InputError(f"identify {', '.join(args.y)} with {args.model}: {err}") from None
+
+    np.set_printoptions(precision=6, suppress=False)
+    print(f"{ident!r}")
+    print("A =\n", est.A)
+    print("b =", est.b, " c =", est.c, " d =", est.d)
+    if est.physical:
+        print("physical:", {k: np.round(v, 6).tolist() for k, v in est.physical.items()})
+    if est.refined:
+        print("refined by the CasADi NLP" + (
+            "" if "refined_rows" not in est.info or not est.batched
+            else f" (records {np.flatnonzero(est.info['refined_rows']).tolist()})"))
+    flagged = _self_check(est)
+    if args.json:
+        _write_json(args.json, _estimate_json(est, args.model, repr(ident)))
+        print(f"wrote {args.json}")
+    if flagged:
+        rng = est.training_range
+        which = (f"this estimate (fit {_percent(est.fit)}, excess {est.excess:.3g}) is"
+                 if not est.batched else
+                 f"{len(flagged)} of {len(est.A)} estimates (records "
+                 f"{', '.join(map(str, flagged))}) are")
+        print(f"aeid-struct: WARNING: {which} OUTSIDE the identifier's training range (fit at "
+              f"least {rng['fit']:.2f} %, excess at most {rng['excess']:.3g}): the "
+              "record is unlike those it was trained on (another sample time, input or system?) "
+              "and the parameters cannot be trusted. "
+              + ("Check the record's sample time and input (refined, the model fits the record "
+                 "with parameters beyond the range). " if est.refined else
+                 "Check the record, or try --refine. ")
+              + ("Accepted by --allow-outside." if args.allow_outside else
+                 f"Exit status {EXIT_OUTSIDE}; --allow-outside accepts "
+                 f"{'it' if not est.batched else 'them'}."), file=sys.stderr)
+        if not args.allow_outside:
+            return EXIT_OUTSIDE
+    return 0
+
+
+
+
+def _self_check(est) -> list[int]:
+    """Print each record's fit, excess and verdict; return the flagged rows (``[0]`` for an
+    unbatched flagged estimate)."""
+    rng = est.training_range
+    fits = np.asarray(est.fit, dtype=np.float64)
+    rows = len(est.A) if est.batched else 1
+    fits = fits.reshape(rows, -1)
+    if est.outside is None:
+        for i in range(rows):
+            print(f"self-check{f' record {i}' if est.batched else ''}: fit "
+                  f"{_percent(fits[i])} (NRMSE); this identifier carries no calibrated training "
+                  "range, so no inside/outside verdict (training.recalibrate adds one)")
+        return []
+    excess = np.asarray(est.excess, dtype=np.float64).reshape(rows)
+    outside = np.asarray(est.outside, dtype=bool).reshape(rows)
+    print(f"self-check against the training range (flagged OUTSIDE when the fit falls below "
+          f"{rng['fit']:.2f} % or the excess exceeds {rng['excess']:.3g}):")
+    for i in range(rows):
+        print(f"  {f'record {i}: ' if est.batched else ''}fit {_percent(fits[i])}, excess "
+              f"{excess[i]:.3g}: "
+              + ("OUTSIDE the training range" if outside[i] else "inside the training range"))
+    return np.flatnonzero(outside).tolist()
+
+
+def _percent(fit: np.ndarray) -> str:
+    return ", ".join(f"{v:.2f} %" for v in np.atleast_1d(fit))
+
+
+def _estimate_json(est, model: str, identifier: str) -> dict:
+    rng = est.training_range
+    refined_rows = est.info.get("refined_rows")
+    return _plain({
+        "model": model, "identifier": identifier, "dt": est.dt,
+        "A": est.A, "b": est.b, "c": est.c, "d": np.asarray(est.d),
+        "fit_percent": np.asarray(est.fit), "excess": est.excess, "outside": est.outside,
+        "thresholds": (None if not rng or "excess" not in rng
+                       else {"fit_percent": rng["fit"], "excess": rng["excess"]}),
+        "refined": est.refined,
+        "refined_rows": None if refined_rows is None else np.asarray(refined_rows),
+        "records": est.records,
+        "physical": {k: np.asarray(v) for k, v in est.physical.items()},
+        "seconds": est.seconds,
+    })
+
+
+def _plain(value):
+    """``value`` as strict JSON: arrays as lists, non-finite numbers as null."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def _write_json(file: str, data: dict) -> None:
+    path = Path(file)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(data, indent=2, allow_nan=False))
+    except OSError as err:
+        raise InputError(f"--json {file!r}: cannot write ({err.strerror or err})") from None
+

@@ -1,0 +1,225 @@
+"""The wear scenario of online identification: a running robot leg whose spring weakens and
+whose damping grows, tracked window by window by an ``online.Tracker``.
+
+``wearing_leg`` simulates the translational leg subsystem with parameters that vary per sample
+(exact FOH discretisation of each sample interval, paper Eq. 10-11); ``wear_study`` runs the
+scenario through a tracker and measures the tracking error, the alarm delay and the update time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeid_struct.online import Tracker, TrackerConfig
+from aeid_struct.simulation import discretise
+
+
+def wearing_leg(k, d, m, u, dt: float) -> np.ndarray:
+    """The translational leg subsystem with slowly varying parameters, from rest.
+
+    Simulated in the physical state (position, velocity) ``m x'' + d x' + k x = u``, ``y = x``,
+    which stays continuous when the parameters change (a CCF state would not: its output row is
+    ``1/m``). On each sample interval the parameters are held at their value at its start and
+    the input is first-order-hold, discretised exactly (``simulation.discretise``, paper
+    Eq. 10) and stepped by Eq. 11. For constant parameters this is
+    ``G1 = (1/m) / (s^2 + (d/m) s + k/m)`` from rest, as ``simulation.simulate`` gives it.
+
+    Parameters
+    ----------
+    k, d, m : (N,) array_like
+        Spring stiffness [N/m], damping [kg/s] and mass [kg] per sample; ``k, m > 0``,
+        ``d >= 0``.
+    u : (N,) array_like
+        The leg force [N] at ``t_i = i dt``, linear in between.
+    dt : float
+        The sample time [s], > 0.
+
+    Returns
+    -------
+    y : (N,) ndarray
+        The leg length's deviation from the equilibrium [m] at each sample.
+
+    Raises
+    ------
+    ValueError
+        ``k, d, m`` not one value per sample of ``u``, or outside their ranges.
+    """
+    k, d, m, u = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (k, d, m, u))
+    N = u.shape[0]
+    if not (k.shape == d.shape == m.shape == (N,)):
+        raise ValueError(f"k, d, m must have one value per sample of u ({N}); got "
+                         f"{k.shape}, {d.shape}, {m.shape}")
+    if np.any(k <= 0) or np.any(m <= 0) or np.any(d < 0):
+        raise ValueError("k, m must be positive and d non-negative")
+    A = np.zeros((N, 2, 2))
+    A[:, 0, 1] = 1.0
+    A[:, 1, 0] = -k / m
+    A[:, 1, 1] = -d / m
+    b = np.stack([np.zeros(N), 1.0 / m], axis=1)
+    foh = discretise(A, b, dt)           # one (Phi, gamma1, gamma2) per sample interval
+    Phi, g1, g2 = foh.Phi, foh.gamma1, foh.gamma2
+    # A loop over the samples: the parameters change every sample, and the decoder's log-depth
+    # scan needs one transition matrix for the whole record.
+    x = np.zeros(2)
+    y = np.empty(N)
+    du = np.diff(u, append=u[-1])
+    for i in range(N):
+        y[i] = x[0]
+        x = Phi[i] @ x + g1[i] * u[i] + g2[i] * du[i]
+    return y
+
+
+@dataclass(frozen=True)
+class WearResult:
+    """A tracked wear scenario (:func:`wear_study`).
+
+    Attributes
+    ----------
+    t : (W,) ndarray
+        Time of each window's last sample [s].
+    true : dict of str to (W,) ndarray
+        The true parameter at the middle of each window.
+    estimate : dict of str to (W,) ndarray
+        The tracker's raw window estimates.
+    smoothed : dict of str to (W,) ndarray
+        Its smoothed estimates.
+    alarm : (W,) bool ndarray
+        The tracker's alarm after each window.
+    drift_time : float
+        When the true k first left its start value by more than the tracker's threshold [s].
+    alarm_time : float
+        When the alarm was first raised [s] (nan if never).
+    rms : dict of str to float
+        RMS relative error (%) of the smoothed estimate after the baseline windows.
+    latency_ms : float
+        Median wall time of one tracker update (one window identified, smoothed and checked),
+        as ``Tracker.push`` takes it.
+    engine : str
+        The tracker's engine (``"onnx"`` or ``"identifier"``).
+    """
+
+    t: np.ndarray
+    true: dict
+    estimate: dict
+    smoothed: dict
+    alarm: np.ndarray
+    drift_time: float
+    alarm_time: float
+    rms: dict
+    latency_ms: float
+    engine: str = "identifier"
+
+    @property
+    def delay(self) -> float:
+        """Alarm delay after the true drift crossed the threshold [s] (nan without an alarm)."""
+        return self.alarm_time - self.drift_time
+
+
+def _scenario(identifier, seconds: float, noise: float, seed: int):
+    """The scenario's truth and record: ``t, k, d, m, u, y (N,)`` (``wear_study``)."""
+    dt = identifier.dt
+    N, before = int(round(seconds / dt)), identifier.steps
+    t = np.arange(N) * dt
+    ramp = np.clip((t / seconds - 0.25) / 0.5, 0.0, 1.0)
+    k, d, m = 25.0 - 5.0 * ramp, 2.5 + 1.0 * ramp, np.ones(N)
+    rng = np.random.default_rng(seed)
+    ends = np.cumsum(rng.integers(3, 13, size=N + before))
+    level = rng.choice([-1.0, 1.0], size=N + before)
+    u = level[np.searchsorted(ends, np.arange(N + before), side="right")]
+    pad = np.ones(before)
+    y = wearing_leg(np.concatenate([k[0] * pad, k]), np.concatenate([d[0] * pad, d]),
+                    np.concatenate([m[0] * pad, m]), u, dt)[before:]
+    u = u[before:]
+    y = y + noise * np.abs(y).max() * rng.normal(size=N)
+    return t, k, d, m, u, y
+
+
+def _track(tracker: Tracker, u: np.ndarray, y: np.ndarray, hop: int):
+    """Push the record in chunks of one hop: ``(updates, seconds per update of each chunk)``."""
+    import torch
+
+    updates, times = [], []
+    # One core, as on a robot's processor: torch's other threads (idle-spinning after the
+    # simulation) would otherwise compete with the tracker for the other cores.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for i in range(0, len(u), hop):
+            t0 = time.perf_counter()
+            got = tracker.push(u[i: i + hop], y[i: i + hop])
+            if got:
+                times.append((time.perf_counter() - t0) / len(got))
+            updates += got
+    finally:
+        torch.set_num_threads(threads)
+    return updates, times
+
+
+def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed: int = 0,
+               config: TrackerConfig = TrackerConfig(),  # noqa: B008
+               engine: str = "auto") -> WearResult:
+    """A running leg that wears, tracked window by window.
+
+    Scenario: the translational subsystem driven by a random binary force (levels +-1 held
+    3-12 samples) for ``seconds``, already running when tracking starts (the force has acted for
+    one window length before ``t = 0``: a running leg is not at rest); k stays at 25 N/m for
+    the first quarter, falls linearly to 20 N/m until three quarters of the time and stays
+    there; d rises from 2.5 to 3.5 kg/s over the same span; m = 1 kg. White measurement noise
+    of ``noise * max|y|``. The samples are pushed to an ``online.Tracker`` in chunks of one hop,
+    as a controller would.
+
+    Parameters
+    ----------
+    identifier : Identifier or OnnxIdentifier
+        An identifier of mid-motion windows of the translational leg (as ``online.Tracker``
+        takes it); its ``dt`` is the scenario's sample time.
+    seconds : float
+        Length of the scenario [s], > 0; it must cover at least one window.
+    noise : float
+        Measurement noise, a share of ``max|y|``.
+    seed : int
+        Seed of the input and the noise.
+    config : online.TrackerConfig
+        How the tracker windows, smooths and alarms.
+    engine : str
+        The tracker's engine: ``"auto"``, ``"onnx"`` or ``"identifier"``.
+
+    Returns
+    -------
+    WearResult
+
+    Raises
+    ------
+    ValueError
+        ``seconds`` not positive or shorter than one window, or a tracker setting refused by
+        ``online.Tracker``.
+    """
+    if not seconds > 0:
+        raise ValueError(f"seconds must be positive; got {seconds!r}")
+    dt = identifier.dt
+    t, k, d, m, u, y = _scenario(identifier, seconds, noise, seed)
+    tracker = Tracker(identifier, config, engine=engine)
+    updates, times = _track(tracker, u, y, config.hop)
+    if not updates:
+        raise ValueError(f"seconds must cover at least one window of {identifier.steps} samples")
+    N = len(t)
+    ts = np.array([up.t for up in updates])
+    mid = np.clip(np.round((ts - (identifier.steps - 1) * dt / 2) / dt).astype(int), 0, N - 1)
+    names = list(updates[0].estimate)
+    truth = {"k": k, "d": d, "m": m}
+    true = {p: truth[p][mid] for p in names if p in truth}
+    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
+    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
+    alarm = np.array([up.alarm for up in updates])
+    crossed = np.flatnonzero(np.abs(k / k[0] - 1) > config.threshold)
+    drift_time = float(t[crossed[0]]) if crossed.size else math.nan
+    alarm_time = float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
+    after = slice(config.baseline, None)
+    rms = {p: float(100 * np.sqrt(np.mean((smooth[p][after] / true[p][after] - 1) ** 2)))
+           for p in true}
+    return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
+                      1e3 * float(np.median(times)), tracker.engine)
