@@ -465,7 +465,7 @@ def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_squa
     yinf = torch.zeros(6)
     z = torch.randn(6, structure.p, generator=torch.Generator().manual_seed(0))
     with torch.no_grad():
-        raw = ident._forward(y, u, raw=True)[2]
+        raw = ident.forward(y, u, raw=True)[2]
         plain = _batch_loss(ident, y, u, yinf, 0.0)
         both = _batch_loss(ident, y, u, yinf, 0.0, z, 0.7)
     assert float(both - plain) == pytest.approx(0.7 * float(torch.mean((raw - z) ** 2)),
@@ -487,7 +487,7 @@ def test_supervised_training_steers_the_parameters_and_ends_on_the_paper_loss():
         target = (_theta(ident.structure, val.systems, gain) - ident.theta_mean.numpy()) \
             / ident.theta_scale.numpy()
         with torch.no_grad():
-            raw = ident._forward(torch.tensor(val.y, dtype=torch.float32),
+            raw = ident.forward(torch.tensor(val.y, dtype=torch.float32),
                                  torch.tensor(val.u, dtype=torch.float32), raw=True)[2]
         errors[weight] = float(np.mean((raw.numpy() - target) ** 2))
     assert ident.meta["train"]["config"]["supervised"] == 1.0

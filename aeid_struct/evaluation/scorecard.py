@@ -302,9 +302,9 @@ def _physical(est, model: tuple, inverse) -> dict[str, np.ndarray]:
     if inverse is None:
         return {k: np.atleast_1d(np.asarray(v, dtype=np.float64))
                 for k, v in (est.physical or {}).items()}
-    from aeid_struct.identification.identifier import _through_ccf
+    from aeid_struct.identification import through_ccf
 
-    return _through_ccf(*model, inverse)
+    return through_ccf(*model, inverse)
 
 
 def _valid(params: Mapping[str, np.ndarray]) -> np.ndarray:

@@ -145,7 +145,7 @@ def _agrees(ident, fast: Batch1) -> bool:
     ident.encoder.eval()
     try:
         with torch.no_grad():
-            sys, el = ident._forward(y, u)
+            sys, el = ident.forward(y, u)
     finally:
         ident.encoder.train(was_training)
     ref = [t.double().numpy() for t in (sys.A, sys.b, sys.c, sys.d, el)]

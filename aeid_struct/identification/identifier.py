@@ -208,7 +208,7 @@ class Identifier:
             cached = self._provenance = (sources, _provenance_of(self))
         return cached[1]
 
-    def _physical_source(self):
+    def physical_source(self):
         """Where physical parameters come from (``Provenance.inverse``)."""
         return self.provenance.inverse
 
@@ -242,9 +242,9 @@ class Identifier:
             ``A (batch, n, n)``, ``b, c (batch, n)``, ``d (batch,)`` (with a record axis after
             the batch axis for several records).
         """
-        return self._forward(y, u)[0]
+        return self.forward(y, u)[0]
 
-    def _forward(self, y, u, *, raw: bool = False):
+    def forward(self, y, u, *, raw: bool = False):
         """``(System, elements (batch, q))`` of the records, both in measured units; with
         ``raw``, also the encoder's standardised outputs ``(batch, p)``."""
         return forward.differentiable(self, y, u, raw=raw)

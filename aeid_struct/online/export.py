@@ -23,7 +23,7 @@ from aeid_struct.online.onnx import OnnxIdentifier as OnnxIdentifier
 
 
 class _OneRecord(torch.nn.Module):
-    """``Identifier._forward`` of one record, with tensors in and out (traceable)."""
+    """``Identifier.forward`` of one record, with tensors in and out (traceable)."""
 
     def __init__(self, ident) -> None:
         super().__init__()
@@ -31,7 +31,7 @@ class _OneRecord(torch.nn.Module):
         self.encoder = ident.encoder   # registered, so that freezing inlines the weights
 
     def forward(self, y: torch.Tensor, u: torch.Tensor):
-        sys, elements = self.ident._forward(y[None], u[None])
+        sys, elements = self.ident.forward(y[None], u[None])
         return sys.A[0], sys.b[0], sys.c[0], sys.d[0], elements[0]
 
 
@@ -59,7 +59,7 @@ def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
 
 def _file_to_write(path) -> Path:
     """``path`` as a Path to a file that can be written (``identify.writable_file``)."""
-    from aeid_struct.identification.identifier import writable_file
+    from aeid_struct.identification import writable_file
 
     return writable_file(path)
 
@@ -152,7 +152,7 @@ def onnx_bytes(ident) -> bytes:
                           output_names=["A", "b", "c", "d", "elements"], opset_version=17,
                           dynamo=False)
     model = onnx.load_from_string(buffer.getvalue())
-    inverse = ident._physical_source()
+    inverse = ident.physical_source()
     header = {
         "format": ONNX_FORMAT, "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
         "initial": ident.initial, "elements": list(ident.structure.element_names),

@@ -300,13 +300,13 @@ class OnnxIdentifier:
         elif self._inverse is None:
             return {}
         else:
-            from aeid_struct.identification.identifier import _inverse_of_models
+            from aeid_struct.identification import inverse_of_models
 
             A = np.asarray(model["A"], dtype=np.float64)
             n = A.shape[-1]
             A = A.reshape(-1, n, n)
             b, c = (np.asarray(model[k], dtype=np.float64).reshape(-1, n) for k in "bc")
             d = np.asarray(model["d"], dtype=np.float64).reshape(-1)
-            out = _inverse_of_models(self._inverse, A, b, c, d, self._ccf)
+            out = inverse_of_models(self._inverse, A, b, c, d, self._ccf)
         return {k: np.asarray(v, dtype=np.float64) if batched else float(np.ravel(v)[0])
                 for k, v in out.items()}

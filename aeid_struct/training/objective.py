@@ -59,7 +59,7 @@ def batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
     """
     R = ident.records
     dts = ident.dt if R > 1 else (ident.dt,)
-    sys, _, raw = ident._forward(y, u, raw=True)
+    sys, _, raw = ident.forward(y, u, raw=True)
     ys, us = (y, u) if R > 1 else ((y,), (u,))
     total = 0.0
     for r in range(R):
