@@ -4,7 +4,8 @@ initial state, and the same FOH simulation as a CasADi expression for the refine
 
 The functions without a suffix check their arguments (numpy or torch in, the same out); the
 ``*_batch`` kernels, :func:`fit_initial_state` and :func:`simulate_loop` are their unchecked torch
-cores, for training loops and other packages that have checked their input already.
+cores, for training loops and other packages that have checked their input already;
+:func:`simulate_outputs` is the same kernel in numpy for one system with several outputs.
 
 Modules: ``foh`` (:func:`simulate`, :func:`states`, :func:`discretise`), ``kernels`` (the batch
 kernels), ``initial`` (:func:`initial_state`), ``normalise`` (Eq. 4, 14, 15), ``overflow`` (the
@@ -31,6 +32,7 @@ from aeid_struct.simulation.kernels import powers as powers
 from aeid_struct.simulation.kernels import scan as scan
 from aeid_struct.simulation.kernels import simulate_batch as simulate_batch
 from aeid_struct.simulation.kernels import simulate_loop as simulate_loop
+from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
 from aeid_struct.simulation.kernels import states_batch as states_batch
 from aeid_struct.simulation.kernels import states_loop as states_loop
 from aeid_struct.simulation.normalise import denormalise as denormalise
@@ -68,6 +70,7 @@ __all__ = [
     "scan",
     "simulate_batch",
     "simulate_loop",
+    "simulate_outputs",
     "states_batch",
     "states_loop",
     "stationary_value_batch",

@@ -1,7 +1,8 @@
-r"""The decoder's batch kernels (paper Eq. 10-13): torch only, no checks, one common batch size.
+r"""The decoder's kernels (paper Eq. 10-13): no checks; torch with one common batch size, and one
+numpy kernel for a single system.
 
 For use inside training loops and by the public functions of :mod:`aeid_struct.simulation`, which
-check their arguments first. Every kernel takes ``A (batch, n, n)``, ``b, c (batch, n)``,
+check their arguments first. Every torch kernel takes ``A (batch, n, n)``, ``b, c (batch, n)``,
 ``d (batch,)``, ``u (batch, steps)``, ``x0 (batch, n)`` or None (zero), all of one dtype, and
 returns what the arithmetic gives (the overflow rule is the public functions').
 
@@ -25,12 +26,18 @@ batched matmul for every chunk at once. The chunk states follow
 Every coefficient is one power of ``Phi`` applied to one of ``E, Bd, gamma2``, so each sample keeps
 its own relative accuracy at any ``|p| dt`` (tests/test_decoder.py checks it against the per-step
 recursion :func:`simulate_loop`).
+
+:func:`simulate_outputs` is the same convolution form over the whole record in numpy float64, for
+one system with several outputs: callers that simulate one record many times (the classical
+baselines' least squares) would spend most of their time in torch's per-call overhead.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+import scipy.linalg
 import torch
 import torch.nn.functional as F
 
@@ -42,6 +49,7 @@ __all__ = [
     "scan",
     "simulate_batch",
     "simulate_loop",
+    "simulate_outputs",
     "states_batch",
     "states_loop",
 ]
@@ -300,3 +308,61 @@ def simulate_loop(A, b, c, d, u, dt: float, x0=None) -> torch.Tensor:
     """
     X = states_loop(A, b, u, dt, x0)
     return (X @ c[:, :, None])[..., 0] + d[:, None] * u
+
+
+def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray, u: np.ndarray,
+                     dt: float) -> np.ndarray:
+    """Eq. 10-13 in numpy float64 for one system with several outputs, from rest, unchecked.
+
+    ``y_k = t0_k u_0 + sum_{m=1}^{k} tk_{k-m} u_m`` with ``tk = (d + C gamma2, C Bd, C Phi Bd, ..)``
+    and ``t0 = (d, C E, C Phi E, ..)``, the coefficients of :func:`simulate_batch` over the whole
+    record (``E``, ``Bd``: :func:`foh_columns`), ``C Phi^m`` by doubling and a direct (not FFT)
+    convolution, so each sample keeps its own relative accuracy. Overflow is not handled: call it
+    under ``np.errstate`` and check the result.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    b : (n,) array
+    C : (r, n) array
+        One output row per response wanted.
+    d : (r,) array
+    u : (steps,) array
+        Input samples at ``t_k = k dt``, linear in between.
+    dt : float, > 0
+
+    Returns
+    -------
+    Y : (r, steps) array
+        Row ``i`` is the response of ``(A, b, C[i], d[i])``, equal to
+        :func:`~aeid_struct.simulation.simulate` to rounding.
+    """
+    n, r, steps = A.shape[0], C.shape[0], u.shape[0]
+    M = np.zeros((n + 2, n + 2))
+    M[:n, :n] = A * dt
+    M[:n, n] = b * dt
+    M[n, n + 1] = 1.0
+    X = scipy.linalg.expm(M)
+    Phi, gamma1, gamma2 = X[:n, :n], X[:n, n], X[:n, n + 1]
+    E = gamma1 - gamma2
+    Bd = E + Phi @ gamma2
+    # O[m] = C Phi^m for m < steps - 1, by doubling: O[k:2k] = O[0:k] Phi^k, one GEMM per level.
+    rows = max(steps - 1, 1)
+    O = np.empty((rows, r, n))
+    O[0] = C
+    P, k = Phi, 1
+    while k < rows:
+        m = min(k, rows - k)
+        O[k : k + m] = (O[:m].reshape(m * r, n) @ P).reshape(m, r, n)
+        k += m
+        if k < rows:
+            P = P @ P
+    H = (O[: steps - 1].reshape(-1, n) @ np.stack([Bd, E], axis=1)).reshape(steps - 1, r, 2)
+    tk = np.concatenate([(d + C @ gamma2)[:, None], H[..., 0].T], axis=1)    # (r, steps)
+    t0 = np.concatenate([d[:, None], H[..., 1].T], axis=1)                   # (r, steps)
+    Y = t0 * u[0]
+    later = np.concatenate([[0.0], u[1:]])      # u_1, u_2, ..: u_0 enters through t0
+    if np.any(later):
+        for i in range(r):
+            Y[i] += np.convolve(tk[i], later)[:steps]
+    return Y

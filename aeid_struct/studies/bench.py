@@ -269,7 +269,7 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
     """
     from threadpoolctl import threadpool_limits
 
-    from aeid_struct.baselines import classical as baselines
+    from aeid_struct import baselines
     from aeid_struct.identification import load_pretrained
     from aeid_struct.studies.leg_paper import RECORDS
     from aeid_struct.training import LegFamily, records

@@ -193,7 +193,7 @@ def least_squares(variant: Variant):
     record behind an identifier's interface (``baselines.Classical``), to score side by side."""
     from functools import partial
 
-    from aeid_struct.baselines import classical as baselines
+    from aeid_struct import baselines
     from aeid_struct.studies.leg_paper import RECORDS
 
     if variant.subsystem not in RECORDS:
