@@ -15,10 +15,10 @@ from problems import modal_system
 
 import aeid_struct as ae
 from aeid_struct import baselines as bl
-from aeid_struct.baselines.least_squares import Problem
 from aeid_struct.baselines.models import free_indices, model_of
-from aeid_struct.simulation import simulate_outputs
+from aeid_struct.baselines.output_error import Problem
 from aeid_struct.identification.identifier import Estimate
+from aeid_struct.simulation import simulate_outputs
 from aeid_struct.training.families import LegFamily
 from symbolic import leg
 

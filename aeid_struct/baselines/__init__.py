@@ -6,21 +6,24 @@ treats them like the encoder. A failure that depends on the data does not raise:
 comes back with ``info["failed"] = True`` and a ``info["reason"]``; bad arguments raise
 ``ValueError`` naming the argument.
 
-Modules: ``continuous`` (discrete -> continuous time), ``n4sid``, ``least_squares``,
-``casadi_cold``, ``start`` (the generic start), ``models`` (a structure's model in numpy),
-``checks``, ``failure``, ``classical`` (:class:`Classical`).
+Modules: ``continuous`` (discrete -> continuous time), ``subspace`` (:func:`n4sid`),
+``output_error`` (:func:`least_squares`), ``cold_nlp`` (:func:`casadi_cold`), ``start`` (the
+generic start), ``models`` (a structure's model in numpy), ``checks``, ``failures``
+(:func:`failure`), ``classical`` (:class:`Classical`). No module shares a name with a function
+the package exports, so ``from aeid_struct.baselines import failure`` is the function to every
+tool.
 """
 
-from aeid_struct.baselines.casadi_cold import casadi_cold as casadi_cold
 from aeid_struct.baselines.classical import Classical as Classical
+from aeid_struct.baselines.cold_nlp import casadi_cold as casadi_cold
 from aeid_struct.baselines.continuous import Continuous as Continuous
 from aeid_struct.baselines.continuous import NoRealLogarithm as NoRealLogarithm
 from aeid_struct.baselines.continuous import to_continuous as to_continuous
-from aeid_struct.baselines.failure import failed as failed
-from aeid_struct.baselines.failure import failure as failure
-from aeid_struct.baselines.least_squares import least_squares as least_squares
-from aeid_struct.baselines.n4sid import n4sid as n4sid
+from aeid_struct.baselines.failures import failed as failed
+from aeid_struct.baselines.failures import failure as failure
+from aeid_struct.baselines.output_error import least_squares as least_squares
 from aeid_struct.baselines.start import generic_start as generic_start
+from aeid_struct.baselines.subspace import n4sid as n4sid
 
 __all__ = [
     "Classical",
