@@ -6,13 +6,15 @@ diagonal Pade approximant of degree 13, written with CasADi operations: with
 squarings ``s`` is part of the graph, so it is fixed when a graph is built
 (:func:`squarings_for` a bound on ``||M||_1``); spare squarings keep the accuracy.
 
-:func:`casadi_simulate` carries the state ``x`` itself, as the torch decoder does
-(:mod:`aeid_struct.simulation.kernels`): ``x_{k+1} = Phi x_k + E u_k + gamma2 u_{k+1}`` with
-``E = gamma1 - gamma2`` (Eq. 11 rearranged), ``y_k = c^T x_k + d u_k`` (Eq. 13), ``x_0 = 0``. The
-shifted state ``xi = x - gamma2 u`` of ``cont2discrete(method="foh")`` would save a few graph
-nodes but loses all digits of an unstable response with large ``p dt`` (``xi_0 = -gamma2 u_0``
-is carried as ``Phi^k xi_0`` and cancelled by a term as large); tests/test_casadi_foh.py checks
-the graph against :func:`~aeid_struct.simulation.simulate` up to ``|p| dt = 30``.
+:func:`casadi_simulate` uses the coefficients of the torch decoder
+(:mod:`aeid_struct.simulation.kernels`): from ``x_0 = 0``, ``x_1 = E u_0 + gamma2 u_1`` with
+``E = gamma1 - gamma2`` (Eq. 11 rearranged), then ``z_k = x_k - gamma2 u_k`` (``z_1 = E u_0``)
+obeys ``z_{k+1} = Phi z_k + Bd u_k``, ``y_k = c^T z_k + (d + c^T gamma2) u_k`` with
+``Bd = E + Phi gamma2``. The shifted state ``xi = x - gamma2 u`` of ``cont2discrete(method="foh")``
+from ``k = 0`` has the same graph but starts at ``xi_0 = -gamma2 u_0``, which is carried as
+``Phi^k xi_0`` and cancelled by a term as large: an unstable response with large ``p dt`` loses
+all its digits. tests/test_refine.py checks the graph against
+:func:`~aeid_struct.simulation.simulate` up to ``|p| dt = 30``.
 """
 
 from __future__ import annotations
@@ -137,7 +139,8 @@ def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int, free: bool = Fa
 
     ``x_{k+1} = Phi x_k + E u_k + gamma2 u_{k+1}`` (``E = gamma1 - gamma2``, Eq. 11 rearranged),
     ``y_k = c^T x_k + d u_k``, with ``(Phi, gamma1, gamma2)`` from :func:`expm` of Eq. 10's
-    matrix (:func:`augmented`); unrolled over the record (a graph of ``O(steps n^2)`` nodes).
+    matrix (:func:`augmented`); unrolled over the record (a graph of ``O(steps n^2)`` nodes) in
+    the form of the module docstring, which keeps each sample's relative accuracy.
 
     Parameters
     ----------
@@ -176,14 +179,19 @@ def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int, free: bool = Fa
     M = expm(augmented(A, b, dt), squarings)
     Phi, gamma1, gamma2 = M[:n, :n], M[:n, n], M[:n, n + 1]
     E = gamma1 - gamma2
+    Bd, Dd = E + Phi @ gamma2, d + c.T @ gamma2
     steps = u.shape[0]
-    y, rows, o = [d * u[0]], [c.T], c.T      # x_0 = 0: y_0 = d u_0
-    x = E * u[0] + gamma2 * u[1] if steps > 1 else None
+    # x_0 = 0, so y_0 = d u_0 and x_1 = E u_0 + gamma2 u_1. From k = 1 on, z_k = x_k - gamma2 u_k
+    # (z_1 = E u_0) takes the input through one column: z_{k+1} = Phi z_k + Bd u_k,
+    # y_k = c^T z_k + Dd u_k (the decoder kernel's Toeplitz form). Every term is one power of Phi
+    # on E or Bd: no large start value to cancel, unlike xi_0 = -gamma2 u_0.
+    y, rows, o = [d * u[0]], [c.T], c.T
+    z = E * u[0]
     for k in range(1, steps):
-        y.append(c.T @ x + d * u[k])
+        y.append(c.T @ z + Dd * u[k])
         if free:
             o = o @ Phi
             rows.append(o)
         if k + 1 < steps:
-            x = Phi @ x + E * u[k] + gamma2 * u[k + 1]
+            z = Phi @ z + Bd * u[k]
     return (casadi.vertcat(*y), casadi.vertcat(*rows)) if free else casadi.vertcat(*y)

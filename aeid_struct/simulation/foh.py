@@ -22,7 +22,8 @@ with ``Phi = e^{A dt}``, ``gamma1 = int_0^dt e^{A s} ds b`` and
 ``gamma2 = (1/dt) int_0^dt e^{A (dt - s)} s ds b``. ``x_0`` is zero unless ``x0`` is given.
 
 :func:`simulate` runs the recursion in ``log2(steps)`` levels
-(:func:`~aeid_struct.simulation.kernels.simulate_batch`, whose docstring has the derivation) and
+(:func:`~aeid_struct.simulation.kernels.simulate_batch`; the derivation is in
+:mod:`aeid_struct.simulation.kernels`) and
 applies the overflow rule (:mod:`aeid_struct.simulation.overflow`). This module also keeps the
 decoder's old private names (``_simulate``, ``_free_fit``, ...) as aliases of the public ones, for
 code that still imports them from here.
