@@ -1257,7 +1257,7 @@ def _training() -> list[Case]:
 
 
 def _baselines() -> list[Case]:
-    from aeid_struct.baselines import classical as baselines
+    from aeid_struct import baselines
     from aeid_struct.structures.base import CCF
 
     area = "baselines"

@@ -14,8 +14,11 @@ from helpers import rel_max_error
 from problems import modal_system
 
 import aeid_struct as ae
-from aeid_struct.baselines import classical as bl
+from aeid_struct import baselines as bl
+from aeid_struct.baselines.models import free_indices, model_of
+from aeid_struct.baselines.output_error import Problem
 from aeid_struct.identification.identifier import Estimate
+from aeid_struct.simulation import simulate_outputs
 from aeid_struct.training.families import LegFamily
 from symbolic import leg
 
@@ -44,7 +47,7 @@ def _pole_error(A_hat, A):
 
 
 # ---------------------------------------------------------------------------------------------
-# The numpy FOH simulation used by least squares
+# The numpy FOH kernel least squares uses (aeid_struct.simulation.simulate_outputs)
 # ---------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["step", "prbs", "random", "ramp"])
 def test_numpy_foh_matches_the_decoder(kind):
@@ -56,7 +59,7 @@ def test_numpy_foh_matches_the_decoder(kind):
              "random": rng.normal(size=steps), "ramp": 0.3 + np.arange(steps) * dt}[kind]
         C = np.stack([c, rng.normal(size=c.shape[0])])
         d = np.array([0.0, 0.7])
-        Y = bl._foh(A, b, C, d, u, dt)
+        Y = simulate_outputs(A, b, C, d, u, dt)
         for i in range(2):
             ref = ae.simulate(A, b, C[i], d[i], u, dt)
             assert rel_max_error(Y[i], ref) < 1e-12
@@ -290,8 +293,8 @@ def test_sensitivity_jacobian_matches_finite_differences(which):
         structure = ae.Physical(leg.stable_map(), bounds={"k": (20, 25), "d": (2, 5),
                                                           "m": (0.5, 1.5)})
         x = np.array([22.0, 3.0, 0.9])
-    free = bl._free(structure)
-    problem = bl._Problem(bl._model(structure, free), x, y, u, dt, exact=True)
+    free = free_indices(structure)
+    problem = Problem(model_of(structure, free), x, y, u, dt, exact=True)
     J = problem.jacobian(x[free])
     h = 1e-6 * np.maximum(1.0, np.abs(x[free]))
     for j in range(len(free)):

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from aeid_struct.baselines import classical as baselines
+from aeid_struct import baselines
 from aeid_struct.studies.bench import (
     IDENTIFICATION_LEGEND,
     bench_identification,

@@ -1,4 +1,4 @@
-"""Tests of aeid_struct.decoder against independent oracles.
+"""Tests of aeid_struct.simulation (the decoder) against independent oracles.
 
 Oracles: scipy's ``expm`` of the augmented matrix, ``scipy.signal.cont2discrete(method="foh")`` +
 ``dlsim``, python-control's continuous-time ``forced_response`` (exact for linearly interpolated
@@ -24,8 +24,8 @@ from helpers import RTOL, rel_max_error
 from problems import inputs, modal_system
 
 import aeid_struct as ae
-from aeid_struct.simulation import foh as decoder
-from aeid_struct.simulation.foh import (
+from aeid_struct import simulation as decoder
+from aeid_struct.simulation import (
     Discrete,
     denormalise,
     discretise,
@@ -36,16 +36,17 @@ from aeid_struct.simulation.foh import (
     states,
     stationary_value,
 )
+from aeid_struct.studies.bench_kernels import simulate_fft, simulate_scan
 
 DT = 0.01
 STEPS = 200  # 2 s: an unstable pole at +12 rad/s grows by e^24 over the record
 ORDERS = [1, 2, 3, 4, 5, 6]
 SIGNALS = ["step", "ramp", "random", "prbs"]
 METHODS = {
-    "chunked": decoder._simulate_chunked,
-    "fft": decoder._simulate_fft,
-    "scan": decoder._simulate_scan,
-    "loop": decoder._simulate_loop,
+    "chunked": decoder.simulate_batch,
+    "fft": simulate_fft,
+    "scan": simulate_scan,
+    "loop": decoder.simulate_loop,
 }
 
 
@@ -315,7 +316,7 @@ def test_float32_unstable_response_keeps_per_sample_accuracy():
         return np.max(np.abs(y[1:] - exact[1:]) / exact[1:])
 
     assert per_sample(simulate(A, b, c, 0.0, u, dt).double().numpy()) < 5e-4
-    y_fft = decoder._simulate_fft(A[None], b[None], c[None], torch.zeros(1), u[None], dt)
+    y_fft = simulate_fft(A[None], b[None], c[None], torch.zeros(1), u[None], dt)
     assert per_sample(y_fft[0].double().numpy()) > 1.0
 
 
@@ -621,7 +622,7 @@ def test_tensors_on_one_device_and_core_skips_checks():
     # The private core runs without validation (for training loops): a nan passes through.
     A, b, c, d, u = (t[None] for t in _torch(_A, _b, _c, _d, _u))
     u[0, 3] = float("nan")
-    assert bool(torch.isnan(decoder._simulate(A, b, c, d, u, DT)).any())
+    assert bool(torch.isnan(decoder.simulate_batch(A, b, c, d, u, DT)).any())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -675,8 +676,8 @@ def test_initial_state_batches_and_differentiates():
     torch.testing.assert_close(decoder.initial_state(A, b, c, d, u, y, 0.05), x0)
     Ag = A.clone().requires_grad_(True)
     assert torch.autograd.gradcheck(
-        lambda M: decoder._initial_state(M[None].expand(2, 2, 2), b[None].expand(2, 2),
-                                         c[None].expand(2, 2), d.expand(2), u, y, 0.05),
+        lambda M: decoder.fit_initial_state(M[None].expand(2, 2, 2), b[None].expand(2, 2),
+                                            c[None].expand(2, 2), d.expand(2), u, y, 0.05)[0],
         (Ag,))
     with pytest.raises(ValueError, match=r"y must have as many samples as u \(50\); got 49"):
         decoder.initial_state(A, b, c, d, u, y[:, :49], 0.05)
@@ -686,11 +687,11 @@ def test_free_fit_response_is_the_simulation_from_the_fitted_state():
     A, b, c, d = _torch(*_system(3, True, salt=5))
     u = torch.cos(torch.linspace(0, 6, 80, dtype=torch.float64))[None]
     y = torch.randn(1, 80, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
-    x0, y_hat = decoder._free_fit(A[None], b[None], c[None], d[None], u, y, 0.05)
+    x0, y_hat = decoder.fit_initial_state(A[None], b[None], c[None], d[None], u, y, 0.05)
     torch.testing.assert_close(y_hat, ae.simulate(A[None], b[None], c[None], d[None], u, 0.05,
                                                   x0=x0))
     # the least-squares residual is orthogonal to every free-response column
-    O = decoder._free_response(A[None], c[None], 0.05, 80)
+    O = decoder.free_response(A[None], c[None], 0.05, 80)
     assert (O.mT @ (y - y_hat)[..., None]).abs().max() < 1e-9 * y.abs().max() * O.abs().max()
 
 
@@ -907,7 +908,7 @@ def test_kernel_overflow_with_a_finite_response_is_exact_and_silent():
     then give the recursion's finite values, without a warning."""
     A, b, c = np.array([[200.0]]), np.array([1e-300]), np.array([1.0])
     u = np.ones(7)
-    kernel = decoder._simulate(*(t[None] for t in _torch(A, b, c, 0.0, u)), 1.0)
+    kernel = decoder.simulate_batch(*(t[None] for t in _torch(A, b, c, 0.0, u)), 1.0)
     assert not bool(torch.isfinite(kernel).all())  # the fallback is exercised
     expected, _, scale = _recursion(A, b, c, 0.0, u, 1.0)
     assert np.isfinite(expected).all() and expected[-1] > 1e200
@@ -980,8 +981,8 @@ def test_initial_state_rejects_an_unobservable_model():
 
 
 def test_gradcheck_training_decoder_at_large_pole_dt():
-    """decoder._simulate (the decoder training calls) in float64 on a batch that mixes
-    pole dt = 0.05 and pole dt = 12 (growth e^72 over the record); _free_fit (training with
+    """decoder.simulate_batch (the kernel training calls) in float64 on a batch that mixes
+    pole dt = 0.05 and pole dt = 12 (growth e^72 over the record); fit_initial_state (training with
     fitted initial states) at pole dt = 1.5, where its least squares is well-conditioned enough
     for finite differences (at pole dt = 3 they fail, with the former column scaling too)."""
     def batch(growth):
@@ -996,10 +997,10 @@ def test_gradcheck_training_decoder_at_large_pole_dt():
     u = torch.sin(torch.arange(7.0, dtype=torch.float64))[None].expand(2, 7).contiguous()
     args = batch(2.0)  # poles +12 and -8 rad/s
     # Scaled per record so that every output is O(1) and gradcheck's tolerances mean the same.
-    scale = 1.0 / decoder._simulate(*args, u, 1.0).detach().abs().amax(1, keepdim=True)
-    assert torch.autograd.gradcheck(lambda *a: decoder._simulate(*a, u, 1.0) * scale, args)
+    scale = 1.0 / decoder.simulate_batch(*args, u, 1.0).detach().abs().amax(1, keepdim=True)
+    assert torch.autograd.gradcheck(lambda *a: decoder.simulate_batch(*a, u, 1.0) * scale, args)
     args = batch(0.25)  # poles +1.5 and -1 rad/s
-    y = decoder._simulate(*args, u, 1.0).detach()
+    y = decoder.simulate_batch(*args, u, 1.0).detach()
     y = 1.001 * y + 0.01 * y.abs().amax(1, keepdim=True) * torch.cos(torch.arange(7.0))
-    assert torch.autograd.gradcheck(lambda *a: decoder._free_fit(*a, u, y, 1.0)[1], args)
-    assert torch.autograd.gradcheck(lambda *a: decoder._free_fit(*a, u, y, 1.0)[0], args)
+    assert torch.autograd.gradcheck(lambda *a: decoder.fit_initial_state(*a, u, y, 1.0)[1], args)
+    assert torch.autograd.gradcheck(lambda *a: decoder.fit_initial_state(*a, u, y, 1.0)[0], args)

@@ -409,7 +409,7 @@ def _complex(n=60):
 
 def _complex_cases():
     """(entry point, call, message): a complex ``y`` or ``u`` at every place a record enters."""
-    from aeid_struct.baselines import classical as bl
+    from aeid_struct import baselines as bl
     from aeid_struct.refinement import refine
 
     ident = _identifier()

@@ -21,15 +21,16 @@ from problems import inputs, modal_system
 from test_identify import _identifier, _record
 
 import aeid_struct as ae
+from aeid_struct import simulation as S
 from aeid_struct.refinement import (
     RefineConfig,
     cache_info,
     clear_cache,
     refine,
     refine_elements,
+    solve,
 )
 from aeid_struct.refinement import nlp as R
-from aeid_struct.refinement import solve as S
 from symbolic import leg
 
 # -- records with exact answers ---------------------------------------------------------------
@@ -78,14 +79,14 @@ def test_expm_matches_scipy(order, norm):
     rng = np.random.default_rng(100 * order + int(10 * norm))
     M = rng.normal(size=(order, order))
     M *= norm / np.abs(M).sum(0).max()
-    s = R._squarings(np.abs(M).sum(0).max())
+    s = S.squarings_for(np.abs(M).sum(0).max())
     X = casadi.SX.sym("M", order, order)
-    f = casadi.Function("expm", [X], [R.expm(X, s)])
+    f = casadi.Function("expm", [X], [S.expm(X, s)])
     expected = scipy.linalg.expm(M)
     assert rel_max_error(np.array(f(M)), expected) <= 1e-12
     # a numeric M picks its squarings itself, and spare squarings do not hurt
-    assert rel_max_error(np.array(R.expm(M)), expected) <= 1e-12
-    assert rel_max_error(np.array(casadi.Function("e", [X], [R.expm(X, s + 3)])(M)),
+    assert rel_max_error(np.array(S.expm(M)), expected) <= 1e-12
+    assert rel_max_error(np.array(casadi.Function("e", [X], [S.expm(X, s + 3)])(M)),
                          expected) <= 1e-12
 
 
@@ -94,7 +95,7 @@ def test_expm_of_the_augmented_matrix_gives_the_decoders_discretisation():
     for n in range(1, 7):
         A, b, _, _ = modal_system(n, rng, stable=n % 2 == 0)
         dt = 0.05
-        E = np.array(R.expm(R._augmented(casadi.DM(A), casadi.DM(b), dt)))
+        E = np.array(S.expm(S.augmented(casadi.DM(A), casadi.DM(b), dt)))
         ref = ae.discretise(A, b, dt)
         assert rel_max_error(E[:n, :n], ref.Phi) <= 1e-12
         assert rel_max_error(E[:n, n], ref.gamma1) <= 1e-12
@@ -104,11 +105,11 @@ def test_expm_of_the_augmented_matrix_gives_the_decoders_discretisation():
 
 def test_expm_errors():
     with pytest.raises(ValueError, match="squarings must be given for a symbolic M"):
-        R.expm(casadi.SX.sym("M", 2, 2))
+        S.expm(casadi.SX.sym("M", 2, 2))
     with pytest.raises(ValueError, match="squarings must be an integer >= 0; got -1"):
-        R.expm(np.eye(2), -1)
+        S.expm(np.eye(2), -1)
     with pytest.raises(ValueError, match=r"M must be square; got shape \(2, 3\)"):
-        R.expm(np.ones((2, 3)))
+        S.expm(np.ones((2, 3)))
 
 
 # -- the simulation inside the NLP ----------------------------------------------------------------
@@ -123,12 +124,65 @@ def test_casadi_simulation_equals_the_decoder(n, stable):
     sA, sb, sc = casadi.SX.sym("A", n, n), casadi.SX.sym("b", n), casadi.SX.sym("c", n)
     sd, su = casadi.SX.sym("d"), casadi.SX.sym("u", steps)
     norm = max(np.abs(A).sum(0).max() * dt, np.abs(b).sum() * dt, 1.0)
-    y = R.casadi_simulate(sA, sb, sc, sd, su, dt, squarings=R._squarings(norm))
+    y = S.casadi_simulate(sA, sb, sc, sd, su, dt, squarings=S.squarings_for(norm))
     f = casadi.Function("sim", [sA, sb, sc, sd, su], [y])
     for name, u in inputs(steps, dt, rng).items():
         expected = ae.simulate(A, b, c, d, u, dt)
         got = np.array(f(A, b, c, d, u)).ravel()
         assert rel_max_error(got, expected) <= 1e-12, name
+
+
+def _casadi_response(A, b, c, d, u, dt):
+    """``casadi_simulate`` of a numeric system, through a symbolic graph as the NLP builds it."""
+    n, steps = A.shape[0], len(u)
+    sA, sb, sc = casadi.SX.sym("A", n, n), casadi.SX.sym("b", n), casadi.SX.sym("c", n)
+    sd, su = casadi.SX.sym("d"), casadi.SX.sym("u", steps)
+    norm = max(np.abs(A).sum(0).max() * dt, np.abs(b).sum() * dt, 1.0)
+    y = S.casadi_simulate(sA, sb, sc, sd, su, dt, squarings=S.squarings_for(norm))
+    return np.array(casadi.Function("sim", [sA, sb, sc, sd, su], [y])(A, b, c, d, u)).ravel()
+
+
+@pytest.mark.parametrize("pole_dt", [-30.0, -10.0, -1.0, 0.1, 1.0, 10.0, 20.0, 30.0])
+@pytest.mark.parametrize("kind", ["real", "pair", "two real"])
+def test_casadi_simulation_keeps_each_samples_digits_at_large_pole_dt(pole_dt, kind):
+    """One FOH simulator (issue 13): the CasADi graph carries x itself like the decoder, so each
+    sample agrees with ``simulate`` (numpy, float64) to 1e-9 relative up to |p| dt = 30. The
+    shifted state xi = x - gamma2 u (cont2discrete's) lost ~1e-4 of it there: from rest
+    xi_0 = -gamma2 u_0 grows like the response and cancels against the input's kernel."""
+    dt = 0.1
+    p = pole_dt / dt
+    if kind == "real":
+        A, b, c, d = np.array([[p]]), np.array([1.0]), np.array([1.0]), 0.3
+    elif kind == "pair":   # p +- j 0.5 |p|
+        A = np.array([[p, 0.5 * abs(p)], [-0.5 * abs(p), p]])
+        b, c, d = np.array([0.0, 1.0]), np.array([1.0, 0.3]), 0.0
+    else:                  # p and -0.3 p: one stable and one unstable mode, or two stable
+        A = np.diag([p, -0.3 * p]) if p > 0 else np.diag([p, 0.3 * p])
+        b, c, d = np.array([1.0, 1.0]), np.array([1.0, -2.0]), 0.1
+    rng = np.random.default_rng(int(abs(pole_dt) * 10) + len(kind))
+    u = 1.0 + rng.normal(size=20)       # u_0 != 0: the case the shifted state got wrong
+    expected = ae.simulate(A, b, c, d, u, dt)
+    got = _casadi_response(A, b, c, d, u, dt)
+    assert np.all(np.isfinite(expected))
+    nonzero = expected != 0.0           # y_0 = d u_0 = 0 for the pair, exactly in both
+    np.testing.assert_array_equal(got[~nonzero], 0.0)
+    assert np.max(np.abs(got - expected)[nonzero] / np.abs(expected[nonzero])) <= 1e-9
+
+
+def test_casadi_simulation_matches_the_decoder_up_to_the_decoders_overflow():
+    """p dt = 30 over 30 samples grows by e^870, beyond float64: ``simulate`` returns +inf from
+    the first overflowing sample on (with its warning); every finite sample before it agrees."""
+    A, b, c, dt = np.array([[300.0]]), np.array([1.0]), np.array([1.0]), 0.1
+    u = np.linspace(1.0, 2.0, 30)
+    with pytest.warns(S.OverflowWarning, match="the response overflows float64"):
+        expected = ae.simulate(A, b, c, 0.0, u, dt)
+    finite = np.isfinite(expected)
+    assert 20 < finite.sum() < 30 and np.all(finite[: finite.sum()])
+    with np.errstate(all="ignore"):
+        got = _casadi_response(A, b, c, 0.0, u, dt)
+    got, expected = got[finite], expected[finite]
+    assert got[0] == expected[0] == 0.0            # y_0 = d u_0, d = 0
+    assert np.max(np.abs(got[1:] - expected[1:]) / np.abs(expected[1:])) <= 1e-9
 
 
 def test_the_nlp_objective_is_eq14_of_the_normalised_record():
@@ -208,7 +262,7 @@ def test_iterates_beyond_the_squarings_trigger_a_rebuild():
     y = record_of(structure, x_true, np.ones(steps), dt)
     x0 = np.array([100.0, 10.0, 100.0, 0.0])
     res = refine_elements(structure, x0, y, None, dt)
-    assert R._squarings(S._NORM_MARGIN * 5.0) == 3 and res.squarings >= 5
+    assert R.fewest_squarings(solve._NORM_MARGIN * 5.0) == 3 and res.squarings >= 5
     assert res.success
     assert np.abs(res.elements - x_true).max() <= 1e-8 * 2500.0
 
@@ -534,7 +588,7 @@ def test_free_response_basis_is_python_controls_response_from_an_initial_state()
     sA, sb, sc = casadi.SX.sym("A", 3, 3), casadi.SX.sym("b", 3), casadi.SX.sym("c", 3)
     sd, su = casadi.SX.sym("d"), casadi.SX.sym("u", steps)
     norm = max(np.abs(A).sum(0).max() * dt, np.abs(b).sum() * dt, 1.0)
-    y, O = R.casadi_simulate(sA, sb, sc, sd, su, dt, squarings=R._squarings(norm), free=True)
+    y, O = S.casadi_simulate(sA, sb, sc, sd, su, dt, squarings=S.squarings_for(norm), free=True)
     f = casadi.Function("sim", [sA, sb, sc, sd, su], [y, O])
     u = np.sin(np.arange(steps) * 0.3)
     x0 = rng.normal(size=3)

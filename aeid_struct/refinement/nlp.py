@@ -8,9 +8,9 @@ For a record ``y, u (steps,)`` at ``t_k = k dt`` and the structure's free elemen
 with ``m = steps``: the paper's loss (Eq. 14, ``gamma = 0``) on the normalised record (Eq. 15).
 By linearity the NLP's parameters are ``w y`` and ``w u`` with ``w = 2 / (y_bar sqrt(m + 1))``,
 its residuals ``r = w y - yhat(w u)`` and ``J = sum_k r_k^2``. ``yhat`` is the decoder's exact
-first-order-hold response (Eq. 10-13) unrolled as one CasADi graph (:func:`casadi_simulate`,
-with Higham's Pade [13/13] :func:`expm`); a record that starts mid-motion has its least-squares
-initial state projected out (variable projection). Decision variables are the free elements in
+first-order-hold response (Eq. 10-13) unrolled as one CasADi graph
+(``simulation.casadi_simulate``, with Higham's Pade [13/13] ``simulation.expm``); a record that
+starts mid-motion has its least-squares initial state projected out (variable projection). Decision variables are the free elements in
 relative units ``x_i = s_i z_i``; the Hessian is the Gauss-Newton ``2 (J^T J + mu I)``.
 
 Problems are built once per (structure, steps, dt, squarings, config, initial) and kept in a small
@@ -22,157 +22,23 @@ docs/architecture.md.
 from __future__ import annotations
 
 import json
-import math
 from collections import OrderedDict
 from dataclasses import dataclass
 
 import casadi
 import numpy as np
 
-from aeid_struct.records import as_array
-from aeid_struct.records import check_dt as _check_dt  # the one dt rule (foundation)
 from aeid_struct.refinement.config import SOLVERS, CacheInfo, RefineConfig
+from aeid_struct.simulation import THETA13, casadi_simulate, expm, squarings_for
 from aeid_struct.structures import Structure
 
 __all__ = ["SOLVERS", "THETA13", "Numeric", "assembly", "build", "cache_info", "casadi_simulate",
            "clear_cache", "expm", "problem", "structure_key"]
 
-# Pade [13/13] coefficients b_0..b_13 and its scaling threshold (Higham 2005, Table 2.3).
-_PADE13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
-           129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
-           40840800.0, 960960.0, 16380.0, 182.0, 1.0)
-THETA13 = 5.371920351148152
 #: Relative Levenberg floor of the Gauss-Newton Hessian ``2 (J^T J + mu I)``.
 _DAMPING = 1e-12
 #: Solvers kept in the cache.
 _CACHE_SIZE = 32
-
-
-# ---------------------------------------------------------------------------------------------
-# The matrix exponential and the simulation, in CasADi
-# ---------------------------------------------------------------------------------------------
-def _squarings(norm: float) -> int:
-    """Fewest ``s >= 0`` with ``norm / 2^s <= theta_13``."""
-    if not math.isfinite(norm):
-        raise ValueError(f"||M||_1 must be finite to choose the squarings; got {norm}")
-    return max(0, math.ceil(math.log2(norm / THETA13))) if norm > THETA13 else 0
-
-
-def expm(M, squarings: int | None = None):
-    """Matrix exponential with CasADi operations: scaling and squaring, Pade [13/13].
-
-    ``expm(M) = r(M / 2^s)^(2^s)`` with ``r(X) = (V - U)^{-1} (V + U)`` the diagonal Pade
-    approximant of degree 13 (``U`` odd, ``V`` even in ``X``; Higham 2005); accurate to rounding
-    (backward error below the unit roundoff) when ``||M||_1 / 2^s <= theta_13 = 5.37``.
-
-    Parameters
-    ----------
-    M : (N, N) casadi SX, MX or DM, or numpy
-    squarings : int >= 0, optional
-        ``s``, fixed in the graph. Required for a symbolic ``M`` (choose it from a bound on
-        ``||M||_1``); for a numeric ``M`` it defaults to the fewest that meet the bound.
-
-    Returns
-    -------
-    (N, N), the type of ``M`` (DM for numpy).
-    """
-    if not isinstance(M, (casadi.SX, casadi.MX, casadi.DM)):
-        M = casadi.DM(np.asarray(M, dtype=np.float64))
-    if M.shape[0] != M.shape[1]:
-        raise ValueError(f"M must be square; got shape {M.shape}")
-    if squarings is None:
-        if not isinstance(M, casadi.DM):
-            raise ValueError("squarings must be given for a symbolic M: the graph needs a fixed "
-                             "number of squarings (choose it from a bound on ||M||_1)")
-        squarings = _squarings(float(casadi.norm_1(M)))
-    if isinstance(squarings, bool) or not isinstance(squarings, (int, np.integer)) \
-            or squarings < 0:
-        raise ValueError(f"squarings must be an integer >= 0; got {squarings!r}")
-    N, b = M.shape[0], _PADE13
-    X = M / 2.0 ** int(squarings)
-    eye = type(X).eye(N)
-    X2 = X @ X
-    X4 = X2 @ X2
-    X6 = X4 @ X2
-    U = X @ (X6 @ (b[13] * X6 + b[11] * X4 + b[9] * X2)
-             + b[7] * X6 + b[5] * X4 + b[3] * X2 + b[1] * eye)
-    V = X6 @ (b[12] * X6 + b[10] * X4 + b[8] * X2) + b[6] * X6 + b[4] * X4 + b[2] * X2 \
-        + b[0] * eye
-    E = casadi.solve(V - U, V + U)
-    for _ in range(int(squarings)):
-        E = E @ E
-    return E
-
-
-def _augmented(A, b, dt: float):
-    """Eq. 10's ``M = [[A dt, b dt, 0], [0, 0, 1], [0, 0, 0]]`` (CasADi, ``(n+2, n+2)``)."""
-    n = A.shape[0]
-    zeros = type(A).zeros
-    top = casadi.horzcat(A * dt, b * dt, zeros(n, 1))
-    bottom = casadi.DM([[0.0] * n + [0.0, 1.0], [0.0] * (n + 2)])
-    return casadi.vertcat(top, bottom)
-
-
-def casadi_simulate(A, b, c, d, u, dt: float, *, squarings: int, free: bool = False):
-    """The decoder's exact FOH response (Eq. 10-13) as a CasADi expression, ``x_0 = 0``.
-
-    ``x_{k+1} = Phi x_k + gamma1 u_k + gamma2 (u_{k+1} - u_k)``, ``y_k = c^T x_k + d u_k``, with
-    ``(Phi, gamma1, gamma2)`` from :func:`expm` of Eq. 10's augmented matrix; unrolled over the
-    record (a graph of ``O(steps n^2)`` nodes).
-
-    Parameters
-    ----------
-    A : (n, n); b, c : (n, 1); d : (1, 1) -- CasADi (SX, MX or DM) or numpy
-    u : (steps, 1) CasADi, or numpy (steps,)
-    dt : float > 0
-    squarings : int >= 0
-        Squarings of the matrix exponential (see :func:`expm`).
-    free : bool
-        Also return the free-response basis ``O (steps, n)``, row ``k`` = ``c^T Phi^k``: the
-        response from an initial state ``x_0`` is ``y + O x_0``.
-
-    Returns
-    -------
-    y : (steps, 1), CasADi (and ``O`` with ``free``).
-    """
-    dt = _check_dt(dt)
-    A, b, c, d, u = (v if isinstance(v, (casadi.SX, casadi.MX, casadi.DM))
-                     else casadi.DM(as_array(name, v))
-                     for name, v in zip("Abcdu", (A, b, c, d, u), strict=True))
-    n = A.shape[0]
-    for name, v, shape in (("A", A, (n, n)), ("b", b, (n, 1)), ("c", c, (n, 1)),
-                           ("d", d, (1, 1))):
-        if v.shape != shape:
-            raise ValueError(f"{name} must have shape {shape} with n = {n} from A; "
-                             f"got {v.shape}")
-    if u.shape[1] != 1 or u.shape[0] < 1:
-        raise ValueError(f"u must have shape (steps, 1) with steps >= 1; got {u.shape}")
-    E = expm(_augmented(A, b, dt), squarings)
-    Phi, gamma1, gamma2 = E[:n, :n], E[:n, n], E[:n, n + 1]
-    # The shifted state xi_k = x_k - gamma2 u_k (as in the decoder) takes the input through one
-    # column: xi_{k+1} = Phi xi_k + Bd u_k, y_k = c^T xi_k + Dd u_k, xi_0 = -gamma2 u_0, with
-    # Bd = gamma1 - gamma2 + Phi gamma2, Dd = d + c^T gamma2 (substitute x_k = xi_k + gamma2 u_k
-    # into Eq. 10-13). Same outputs, ~10 % fewer graph nodes per sample.
-    Bd = gamma1 - gamma2 + Phi @ gamma2
-    Dd = d + c.T @ gamma2
-    steps = u.shape[0]
-    xi = -gamma2 * u[0]
-    y, rows, o = [], [], c.T
-    for k in range(steps):
-        y.append(c.T @ xi + Dd * u[k])
-        if free:
-            rows.append(o)
-            o = o @ Phi
-        if k + 1 < steps:
-            xi = Phi @ xi + Bd * u[k]
-    return (casadi.vertcat(*y), casadi.vertcat(*rows)) if free else casadi.vertcat(*y)
-
-
-
-
-#: ``_squarings`` under a name the solving module may use (the simulator above moves to
-#: ``aeid_struct.simulation`` in the redesign; this name goes with it).
-fewest_squarings = _squarings
 
 
 # ---------------------------------------------------------------------------------------------
@@ -464,6 +330,10 @@ def problem(structure, key: str, steps: int, dt: float, squarings: int,
     """
     return _PROBLEMS.get((key, steps, dt, squarings, config, initial),
                          lambda: build(structure, steps, dt, squarings, config, initial))
+
+
+#: The fewest squarings for a bound on ||M||_1 (``simulation.squarings_for``; solve.py uses it).
+fewest_squarings = squarings_for
 
 
 def __getattr__(name: str):

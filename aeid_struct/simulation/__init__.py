@@ -1,19 +1,52 @@
-"""Simulation (the decoder): exact first-order-hold discretisation and simulation, paper Eq. 4,
-10-15.
+"""Simulation (the decoder): exact first-order-hold discretisation and simulation (paper Eq. 10-13),
+the stationary value (Eq. 4), the normalisation (Eq. 15) and the loss (Eq. 14), the least-squares
+initial state, and the same FOH simulation as a CasADi expression for the refinement NLP.
+
+The functions without a suffix check their arguments (numpy or torch in, the same out); the
+``*_batch`` kernels, :func:`fit_initial_state` and :func:`simulate_loop` are their unchecked torch
+cores, for training loops and other packages that have checked their input already;
+:func:`simulate_outputs` is the same kernel in numpy for one system with several outputs.
+
+Modules: ``foh`` (:func:`simulate`, :func:`states`, :func:`discretise`), ``kernels`` (the batch
+kernels), ``initial`` (:func:`initial_state`), ``normalise`` (Eq. 4, 14, 15), ``overflow`` (the
++inf rule), ``checks`` (argument handling), ``casadi_foh`` (:func:`casadi_simulate`,
+:func:`expm`).
 """
 
+from aeid_struct.simulation.casadi_foh import THETA13 as THETA13
+from aeid_struct.simulation.casadi_foh import augmented as augmented
+from aeid_struct.simulation.casadi_foh import casadi_simulate as casadi_simulate
+from aeid_struct.simulation.casadi_foh import expm as expm
+from aeid_struct.simulation.casadi_foh import squarings_for as squarings_for
+from aeid_struct.simulation.checks import check_dt as check_dt
 from aeid_struct.simulation.foh import Discrete as Discrete
-from aeid_struct.simulation.foh import denormalise as denormalise
 from aeid_struct.simulation.foh import discretise as discretise
-from aeid_struct.simulation.foh import initial_state as initial_state
-from aeid_struct.simulation.foh import loss as loss
-from aeid_struct.simulation.foh import normalise as normalise
-from aeid_struct.simulation.foh import record_scale as record_scale
 from aeid_struct.simulation.foh import simulate as simulate
 from aeid_struct.simulation.foh import states as states
-from aeid_struct.simulation.foh import stationary_value as stationary_value
+from aeid_struct.simulation.initial import fit_initial_state as fit_initial_state
+from aeid_struct.simulation.initial import free_response as free_response
+from aeid_struct.simulation.initial import initial_state as initial_state
+from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
+from aeid_struct.simulation.kernels import foh_columns as foh_columns
+from aeid_struct.simulation.kernels import powers as powers
+from aeid_struct.simulation.kernels import scan as scan
+from aeid_struct.simulation.kernels import simulate_batch as simulate_batch
+from aeid_struct.simulation.kernels import simulate_loop as simulate_loop
+from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
+from aeid_struct.simulation.kernels import states_batch as states_batch
+from aeid_struct.simulation.kernels import states_loop as states_loop
+from aeid_struct.simulation.normalise import denormalise as denormalise
+from aeid_struct.simulation.normalise import loss as loss
+from aeid_struct.simulation.normalise import loss_batch as loss_batch
+from aeid_struct.simulation.normalise import normalise as normalise
+from aeid_struct.simulation.normalise import record_scale as record_scale
+from aeid_struct.simulation.normalise import record_scale_batch as record_scale_batch
+from aeid_struct.simulation.normalise import stationary_value as stationary_value
+from aeid_struct.simulation.normalise import stationary_value_batch as stationary_value_batch
+from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
 
 __all__ = [
+    # checked: numpy or torch in, the same out
     "Discrete",
     "denormalise",
     "discretise",
@@ -24,4 +57,27 @@ __all__ = [
     "simulate",
     "states",
     "stationary_value",
+    "check_dt",
+    "OverflowWarning",
+    # unchecked torch kernels, one common batch size
+    "discretise_batch",
+    "fit_initial_state",
+    "foh_columns",
+    "free_response",
+    "loss_batch",
+    "powers",
+    "record_scale_batch",
+    "scan",
+    "simulate_batch",
+    "simulate_loop",
+    "simulate_outputs",
+    "states_batch",
+    "states_loop",
+    "stationary_value_batch",
+    # CasADi, for the refinement NLP
+    "THETA13",
+    "augmented",
+    "casadi_simulate",
+    "expm",
+    "squarings_for",
 ]

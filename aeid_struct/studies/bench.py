@@ -29,7 +29,10 @@ from functools import partial
 import numpy as np
 import torch
 
-from aeid_struct.simulation.foh import _simulate, _simulate_fft, _simulate_loop, _simulate_scan
+from aeid_struct.simulation import simulate_batch as _simulate
+from aeid_struct.simulation import simulate_loop as _simulate_loop
+from aeid_struct.studies.bench_kernels import simulate_fft as _simulate_fft
+from aeid_struct.studies.bench_kernels import simulate_scan as _simulate_scan
 
 __all__ = ["DecoderTiming", "IDENTIFICATION_LEGEND", "bench_decoder", "bench_identification",
            "format_decoder_table", "format_identification_table"]

@@ -1,0 +1,176 @@
+"""Argument checks shared by the classical methods, and the :class:`Estimate` they return.
+
+A failure that depends on the data (a discrete pole without a real logarithm, a model outside the
+requested structure, a solver error) does not raise: the estimate comes back with
+``info["failed"] = True``, a ``info["reason"]`` in words, and NaN matrices where no model exists
+(:func:`estimate`, :func:`nan_model`). Bad arguments (shapes, non-finite samples, an unknown
+element name) raise ``ValueError`` naming the argument.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from aeid_struct.identification import Estimate
+from aeid_struct.records import as_array, require_finite
+
+__all__ = ["check_int", "check_record", "estimate", "in_structure", "nan_model",
+           "physical_source"]
+
+
+def check_int(name: str, value, lowest: int) -> int:
+    """``value`` as an int ``>= lowest``, or a ValueError naming ``name``.
+
+    Parameters
+    ----------
+    name : str
+    value : int-like (not a bool)
+    lowest : int
+
+    Returns
+    -------
+    int
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lowest:
+        raise ValueError(f"{name} must be an integer >= {lowest}; got {value!r}")
+    return int(value)
+
+
+def check_record(y, u) -> tuple[np.ndarray, np.ndarray]:
+    """One record, checked: finite, not all zero, ``u`` like ``y``.
+
+    Parameters
+    ----------
+    y : (steps,) array-like, steps >= 2
+    u : (steps,) array-like, or None for a unit step
+
+    Returns
+    -------
+    y, u : (steps,) float64 arrays
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: wrong shape, non-finite sample, all zero, or shapes that differ.
+    """
+    out = []
+    for name, v in (("y", y), ("u", np.ones(np.shape(y)) if u is None else u)):
+        arr = as_array(name, v)
+        if arr.ndim != 1 or arr.shape[0] < 2:
+            raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record; "
+                             f"loop over a batch); got {arr.shape}")
+        require_finite(name, arr)
+        if not np.any(arr):
+            raise ValueError(f"{name} must not be all zero: a record from rest with zero "
+                             "input or output reveals nothing")
+        out.append(arr)
+    if out[0].shape != out[1].shape:
+        raise ValueError(f"u must have the shape of y {out[0].shape}; got {out[1].shape}")
+    return out[0], out[1]
+
+
+def physical_source(structure, inverse):
+    """What ``Estimate.physical`` maps: the elements of a Physical structure, or the inverse.
+
+    Parameters
+    ----------
+    structure : Structure or None
+    inverse : casadi.Function or None
+        CCF -> physical parameters; needs a CCF structure.
+
+    Returns
+    -------
+    ``("elements", names)`` for a Physical structure, else ``inverse`` (possibly None).
+
+    Raises
+    ------
+    ValueError
+        For an ``inverse`` that is not a casadi.Function, or one with a structure that is not a
+        CCF.
+    """
+    import casadi
+
+    from aeid_struct.structures import CCF, Physical
+
+    if inverse is not None and not isinstance(inverse, casadi.Function):
+        raise ValueError(f"inverse must be a casadi.Function (e.g. "
+                         f"symbolic.leg.stable_inverse()); got {type(inverse).__name__}")
+    if isinstance(structure, Physical):
+        return ("elements", tuple(structure.element_names))
+    if inverse is not None and not isinstance(structure, CCF):
+        raise ValueError(f"inverse maps a CCF model to physical parameters: structure must be "
+                         f"a CCF; got {structure!r}")
+    return inverse
+
+
+def estimate(model, elements, y, u, dt, start, info, source) -> Estimate:
+    """The :class:`Estimate` of one record, its time measured from ``start``.
+
+    Parameters
+    ----------
+    model : tuple
+        ``A (n, n)``, ``b, c (n,)``, ``d`` float.
+    elements : dict name -> float
+    y, u : (steps,) arrays
+    dt : float
+    start : float
+        ``time.perf_counter()`` when the method began.
+    info : dict
+        The method's ``info``; ``seconds`` is added.
+    source : object
+        What ``Estimate.physical`` maps (:func:`physical_source`).
+
+    Returns
+    -------
+    Estimate
+    """
+    A, b, c, d = model
+    info = {**info, "seconds": time.perf_counter() - start}
+    return Estimate(np.asarray(A, dtype=np.float64), np.asarray(b, dtype=np.float64),
+                    np.asarray(c, dtype=np.float64), float(d), dict(elements), y, u, dt,
+                    info["seconds"], False, info, source)
+
+
+def nan_model(n: int):
+    """The model of a failed estimate: NaN ``A (n, n)``, ``b, c (n,)``, ``d``.
+
+    Parameters
+    ----------
+    n : int
+
+    Returns
+    -------
+    tuple
+    """
+    return np.full((n, n), np.nan), np.full(n, np.nan), np.full(n, np.nan), math.nan
+
+
+def in_structure(structure, model):
+    """``(A, b, c, d)`` in the structure's realisation, and its elements.
+
+    Parameters
+    ----------
+    structure : Structure
+    model : tuple
+        ``A (n, n)``, ``b, c (n,)``, ``d``, in any basis.
+
+    Returns
+    -------
+    model : tuple
+        In the structure's realisation (float64).
+    elements : dict name -> float
+
+    Raises
+    ------
+    ValueError
+        When the model violates the structure (``Structure.elements_of(strict=True)``).
+    """
+    import torch
+
+    x = structure.elements_of(*model, strict=True).to(torch.float64)
+    sys = structure.assemble(x)
+    A, b, c, d = (t.detach().numpy() for t in sys)
+    return (A, b, c, float(d)), dict(zip(structure.element_names, x.tolist(), strict=True))
