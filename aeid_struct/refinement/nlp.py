@@ -11,7 +11,8 @@ its residuals ``r = w y - yhat(w u)`` and ``J = sum_k r_k^2``. ``yhat`` is the d
 first-order-hold response (Eq. 10-13) unrolled as one CasADi graph
 (``simulation.casadi_simulate``, with Higham's Pade [13/13] ``simulation.expm``); a record that
 starts mid-motion has its least-squares initial state projected out (variable projection).
-Decision variables are the free elements in relative units ``x_i = s_i z_i``; the Hessian is the Gauss-Newton ``2 (J^T J + mu I)``.
+Decision variables are the free elements in relative units ``x_i = s_i z_i``; the Hessian is
+the Gauss-Newton ``2 (J^T J + mu I)``.
 
 Problems are built once per (structure, steps, dt, squarings, config, initial) and kept in a small
 LRU cache (:func:`cache_info`, :func:`clear_cache`); they are evaluated through CasADi's numeric
