@@ -16,12 +16,13 @@ import importlib.abc
 import importlib.machinery
 import sys
 
-#: old module path (under ``aeid_struct``) -> the module that holds its code now
+#: old module path (under ``aeid_struct``) -> the package (its public names) or module that holds
+#: its code now
 ALIASES = {
-    "decoder": "simulation.foh",
+    "decoder": "simulation",
     "data": "training",
-    "identify": "identification.identifier",
-    "refine": "refinement.nlp",
+    "identify": "identification",
+    "refine": "refinement",
     "scorecard": "evaluation.scorecard",
     "plots": "evaluation.plots",
     "export": "online.export",

@@ -1,6 +1,6 @@
 """Accuracy measures: the paper's Table I metrics and the NRMSE fit.
 
-Table I (paper Sec. IV), as DESIGN.md pins them down:
+Table I (paper Sec. IV), as docs/architecture.md pins them down:
 
 - **step error**: mean absolute difference of the true and identified unit-step responses after
   scaling *both* to [0, 1] by the true response's min and max;

@@ -144,9 +144,9 @@ class Context:
         its weights are random, which is all bad-input cases need."""
         import torch
 
-        from aeid_struct.encoder.network import Encoder, EncoderConfig
+        from aeid_struct.encoder import Encoder, EncoderConfig
         from aeid_struct.identification import Identifier
-        from aeid_struct.structures.base import Physical
+        from aeid_struct.structures import Physical
         from symbolic import leg
 
         torch.manual_seed(0)
@@ -231,12 +231,12 @@ class Context:
 
     @cached_property
     def onnx(self) -> Path:
-        from aeid_struct.online.export import to_onnx
+        from aeid_struct.online import to_onnx
         return to_onnx(self.any_, self.tmp / "any.onnx")
 
     @cached_property
     def onnx_runner(self):
-        from aeid_struct.online.export import OnnxIdentifier
+        from aeid_struct.online import OnnxIdentifier
         return OnnxIdentifier(self.onnx)
 
     def onnx_with(self, name: str, header: dict | None, drop: bool = False) -> Path:
@@ -278,7 +278,7 @@ class Context:
 def cli(*argv: str):
     """``aeid_struct.cli.main(argv)`` with stdout and stderr captured; a ``SystemExit`` keeps
     the captured stderr as ``.stderr``."""
-    from aeid_struct.cli.main import main
+    from aeid_struct.cli import main
 
     err, out = io.StringIO(), io.StringIO()
     try:
@@ -496,7 +496,7 @@ def _unaltered_u() -> bool:
 def _structures() -> list[Case]:
     import torch
 
-    from aeid_struct.structures.base import CCF, MCF, Physical, Structure, System
+    from aeid_struct.structures import CCF, MCF, Physical, Structure, System
     from symbolic import leg
 
     area = "structures"
@@ -954,8 +954,8 @@ def _refine() -> list[Case]:
 
 
 def _configs() -> list[Case]:
-    from aeid_struct.encoder.network import EncoderConfig
-    from aeid_struct.online.tracker import TrackerConfig
+    from aeid_struct.encoder import EncoderConfig
+    from aeid_struct.online import TrackerConfig
     from aeid_struct.training import TrainConfig
 
     area = "configs"
@@ -1120,7 +1120,7 @@ def _configs() -> list[Case]:
 def _training() -> list[Case]:
     import aeid_struct as ae
     from aeid_struct import training as data
-    from aeid_struct.structures.base import CCF
+    from aeid_struct.structures import CCF
     from aeid_struct.training import LegFamily, PoleFamily
 
     area = "train-data"
@@ -1258,7 +1258,7 @@ def _training() -> list[Case]:
 
 def _baselines() -> list[Case]:
     from aeid_struct import baselines
-    from aeid_struct.structures.base import CCF
+    from aeid_struct.structures import CCF
 
     area = "baselines"
     return [
@@ -1426,8 +1426,8 @@ def _files() -> list[Case]:
     import torch
 
     import aeid_struct as ae
+    from aeid_struct.online import OnnxIdentifier
     from aeid_struct.online import export as export
-    from aeid_struct.online.export import OnnxIdentifier
     from aeid_struct.records import RecordError
 
     area = "files"
@@ -1682,8 +1682,8 @@ def _security() -> list[Case]:
         return x.onnx_with(name, h)
 
     import aeid_struct as ae
-    from aeid_struct.cli.main import UsageExit
-    from aeid_struct.online.export import OnnxIdentifier
+    from aeid_struct.cli import UsageExit
+    from aeid_struct.online import OnnxIdentifier
 
     return [
         Case(area, ".aeid inverse user map", lambda x: ae.Identifier.load(
@@ -1737,7 +1737,7 @@ def _other_inverse():
 
 
 def _online() -> list[Case]:
-    from aeid_struct.online.tracker import Tracker, TrackerConfig
+    from aeid_struct.online import Tracker, TrackerConfig
 
     area = "online"
 
@@ -1799,7 +1799,7 @@ def _stream(x, k: int):
 
 
 def _cli() -> list[Case]:
-    from aeid_struct.cli.main import UsageExit
+    from aeid_struct.cli import UsageExit
 
     area = "cli"
     E = UsageExit

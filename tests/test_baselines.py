@@ -17,9 +17,9 @@ import aeid_struct as ae
 from aeid_struct import baselines as bl
 from aeid_struct.baselines.models import free_indices, model_of
 from aeid_struct.baselines.output_error import Problem
-from aeid_struct.identification.identifier import Estimate
+from aeid_struct.identification import Estimate
 from aeid_struct.simulation import simulate_outputs
-from aeid_struct.training.families import LegFamily
+from aeid_struct.training import LegFamily
 from symbolic import leg
 
 #: The study's record grids (aeid_struct.study.RECORDS).

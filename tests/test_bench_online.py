@@ -38,7 +38,7 @@ def test_excitation_rows_refine_to_the_truth_on_clean_records():
 
 @pytest.mark.slow
 def test_bench_online_quick_runs_and_writes_the_targets(tmp_path, capsys):
-    from aeid_struct.cli.main import main
+    from aeid_struct.cli import main
 
     out = tmp_path / "b.json"
     assert main(["bench-online", "--quick", "--quiet", "--json", str(out)]) == 0

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from aeid_struct.structures.casadi_torch import CasadiOp
+from aeid_struct.structures import CasadiOp
 
 
 def _mixed() -> casadi.Function:

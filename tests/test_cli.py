@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeid_struct.cli.main import main
+from aeid_struct.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -108,7 +108,7 @@ def test_identify_a_joint_identifier_from_one_file_per_record(tmp_path, capsys):
     import torch
 
     import aeid_struct as ae
-    from aeid_struct.encoder.network import Encoder, EncoderConfig
+    from aeid_struct.encoder import Encoder, EncoderConfig
     from symbolic import leg
 
     torch.manual_seed(0)
@@ -438,7 +438,7 @@ def test_other_input_errors_are_one_line(tmp_path, capsys, argv, match):
 
 def test_a_bug_keeps_its_traceback(tmp_path, monkeypatch):
     # Only input errors become one line; anything else a subcommand raises is a bug to see.
-    from aeid_struct.identification.identifier import Identifier
+    from aeid_struct.identification import Identifier
 
     def broken(self, *args, **kwargs):
         raise ZeroDivisionError("a bug")

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 import aeid_struct as ae
-from aeid_struct.encoder.network import Encoder, EncoderConfig
-from aeid_struct.identification.identifier import Identifier
-from aeid_struct.online.export import to_torchscript
+from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.identification import Identifier
+from aeid_struct.online import to_torchscript
 from symbolic import leg
 
 
@@ -89,7 +89,7 @@ def test_export_refuses_what_torchscript_cannot_hold(tmp_path):
 # -- ONNX (the optional extra; the dev extra installs it) -----------------------------------------
 @pytest.mark.parametrize("structure, inputs", EXPORTABLE)
 def test_onnx_export_identifies_like_the_identifier(tmp_path, structure, inputs):
-    from aeid_struct.online.export import OnnxIdentifier, to_onnx
+    from aeid_struct.online import OnnxIdentifier, to_onnx
 
     ident = _identifier(structure, inputs)
     runner = OnnxIdentifier(to_onnx(ident, tmp_path / "ident.onnx"))
@@ -110,7 +110,7 @@ def test_onnx_export_identifies_like_the_identifier(tmp_path, structure, inputs)
 
 
 def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
-    from aeid_struct.online.export import OnnxIdentifier, to_onnx
+    from aeid_struct.online import OnnxIdentifier, to_onnx
 
     ident = ae.load_pretrained("leg-stable-window")
     path = to_onnx(ident, tmp_path / "leg.onnx")
@@ -166,7 +166,7 @@ def _bad_inputs():
 
 @pytest.mark.parametrize("inputs", [False, True])
 def test_onnx_reader_refuses_what_the_identifier_refuses_with_the_same_message(inputs):
-    from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
+    from aeid_struct.online import OnnxIdentifier, onnx_bytes
 
     ident = _identifier(ae.CCF(2), inputs)
     runner = OnnxIdentifier(onnx_bytes(ident))
@@ -186,7 +186,7 @@ def test_onnx_reader_refuses_what_the_identifier_refuses_with_the_same_message(i
 def test_onnx_reader_gives_the_identifier_numbers_at_any_magnitude_and_in_batches():
     # Before: an all-zero u gave c = inf, d = nan, and a record of 1e40 (beyond float32) gave
     # NaN. Now Eq. 15 runs in float64 before the graph, as in the identifier.
-    from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
+    from aeid_struct.online import OnnxIdentifier, onnx_bytes
 
     rng = np.random.default_rng(6)
     base = np.cumsum(rng.uniform(0.1, 1.0, (3, 60)), axis=1)
@@ -213,7 +213,7 @@ def test_onnx_reader_of_a_feature_scaled_identifier_reads_the_scale_of_any_recor
     # scale="feature" (fixed c0: c cannot be rescaled freely): the graph reads
     # log(max|y| / max|u|) itself; the reader splits that ratio between y and u, so a record
     # of 1e40 with an input of 1e35 (ratio 1e5) reaches it inside float32.
-    from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
+    from aeid_struct.online import OnnxIdentifier, onnx_bytes
 
     structure = ae.CCF(2).fixed(c0=1.0)
     torch.manual_seed(0)
@@ -239,7 +239,7 @@ def test_onnx_reader_of_a_feature_scaled_identifier_reads_the_scale_of_any_recor
 def test_onnx_reader_checks_its_model(tmp_path):
     import onnx
 
-    from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
+    from aeid_struct.online import OnnxIdentifier, onnx_bytes
 
     ident = _identifier(ae.CCF(2), True)
     runner = OnnxIdentifier(onnx_bytes(ident))

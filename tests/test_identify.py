@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import aeid_struct as ae
-from aeid_struct.encoder.network import Encoder, EncoderConfig
+from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.identification import Identifier
 from aeid_struct.metrics import nrmse_fit
 from symbolic import leg
@@ -310,7 +310,7 @@ def _joint_identifier(seed=0):
 
 
 def _joint_records(count=4):
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     return records(ae.LegFamily(subsystem="joint"), count, steps=(60, 20), dt=(0.05, 0.025),
                    seed=1)

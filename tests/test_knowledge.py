@@ -6,7 +6,7 @@ import pytest
 
 import aeid_struct as ae
 from aeid_struct.metrics import step_error
-from aeid_struct.structures.base import Physical
+from aeid_struct.structures import Physical
 from aeid_struct.studies import knowledge as knowledge
 
 VARIANTS = knowledge.variants()

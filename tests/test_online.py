@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.online.tracker import Tracker, TrackerConfig
+from aeid_struct.online import Tracker, TrackerConfig
 from aeid_struct.studies.wear import wearing_leg
 
 
@@ -145,7 +145,7 @@ def test_wear_study_scenario_truth_and_outputs(tmp_path):
 def test_track_command_prints_and_writes(tmp_path, capsys):
     import json
 
-    from aeid_struct.cli.main import main
+    from aeid_struct.cli import main
 
     model = _window_identifier().save(tmp_path / "window.aeid")
     assert main(["track", "--model", str(model), "--seconds", "10", "--hop", "100",
@@ -185,7 +185,7 @@ def test_shipped_window_identifier_tracks_a_wearing_leg():
 
 def test_onnx_and_identifier_engines_give_the_same_updates():
     # onnxruntime comes with the dev extra: a missing one fails here rather than skipping
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     ident = ae.load_pretrained("leg-stable-window")
     rec = records(ae.LegFamily(subsystem="stable"), 1, steps=600, dt=0.01,
@@ -321,7 +321,7 @@ def test_a_refused_window_leaves_the_tracking_state_as_it_was():
 
 
 def test_an_engine_failure_says_how_many_samples_were_consumed():
-    from aeid_struct.online.tracker import PushError
+    from aeid_struct.online import PushError
 
     class _Failing(_Stub):
         def identify(self, y, u):

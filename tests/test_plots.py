@@ -8,11 +8,11 @@ import re
 import numpy as np
 import pytest
 
+from aeid_struct.evaluation import Score
 from aeid_struct.evaluation import comparison as comparison
 from aeid_struct.evaluation import plots as plots
-from aeid_struct.evaluation.scorecard import Score
 from aeid_struct.metrics import FREQUENCIES
-from aeid_struct.online.tracker import TrackerConfig
+from aeid_struct.online import TrackerConfig
 from aeid_struct.studies.figures import wear_figure
 from aeid_struct.studies.wear import WearResult
 
@@ -245,7 +245,7 @@ def test_fig3_without_units_says_so_and_bad_arguments_are_named():
 def test_study_figure3_titles_the_scenario_and_the_shipped_identifiers(tmp_path):
     import matplotlib.pyplot as plt
 
-    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.identification import load_pretrained
     from aeid_struct.studies import leg_paper as study
 
     idents = {s: load_pretrained(f"leg-{s}") for s in ("stable", "unstable")}
@@ -265,7 +265,7 @@ def test_study_figure3_titles_the_scenario_and_the_shipped_identifiers(tmp_path)
 @pytest.mark.parametrize("pretrained", [True, False])
 def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, monkeypatch,
                                                                     pretrained):
-    from aeid_struct.identification.identifier import load_pretrained
+    from aeid_struct.identification import load_pretrained
     from aeid_struct.studies import leg_paper as study
 
     titles = []
@@ -351,7 +351,7 @@ def test_wear_draws_units_the_alarm_threshold_and_the_alarm(tmp_path):
 
 
 def test_track_command_draws_its_own_threshold(tmp_path, monkeypatch):
-    from aeid_struct.cli.main import main
+    from aeid_struct.cli import main
 
     drawn = {}
     real = wear_figure

@@ -7,7 +7,7 @@ import pytest
 
 import aeid_struct as ae
 from aeid_struct.metrics import step_error
-from aeid_struct.training.families import LegFamily
+from aeid_struct.training import LegFamily
 
 # Stated tolerances (the study measures the means on 500 systems; these bound single systems).
 TOL = {"stable": {"k": 0.5, "d": 1.5, "m": 1.5, "step": 2e-3},

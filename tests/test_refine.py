@@ -601,8 +601,8 @@ def test_free_response_basis_is_python_controls_response_from_an_initial_state()
 
 @pytest.mark.parametrize("kind", ["prbs", "multisine", "mix"])
 def test_refinement_of_a_mid_motion_window_recovers_the_system_and_its_state(kind):
-    from aeid_struct.simulation.foh import initial_state
-    from aeid_struct.training.families import records
+    from aeid_struct.simulation import initial_state
+    from aeid_struct.training import records
 
     structure = ae.CCF(2, descartes=True)
     rec = records(ae.LegFamily(subsystem="stable"), 3, steps=300, dt=0.01,
@@ -628,7 +628,7 @@ def test_refinement_of_a_mid_motion_window_recovers_the_system_and_its_state(kin
 
 
 def test_identify_refines_windows_of_a_running_leg():
-    from aeid_struct.training.families import records
+    from aeid_struct.training import records
 
     ident = ae.load_pretrained("leg-stable-window")
     rec = records(ae.LegFamily(subsystem="stable"), 4, steps=300, dt=0.01,

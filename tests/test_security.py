@@ -20,8 +20,8 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 
 import aeid_struct as ae
-from aeid_struct.encoder.network import Encoder, EncoderConfig
-from aeid_struct.identification.identifier import FORMAT, FORMAT_1, Identifier
+from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.identification import FORMAT, FORMAT_1, Identifier
 from aeid_struct.structures import maps as maps
 from symbolic import leg, named
 
@@ -211,7 +211,7 @@ def test_physical_structure_payload_is_not_run(tmp_path, marker, field, dress):
 def _onnx_with(ident, edit) -> bytes:
     import onnx
 
-    from aeid_struct.online.export import onnx_bytes
+    from aeid_struct.online import onnx_bytes
 
     model = onnx.load_from_string(onnx_bytes(ident))
     for prop in model.metadata_props:
@@ -223,7 +223,7 @@ def _onnx_with(ident, edit) -> bytes:
 
 
 def test_onnx_metadata_payload_is_not_run(tmp_path, marker):
-    from aeid_struct.online.export import OnnxIdentifier
+    from aeid_struct.online import OnnxIdentifier
 
     ident = ccf_identifier()
     text = inverse_payload(marker)
@@ -290,7 +290,7 @@ def test_old_format_loads_only_with_trust_and_resaves_as_reference(tmp_path):
 
 
 def test_old_onnx_format_loads_only_with_trust():
-    from aeid_struct.online.export import ONNX_FORMAT_1, OnnxIdentifier
+    from aeid_struct.online import ONNX_FORMAT_1, OnnxIdentifier
 
     ident = ccf_identifier()
     raw = _onnx_with(ident, lambda h: h.update(format=ONNX_FORMAT_1,
@@ -558,7 +558,7 @@ def test_reader_options_are_checked(tmp_path):
 
 
 def test_tracker_onnx_engine_passes_its_own_user_inverse():
-    from aeid_struct.online.tracker import Tracker
+    from aeid_struct.online import Tracker
 
     # the in-memory export of an identifier with a user inverse: the tracker hands the
     # identifier's own Function to the reader, which therefore needs neither file code nor trust
@@ -571,7 +571,7 @@ def test_tracker_onnx_engine_passes_its_own_user_inverse():
 
 
 def test_exports_refuse_a_directory_and_the_reader_refuses_non_onnx(tmp_path):
-    from aeid_struct.online.export import OnnxIdentifier, to_onnx, to_torchscript
+    from aeid_struct.online import OnnxIdentifier, to_onnx, to_torchscript
 
     ident = ccf_identifier()
     folder = re.escape(repr(str(tmp_path)))
@@ -604,7 +604,7 @@ def test_exports_refuse_a_directory_and_the_reader_refuses_non_onnx(tmp_path):
     with pytest.raises(ValueError, match=r"^model: 'inverse' names the unknown map 'os.system'"):
         OnnxIdentifier(bad)
     # and the export it reads writes the inverse as a reference, never as code
-    from aeid_struct.online.export import ONNX_FORMAT
+    from aeid_struct.online import ONNX_FORMAT
 
     runner = OnnxIdentifier(to_onnx(ident, tmp_path / "ok.onnx"))
     assert maps.reference(runner._inverse) == {"map": "symbolic.leg.stable_inverse",

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 import aeid_struct
-from aeid_struct.cli.main import main
+from aeid_struct.cli import main
 from aeid_struct.studies import leg_paper as study
 from aeid_struct.training import UndertrainedWarning
 

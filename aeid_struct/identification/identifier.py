@@ -367,21 +367,3 @@ class Identifier:
             weights, or a map the file cannot name without ``maps``/``trust``.
         """
         return files.load(cls, path, maps=maps, trust=trust)
-
-
-#: Names this module held before the split (``aeid_struct.identify`` is an alias of it),
-#: resolved on first use: the modules that define them now import this one.
-_MOVED = {"load_pretrained": "pretrained",
-          "PRETRAINED": "pretrained", "FORMAT": "files", "FORMAT_1": "files",
-          "writable_file": "files", "FLAG_FALSE_RATE": "calibration",
-          "_excess": ("calibration", "excess"), "_through_ccf": ("physical", "through_ccf"),
-          "_inverse_of_models": ("physical", "inverse_of_models")}
-
-
-def __getattr__(name: str):
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    module, attr = _MOVED[name] if isinstance(_MOVED[name], tuple) else (_MOVED[name], name)
-    return getattr(importlib.import_module(f"aeid_struct.identification.{module}"), attr)

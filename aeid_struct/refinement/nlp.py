@@ -335,13 +335,3 @@ def problem(structure, key: str, steps: int, dt: float, squarings: int,
 
 #: The fewest squarings for a bound on ||M||_1 (``simulation.squarings_for``; solve.py uses it).
 fewest_squarings = squarings_for
-
-
-def __getattr__(name: str):
-    # Old names of this module (``aeid_struct.refine`` is an alias of it): the refinement
-    # itself lives in solve.py, which imports this module, so it is looked up on first use.
-    if name in ("refine", "refine_elements", "RefineResult"):
-        from aeid_struct.refinement import solve
-
-        return getattr(solve, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -35,15 +35,15 @@ from aeid_struct.simulation.kernels import simulate_loop as simulate_loop
 from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
 from aeid_struct.simulation.kernels import states_batch as states_batch
 from aeid_struct.simulation.kernels import states_loop as states_loop
-from aeid_struct.simulation.normalise import denormalise as denormalise
-from aeid_struct.simulation.normalise import loss as loss
-from aeid_struct.simulation.normalise import loss_batch as loss_batch
-from aeid_struct.simulation.normalise import normalise as normalise
-from aeid_struct.simulation.normalise import record_scale as record_scale
-from aeid_struct.simulation.normalise import record_scale_batch as record_scale_batch
-from aeid_struct.simulation.normalise import stationary_value as stationary_value
-from aeid_struct.simulation.normalise import stationary_value_batch as stationary_value_batch
 from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
+from aeid_struct.simulation.scaling import denormalise as denormalise
+from aeid_struct.simulation.scaling import loss as loss
+from aeid_struct.simulation.scaling import loss_batch as loss_batch
+from aeid_struct.simulation.scaling import normalise as normalise
+from aeid_struct.simulation.scaling import record_scale as record_scale
+from aeid_struct.simulation.scaling import record_scale_batch as record_scale_batch
+from aeid_struct.simulation.scaling import stationary_value as stationary_value
+from aeid_struct.simulation.scaling import stationary_value_batch as stationary_value_batch
 
 __all__ = [
     # checked: numpy or torch in, the same out

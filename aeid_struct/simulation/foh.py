@@ -42,33 +42,23 @@ from aeid_struct.simulation.checks import (
     prepare,
 )
 from aeid_struct.simulation.initial import (
-    fit_initial_state,
-    free_response,
     initial_state,
-    least_squares_x0,
 )
 from aeid_struct.simulation.kernels import (
-    chunk_length,
     discretise_batch,
-    foh_columns,
-    powers,
-    scan,
     simulate_batch,
     simulate_loop,
     states_batch,
     states_loop,
 )
-from aeid_struct.simulation.normalise import (
+from aeid_struct.simulation.overflow import OverflowWarning, nonfinite_records, replace_overflow
+from aeid_struct.simulation.scaling import (
     denormalise,
     loss,
-    loss_batch,
     normalise,
     record_scale,
-    record_scale_batch,
     stationary_value,
-    stationary_value_batch,
 )
-from aeid_struct.simulation.overflow import OverflowWarning, nonfinite_records, replace_overflow
 
 __all__ = [
     "Discrete",
@@ -244,31 +234,3 @@ def simulate(
                               None if t["x0"] is None else t["x0"][index])
         y = replace_overflow(y, index, exact, "simulate", t["A"], dt, is_batched)
     return output(y, torch_out, is_batched)
-
-
-# The decoder's old private names (this module was aeid_struct/decoder.py), kept as aliases until
-# every importer uses the public names of aeid_struct.simulation.
-_discretise = discretise_batch
-_scan = scan
-_states = states_batch
-_foh_columns = foh_columns
-_powers = powers
-_chunk_length = chunk_length
-_simulate_chunked = simulate_batch
-_simulate = simulate_batch
-_states_loop = states_loop
-_simulate_loop = simulate_loop
-_free_response = free_response
-_least_squares_x0 = least_squares_x0
-_free_fit = fit_initial_state
-
-
-def _initial_state(A, b, c, d, u, y, dt: float):
-    """``x0 (batch, n)`` of :func:`~aeid_struct.simulation.initial.fit_initial_state`."""
-    return fit_initial_state(A, b, c, d, u, y, dt)[0]
-
-
-_stationary_value = stationary_value_batch
-_record_scale = record_scale_batch
-_loss = loss_batch
-_check_dt = check_dt

@@ -32,7 +32,6 @@ closest admissible value. Open constraints are strict for models: an MCF pole mu
 from __future__ import annotations
 
 import abc
-import importlib
 import math
 
 import casadi
@@ -44,28 +43,12 @@ from aeid_struct.structures.config import Configurable, register
 from aeid_struct.structures.constraints import ElementMap
 from aeid_struct.structures.elements import ElementSet
 from aeid_struct.structures.realisation import (
-    ccf_coefficients,
-    ccf_matrices,
     model_arrays,
     model_dtype,
 )
 from aeid_struct.structures.system import System
 
 __all__ = ["Structure"]
-
-# Old private names of this module, kept until their users import the public ones
-# (``aeid_struct.structures.ccf_coefficients``, ``ccf_matrices``).
-_ccf_coefficients, _ccf_matrices = ccf_coefficients, ccf_matrices
-
-
-def __getattr__(name: str):
-    # The structures lived here before the package was split: ``from
-    # aeid_struct.structures.base import CCF`` keeps working, resolved on use so that this
-    # module does not import the modules that import it.
-    if name in ("CCF", "MCF", "Physical"):
-        return getattr(importlib.import_module("aeid_struct.structures"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
 
 class Structure(ElementSet, Configurable):
     """A parameterisation ``theta (batch, p) -> elements (batch, q) -> System``.

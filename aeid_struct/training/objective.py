@@ -16,11 +16,17 @@ import numpy as np
 import torch
 
 from aeid_struct.identification import Identifier
-from aeid_struct.simulation import loss, normalise, record_scale
 
 # The unchecked batch kernels: a training step needs a non-finite response to come back as it is
 # (the batch is skipped), not recomputed and warned about as the public simulate() does.
-from aeid_struct.simulation.foh import _free_fit, _simulate, _stationary_value
+from aeid_struct.simulation import (
+    fit_initial_state,
+    loss,
+    normalise,
+    record_scale,
+    simulate_batch,
+    stationary_value_batch,
+)
 from aeid_struct.structures import Structure
 from aeid_struct.training.families import Systems
 
@@ -65,10 +71,10 @@ def batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
     for r in range(R):
         A, b, c, d = (x[:, r] for x in sys) if R > 1 else sys
         if ident.initial == "fitted":
-            y_hat = _free_fit(A, b, c, d, us[r], ys[r], dts[r])[1]
+            y_hat = fit_initial_state(A, b, c, d, us[r], ys[r], dts[r])[1]
         else:
-            y_hat = _simulate(A, b, c, d, us[r], dts[r], None)
-        yinf_hat = _stationary_value(A, b, c, d) if gamma > 0 else None
+            y_hat = simulate_batch(A, b, c, d, us[r], dts[r], None)
+        yinf_hat = stationary_value_batch(A, b, c, d) if gamma > 0 else None
         if not bool(torch.isfinite(y_hat).all()) or (
                 yinf_hat is not None and not bool(torch.isfinite(yinf_hat).all())):
             return torch.full((), math.nan, dtype=y_hat.dtype)   # overflowed: a skipped batch
