@@ -62,16 +62,23 @@ def _batch(A, b, c, d):
 def frequency_response(A, b, c, d, omega=FREQUENCIES) -> np.ndarray:
     """``G(j omega) = c^T (j omega I - A)^{-1} b + d`` for a batch of systems.
 
-    Args:
-        A: ``(batch, n, n)`` or ``(n, n)``; b, c: ``(batch, n)``; d: ``(batch,)``.
-        omega: ``(f,)`` frequencies in rad/s.
+    Parameters
+    ----------
+    A : (batch, n, n) or (n, n) array
+    b, c : (batch, n) or (n,) arrays
+    d : (batch,) array or scalar
+    omega : (f,) array
+        Frequencies in rad/s.
 
-    Returns:
-        ``(batch, f)`` complex (``(f,)`` for a single system).
+    Returns
+    -------
+    (batch, f) complex array, or (f,) for a single system
 
+    Notes
+    -----
     One batched complex solve instead of python-control's per-system ``frequency_response``:
-    the study evaluates 1,000 systems x 200 frequencies, where the library's per-system
-    overhead dominates; tests check this against ``control.frequency_response``.
+    the studies evaluate thousands of systems at 200 frequencies, where the per-system overhead
+    dominates; tests check this against ``control.frequency_response``.
     """
     A, b, c, d, single = _batch(A, b, c, d)
     n = A.shape[-1]
@@ -90,12 +97,16 @@ def step_error(y_true, y_hat) -> np.ndarray:
     """Table I step error per record: mean |y_hat_s - y_s| with both scaled to [0, 1] by the
     true response's min and max.
 
-    Args:
-        y_true, y_hat: ``(batch, steps)`` or ``(steps,)`` step responses on the same grid.
+    Parameters
+    ----------
+    y_true, y_hat : (batch, steps) or (steps,) arrays
+        Step responses on the same grid; ``y_true`` finite and not constant.
 
-    Returns:
-        ``(batch,)`` (``(1,)`` for single records); inf or NaN for a record whose ``y_hat`` is
-        not finite (an overflowing or failed estimate).
+    Returns
+    -------
+    (batch,) array, (1,) for single records
+        inf or NaN for a record whose ``y_hat`` is not finite (an overflowing or failed
+        estimate).
     """
     y_true = np.atleast_2d(_real("y_true", y_true))
     y_hat = np.atleast_2d(_real("y_hat", y_hat))
@@ -117,11 +128,16 @@ def step_error(y_true, y_hat) -> np.ndarray:
 def bode_errors(true, est, omega=FREQUENCIES) -> tuple[np.ndarray, np.ndarray]:
     """Mean absolute Bode magnitude (dB) and phase (rad) differences per system.
 
-    Args:
-        true, est: ``(A, b, c, d)`` tuples, batched alike.
+    Parameters
+    ----------
+    true, est : tuple (A, b, c, d)
+        Systems batched alike (shapes as in :func:`frequency_response`).
+    omega : (f,) array
+        Frequencies in rad/s.
 
-    Returns:
-        ``(magnitude_db (batch,), phase_rad (batch,))``.
+    Returns
+    -------
+    magnitude_db, phase_rad : (batch,) arrays
     """
     G = np.atleast_2d(frequency_response(*true, omega=omega))
     H = np.atleast_2d(frequency_response(*est, omega=omega))
@@ -135,7 +151,17 @@ def bode_errors(true, est, omega=FREQUENCIES) -> tuple[np.ndarray, np.ndarray]:
 
 
 def parameter_errors(true: dict, est: dict) -> dict[str, np.ndarray]:
-    """Absolute percentage deviation ``100 |p_hat - p| / |p|`` per parameter and system."""
+    """Absolute percentage deviation ``100 |p_hat - p| / |p|`` per parameter and system.
+
+    Parameters
+    ----------
+    true, est : dict str -> (batch,) array
+        True and estimated parameters; names only in ``est`` are skipped.
+
+    Returns
+    -------
+    dict str -> (batch,) array
+    """
     out = {}
     for name, value in est.items():
         if name not in true:
@@ -156,13 +182,16 @@ def parameter_errors(true: dict, est: dict) -> dict[str, np.ndarray]:
 def nrmse_fit(y, y_hat) -> np.ndarray:
     """NRMSE fit in % (MATLAB's ``compare``): ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``.
 
-    Args:
-        y, y_hat: ``(batch, steps)`` or ``(steps,)`` measured and simulated outputs.
+    Parameters
+    ----------
+    y, y_hat : (batch, steps) or (steps,) arrays
+        Measured and simulated outputs.
 
-    Returns:
-        ``(batch,)`` (``(1,)`` for single records). NaN for a constant record, whose fit is
-        undefined (``||y - mean(y)|| = 0``: no model explains it better than its mean, and
-        reporting 100 % would call any model perfect).
+    Returns
+    -------
+    (batch,) array, (1,) for single records
+        NaN for a constant record, whose fit is undefined (``||y - mean(y)|| = 0``: no model
+        explains it better than its mean, and reporting 100 % would call any model perfect).
     """
     y = np.atleast_2d(_real("y", y))
     y_hat = np.atleast_2d(_real("y_hat", y_hat))

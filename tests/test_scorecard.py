@@ -8,10 +8,10 @@ import pytest
 import torch
 
 import aeid_struct as ae
+from aeid_struct import training as data
 from aeid_struct.evaluation import Score, pool, score, table, training_summary, training_table
 from aeid_struct.evaluation import scorecard as scorecard
 from aeid_struct.studies import leg_paper as study
-from aeid_struct.training import families as data
 from symbolic import leg
 
 

@@ -834,11 +834,12 @@ def test_element_map_rejects_an_unknown_kind():
 
 
 def test_old_module_paths_still_resolve():
-    # base.py held every structure before the split; code that imported them from there (and
-    # the private converters identification used) keeps working until it imports the package.
-    from aeid_struct.structures import base
+    # the flat layout's paths users import keep working (aeid_struct._compat, the package API)
+    import aeid_struct.maps as old_maps
 
-    assert (base.CCF, base.MCF, base.Physical, base.System) == (CCF, MCF, Physical, System)
-    assert base._ccf_coefficients is ccf_coefficients and base._ccf_matrices is ccf_matrices
-    with pytest.raises(AttributeError, match="has no attribute 'Nope'"):
-        base.Nope  # noqa: B018
+    from aeid_struct import structures
+    from aeid_struct.structures import maps
+
+    assert old_maps is maps
+    assert (structures.CCF, structures.MCF, structures.Physical) == (CCF, MCF, Physical)
+    assert structures.ccf_coefficients is ccf_coefficients

@@ -117,6 +117,12 @@ def _provenance_of(ident) -> Provenance:
                       training_range=ident.training_range)
 
 
+def _output_mask(structure: Structure) -> torch.Tensor:
+    """``(1, q)``: 1 for the elements that scale with the output (``c_i``, ``d``), 0 elsewhere."""
+    return torch.tensor([[1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
+                          for k in structure.element_names]])
+
+
 class Identifier:
     """A trained encoder with its structure, record format and normalisation.
 
@@ -165,10 +171,7 @@ class Identifier:
         self._fast_path = None                      # (weight versions, Batch1 or None)
         self._provenance = None                     # (its sources, Provenance)
         self._params = list(encoder.parameters())   # cached: walking the modules is slow
-        # 1 for the elements that scale with the output (c_i, d), 0 elsewhere
-        self._output_mask = torch.tensor([[
-            1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
-            for k in structure.element_names]])
+        self._output_mask = _output_mask(structure)
 
     # -- the record format ---------------------------------------------------------------------
     @property
@@ -188,10 +191,8 @@ class Identifier:
 
     @property
     def training_range(self) -> dict | None:
-        """``{"elements": {name: (lo, hi, err)}, "physical": {...}, "fit": f, "excess": e}``:
-        each free element's and physical parameter's range over the training family with the
-        identifier's 90th-percentile held-out error on it, and the calibrated thresholds
-        (recorded by ``train``; see ``Estimate.outside``), or None."""
+        """``{"elements": {name: (lo, hi, err)}, "physical": {...}, "fit": f, "excess": e}``
+        recorded by ``train`` (``Estimate.outside``), or None."""
         rng = self.meta.get("training_range")
         if not rng:
             return None
@@ -207,10 +208,6 @@ class Identifier:
         if cached is None or any(a is not b for a, b in zip(cached[0], sources, strict=True)):
             cached = self._provenance = (sources, _provenance_of(self))
         return cached[1]
-
-    def physical_source(self):
-        """Where physical parameters come from (``Provenance.inverse``)."""
-        return self.provenance.inverse
 
     def time(self):
         """Sample instants ``t_k = k*dt``.
@@ -229,24 +226,32 @@ class Identifier:
 
     # -- the differentiable path (training uses it) --------------------------------------------
     def system(self, y, u) -> System:
-        """Encode records into the identified system, in measured units.
+        """The identified system of checked records, ``forward(y, u)[0]``.
 
         Parameters
         ----------
         y, u : (batch, steps) tensors, or sequences of R of them
-            Checked by the caller; ``(batch, steps_r)`` per record for several records.
 
         Returns
         -------
         System
-            ``A (batch, n, n)``, ``b, c (batch, n)``, ``d (batch,)`` (with a record axis after
-            the batch axis for several records).
         """
         return self.forward(y, u)[0]
 
     def forward(self, y, u, *, raw: bool = False):
-        """``(System, elements (batch, q))`` of the records, both in measured units; with
-        ``raw``, also the encoder's standardised outputs ``(batch, p)``."""
+        """The differentiable encoder pass, in measured units.
+
+        Parameters
+        ----------
+        y, u : (batch, steps) tensors, or sequences of R of them
+            Checked by the caller.
+        raw : bool
+            Also return the encoder's standardised outputs.
+
+        Returns
+        -------
+        (System, elements (batch, q)), or (System, elements, z (batch, p)) with ``raw``
+        """
         return forward.differentiable(self, y, u, raw=raw)
 
     def _decode(self, x: list, features):

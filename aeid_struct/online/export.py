@@ -152,7 +152,7 @@ def onnx_bytes(ident) -> bytes:
                           output_names=["A", "b", "c", "d", "elements"], opset_version=17,
                           dynamo=False)
     model = onnx.load_from_string(buffer.getvalue())
-    inverse = ident.physical_source()
+    inverse = ident.provenance.inverse
     header = {
         "format": ONNX_FORMAT, "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
         "initial": ident.initial, "elements": list(ident.structure.element_names),

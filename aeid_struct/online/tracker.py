@@ -378,7 +378,7 @@ def _physical_names(identifier) -> tuple[str, ...] | None:
 
     if isinstance(identifier, OnnxIdentifier):
         return identifier.physical_names
-    source = identifier.physical_source() if hasattr(identifier, "physical_source") else None
+    source = identifier.provenance.inverse if hasattr(identifier, "provenance") else None
     if isinstance(source, tuple):
         return tuple(source[1])
     return inverse_names(source)
