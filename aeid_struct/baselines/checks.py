@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from aeid_struct.identification import Estimate
-from aeid_struct.records import as_array, require_finite
+from aeid_struct.records import as_array, require_finite, unit_step
 
 __all__ = ["check_int", "check_record", "estimate", "in_structure", "nan_model",
            "physical_source"]
@@ -57,7 +57,7 @@ def check_record(y, u) -> tuple[np.ndarray, np.ndarray]:
         Naming the argument: wrong shape, non-finite sample, all zero, or shapes that differ.
     """
     out = []
-    for name, v in (("y", y), ("u", np.ones(np.shape(y)) if u is None else u)):
+    for name, v in (("y", y), ("u", unit_step(np.shape(y)) if u is None else u)):
         arr = as_array(name, v)
         if arr.ndim != 1 or arr.shape[0] < 2:
             raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record; "

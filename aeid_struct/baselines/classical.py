@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeid_struct.identification import Estimate
-from aeid_struct.records import as_array
+from aeid_struct.records import as_array, unit_step
 from aeid_struct.simulation import check_dt
 
 __all__ = ["Classical"]
@@ -77,7 +77,7 @@ class Classical:
         if Y.ndim != 2 or Y.shape[1] != self.steps:
             raise ValueError(f"y must have shape ({self.steps},) or (batch, {self.steps}); "
                              f"got {np.shape(y)}")
-        U = np.ones_like(Y) if u is None else np.atleast_2d(as_array("u", u))
+        U = unit_step(Y.shape) if u is None else np.atleast_2d(as_array("u", u))
         if U.ndim != 2 or U.shape[1] != self.steps or U.shape[0] not in (1, len(Y)):
             raise ValueError(f"u must have shape ({self.steps},) or ({len(Y)}, {self.steps}) "
                              f"like y; got {np.shape(u)}")

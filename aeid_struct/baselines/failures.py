@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 
 from aeid_struct.identification import Estimate
-from aeid_struct.records import as_array
+from aeid_struct.records import as_array, unit_step
 from aeid_struct.simulation import OverflowWarning, simulate
 
 __all__ = ["failed", "failure"]
@@ -99,7 +99,7 @@ def _failure_one(A, b, c, d, info, structure, physical, truth, dt, step_tol) -> 
         with warnings.catch_warnings():
             # an overflowing step response is +inf, and a failure here, not a warning
             warnings.simplefilter("ignore", OverflowWarning)
-            y_hat = simulate(A, b, c, d, np.ones(truth.shape[0]), dt)
+            y_hat = simulate(A, b, c, d, unit_step(truth.shape[0]), dt)
         if not np.all(np.isfinite(y_hat)):
             return "step response not finite"
         err = float(step_error(truth, y_hat)[0])

@@ -21,6 +21,7 @@ from aeid_struct.evaluation.style import (
     unit_label,
 )
 from aeid_struct.metrics import FREQUENCIES, frequency_response
+from aeid_struct.records import unit_step
 
 #: Input and output of the robot-leg subsystems (``symbolic/leg.py``), as ``Comparison``
 #: keywords: the translational leg is driven by the force F along the leg and its output is the
@@ -171,7 +172,7 @@ def fig3(comparisons: list[Comparison], path=None, omega=FREQUENCIES, *, title=N
                              squeeze=False, layout="constrained")
     for row, cmp in zip(axes, comparisons, strict=True):
         t = np.arange(cmp.steps) * cmp.dt
-        u = np.ones(cmp.steps)
+        u = unit_step(cmp.steps)
         models = {"true": cmp.true, "identified": cmp.est, **(cmp.extra or {})}
         styles = {"true": dict(color="k", lw=2.2, alpha=0.6),
                   "identified": dict(color="C1", lw=1.4, ls="--")}

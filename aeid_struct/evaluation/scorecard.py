@@ -26,6 +26,7 @@ from aeid_struct.metrics import (
     parameter_errors,
     step_error,
 )
+from aeid_struct.records import unit_step
 from aeid_struct.simulation import simulate
 from aeid_struct.training import Records
 
@@ -270,7 +271,7 @@ def _accuracy(model: tuple, records: Records) -> dict[str, np.ndarray]:
     like ``records``) against the true systems."""
     sys = records.systems
     steps = records.u.shape[1]
-    step_input = np.ones(steps)
+    step_input = unit_step(steps)
     y_true = simulate(sys.A, sys.b, sys.c, sys.d, step_input, records.dt)
     # An unstable estimate may overflow: it is scored below, so the decoder's warning (its
     # OverflowWarning, a RuntimeWarning) is noise.

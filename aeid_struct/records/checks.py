@@ -255,7 +255,7 @@ def record_problems(y2: np.ndarray, u2: np.ndarray | None, *, reads_u: bool,
     # be a positive float64 number (1e300 / 1e-300 is not).
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         y_bar = np.abs(np.where(np.isfinite(y2), y2, 0.0)).max(axis=1)
-        u_bar = (np.ones(count) if u2 is None
+        u_bar = (unit_step(count) if u2 is None
                  else np.abs(np.where(np.isfinite(u2), u2, 0.0)).max(axis=1))
         ratio = y_bar / u_bar
     bad = bad | ~(np.isfinite(ratio) & (ratio > 0))
@@ -335,7 +335,7 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
     # y / y_bar first: 2 y overflows for |y| near float64's largest number
     y_tilde = 2.0 * (y2 / y_bar[:, None]) - 1.0
     if u2 is None:
-        return y_tilde, np.ones_like(y2), y_bar, np.ones_like(y_bar)
+        return y_tilde, unit_step(y2.shape), y_bar, unit_step(y_bar.shape)
     u_bar = np.abs(u2).max(axis=1)
     return y_tilde, u2 / u_bar[:, None], y_bar, u_bar
 

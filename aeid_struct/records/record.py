@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.records.checks import Checked, check_records
+from aeid_struct.records.checks import Checked, check_records, unit_step
 
 __all__ = ["Record", "check_record"]
 
@@ -68,7 +68,7 @@ class Record:
         several = isinstance(y, tuple)
         ys = tuple(np.asarray(v) for v in (y if several else (y,)))
         us = (None,) * len(ys) if u is None else (tuple(u) if several else (u,))
-        us = tuple(np.ones_like(v, dtype=np.float64) if w is None else np.asarray(w)
+        us = tuple(unit_step(np.shape(v)) if w is None else np.asarray(w)
                    for v, w in zip(ys, us, strict=True))
         if batched is None:
             batched = ys[0].ndim == 2
@@ -171,7 +171,8 @@ def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
     problems = tuple(next((c.problems[i] for c in checks if c.problems[i] is not None), None)
                      for i in range(checks[0].count))
     return Record(tuple(c.y for c in checks),
-                  tuple(np.ones_like(c.y) if c.u is None else np.asarray(c.u) for c in checks),
+                  tuple(unit_step(np.shape(c.y)) if c.u is None else np.asarray(c.u)
+                        for c in checks),
                   tuple(float(t) for _, t in grids), checks[0].batched, problems, checked=True)
 
 

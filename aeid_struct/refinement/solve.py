@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from aeid_struct.records import Record, as_array, check_dt, require_finite
+from aeid_struct.records import Record, as_array, check_dt, require_finite, unit_step
 from aeid_struct.refinement import nlp
 from aeid_struct.refinement.config import RefineConfig, RefineResult
 from aeid_struct.structures import Structure
@@ -114,7 +114,7 @@ def refine_elements(structure: Structure, x0, y, u, dt: float,
         raise ValueError(f"initial must be 'rest' or 'fitted'; got {initial!r}")
     dt = check_dt(dt)
     y = _record("y", y)
-    u = np.ones_like(y) if u is None else _record("u", u, y.shape[0])
+    u = unit_step(y.shape) if u is None else _record("u", u, y.shape[0])
     if not np.any(y):
         raise ValueError("y must not be all zero: the normalisation y_tilde = 2 y / max|y| - 1 "
                          "(Eq. 15) needs max|y| > 0")
@@ -258,7 +258,7 @@ def _given_record(estimate, y, u, dt) -> Record:
     batched = estimate.batched
     count = estimate.A.shape[0] if batched else 1
     Y = _records("y", y, count, batched)
-    U = np.ones_like(Y) if u is None else _records("u", u, count, batched)
+    U = unit_step(Y.shape) if u is None else _records("u", u, count, batched)
     if U.shape != Y.shape:
         raise ValueError(f"u must have {Y.shape[1]} samples like y; got {U.shape[1]}")
     _check_not_zero(Y)

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from aeid_struct.metrics import FREQUENCIES
+from aeid_struct.records import unit_step
 from aeid_struct.simulation import simulate
 from aeid_struct.studies.leg_table import PAPER as PAPER
 from aeid_struct.studies.leg_table import PAPER_SECONDS as PAPER_SECONDS
@@ -215,7 +216,7 @@ def figure3(idents: dict, path, source: str = "identifiers given",
         family = LegFamily(subsystem=subsystem)
         s = family.systems(**{k: [v] for k, v in SCENARIO.items()})
         true = (s.A[0], s.b[0], s.c[0], float(s.d[0]))
-        y = simulate(*true, np.ones(steps), dt)
+        y = simulate(*true, unit_step(steps), dt)
         est = ident.identify(y)
         comparisons.append(Comparison(name, true, (est.A, est.b, est.c, est.d), dt, steps,
                                       **LEG_SIGNALS[subsystem]))

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeid_struct.metrics import FREQUENCIES, bode_errors, parameter_errors, step_error
+from aeid_struct.records import unit_step
 from aeid_struct.simulation import simulate
 from aeid_struct.training import LegFamily, records
 
@@ -114,7 +115,7 @@ def evaluate(ident, subsystem: str, *, count: int = 500, seed: int = 12345,
     family = LegFamily(subsystem=subsystem)
     val = records(family, count, steps=steps, dt=dt, noise=noise, seed=seed)
     scen_sys = family.systems(**{k: [v] for k, v in SCENARIO.items()})
-    u = np.ones(steps)
+    u = unit_step(steps)
     y_scen = simulate(scen_sys.A, scen_sys.b, scen_sys.c, scen_sys.d, u, dt)
     y_all = np.concatenate([y_scen, val.y])
     y_true = np.concatenate([y_scen, val.y_clean])
