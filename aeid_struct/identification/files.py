@@ -161,22 +161,11 @@ def _check_weights(expected: dict, tensors: dict, source: str) -> None:
 
 
 def _load_weights(encoder: Encoder, tensors: dict, source: str) -> None:
-    """Check the file's tensors against the encoder the header describes (names, shapes,
-    finite floats) and load them; one ValueError naming ``source`` and the tensor."""
-    expected = {f"encoder.{k}": tuple(v.shape) for k, v in encoder.state_dict().items()}
-    missing = [k for k in (*expected, "theta_mean", "theta_scale") if k not in tensors]
-    if missing:
-        raise ValueError(f"{source}: weights {missing} are missing (the header's 'encoder' "
-                         "describes them)")
-    unknown = sorted(set(tensors) - set(expected) - {"theta_mean", "theta_scale"})
-    if unknown:
-        raise ValueError(f"{source}: unknown weights {unknown} (not in the encoder the header "
-                         "describes)")
-    for key in (*expected, "theta_mean", "theta_scale"):      # the encoder's layer order
+    """Load the file's tensors, whose names and shapes ``_check_weights`` has checked, after
+    checking that they are finite floats; one ValueError naming ``source`` and the tensor."""
+    for key in (*encoder.state_dict(), "theta_mean", "theta_scale"):   # the layer order
+        key = key if key.startswith("theta_") else f"encoder.{key}"
         tensor = tensors[key]
-        if key in expected and tuple(tensor.shape) != expected[key]:
-            raise ValueError(f"{source}: weight {key!r} has shape {tuple(tensor.shape)}; the "
-                             f"header's 'encoder' needs {expected[key]}")
         if not tensor.is_floating_point() or not bool(torch.isfinite(tensor).all()):
             raise ValueError(f"{source}: weight {key!r} must hold finite floating-point "
                              f"numbers; got dtype {tensor.dtype}"

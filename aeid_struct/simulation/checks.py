@@ -11,10 +11,11 @@ a ``ValueError`` that names the argument, what was expected and what came.
 from __future__ import annotations
 
 import functools
-import math
 
 import numpy as np
 import torch
+
+from aeid_struct.records import check_dt  # the one dt rule (the boundary's)
 
 __all__ = [
     "AXES",
@@ -119,32 +120,6 @@ def shape(t: torch.Tensor) -> str:
     str
     """
     return str(tuple(t.shape))
-
-
-def check_dt(dt) -> float:
-    """The sample time as a float, checked.
-
-    Parameters
-    ----------
-    dt : real scalar
-        Must be a positive finite number (not a bool or a string).
-
-    Returns
-    -------
-    float
-
-    Raises
-    ------
-    ValueError
-        ``"dt must be a positive finite number; got ..."``.
-    """
-    try:
-        value = float(dt) if not isinstance(dt, (bool, str)) else math.nan
-    except (TypeError, ValueError, RuntimeError):
-        value = math.nan
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"dt must be a positive finite number; got {dt!r}")
-    return value
 
 
 def check_finite(name: str, t: torch.Tensor, axes: tuple[str, ...]) -> None:
