@@ -16,6 +16,15 @@ from aeid_struct.online import TrackerConfig
 from aeid_struct.studies.figures import wear_figure
 from aeid_struct.studies.wear import WearResult
 
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    """Each test inspects its own figures; close them after it so they do not pile up."""
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
 UNIT = re.compile(r"\[[^\]]+\]")          # "[m]", "[N s/m]", "[dB re 1 m/N]"
 
 
