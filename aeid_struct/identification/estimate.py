@@ -91,6 +91,15 @@ class Estimate:
     **old
         The old keywords ``y, u, dt`` (a new record) and ``structure, initial,
         training_range, _inverse`` (a changed provenance), also through ``dataclasses.replace``.
+
+    Notes
+    -----
+    A generic estimate (``aeid_struct.identify``) models a measured record with an input delay
+    and an output offset (docs/architecture.md, "Any system, any record"); its ``info`` holds
+    ``delay`` (samples), ``x0`` (the state at sample ``delay``), ``y_offset``, ``fit`` and
+    ``y_hat`` (NaN on the first ``delay`` samples), which :attr:`delay`, :attr:`x0`,
+    :attr:`offset`, :attr:`fit` and :attr:`y_hat` return instead of computing them for a
+    record without delay and offset.
     """
 
     A: np.ndarray
@@ -163,9 +172,22 @@ class Estimate:
         return self.record.batched
 
     # -- derived on first access ---------------------------------------------------------------
+    @property
+    def delay(self) -> int:
+        """Input delay in samples (``info["delay"]``; 0 where none was identified)."""
+        return int(self.info.get("delay", 0))
+
+    @property
+    def offset(self) -> float:
+        """Constant output offset (``info["y_offset"]``; 0 where none was identified)."""
+        return float(self.info.get("y_offset", 0.0))
+
     @cached_property
     def y_hat(self):
-        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
+        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``; a
+        generic estimate's includes its delay and offset (``info["y_hat"]``)."""
+        if "y_hat" in self.info:
+            return self.info["y_hat"]
         return self._per_record(
             lambda A, b, c, d, u, y, x, dt: simulate(A, b, c, d, u, dt, x0=x),
             lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
@@ -174,7 +196,10 @@ class Estimate:
     def x0(self):
         """The state at the first sample: zeros for a record from rest, else the least-squares
         initial state (``simulation.initial_state``); ``(n,)`` / ``(batch, n)``, a tuple of
-        them for several records."""
+        them for several records; a generic estimate's is its state at sample ``delay``
+        (``info["x0"]``)."""
+        if "x0" in self.info:
+            return self.info["x0"]
         x0 = self._x0()
         if x0 is not None:
             return x0
@@ -186,7 +211,10 @@ class Estimate:
     def fit(self):
         """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record (a float,
         ``(batch,)``, or ``(R,)`` / ``(batch, R)``); NaN where undefined (a constant record,
-        one set aside by ``errors="collect"``); such records are flagged ``outside``."""
+        one set aside by ``errors="collect"``); such records are flagged ``outside``. A
+        generic estimate's is on its fitted samples (``info["fit"]``)."""
+        if "fit" in self.info:
+            return self.info["fit"]
         if self.records == 1:
             fit = nrmse_fit(self.y, self.y_hat)
             return fit if self.batched else float(fit[0])

@@ -1,0 +1,331 @@
+r"""Candidate denominators from a record of any length, and the whole-record choice among them.
+
+A generic identifier reads windows of a fixed length ``window`` (samples) and sees poles in a
+band of ``|p| dt`` (rad/sample; docs/architecture.md, "Any system, any record"). A record of any
+length ``steps >= window`` is read at several time scales: block averaging by ``m = 1, 2, 4,
+...`` (while ``steps // m >= window``) turns a pole ``p`` per sample into ``m p`` per decimated
+sample, so a scale ``m`` window shows the network the band ``|p| dt`` in ``[lo / m, hi / m]``
+of the original record (slow systems in long records are seen). At each scale at most
+``most`` windows are cut evenly (overlapping when the record is short). All windows of all
+scales go through one batched ``identifier.denominators`` call, and each denominator found at
+scale ``m`` (poles in decimated time) is rescaled to the original sample time (poles ``/ m``):
+
+    a(s) = s^n + a_{n-1} s^{n-1} + ... + a_0   ->   a_k / m^{n-k}.
+
+*Aggregation.* Every candidate is evaluated on the WHOLE record by the model of a record
+(:func:`~aeid_struct.simulation.project`: ``c, d, x_0`` and the output offset projected for the
+candidate's poles) and the one with the least mean squared output error is kept. This is the
+criterion the estimate is judged by, it needs no matching of poles across windows (real vs
+complex pairs, ordering), and a window with poor excitation or out of the network's band yields
+a candidate that simply loses; averaging poles (a median) lets such windows pull the estimate.
+:func:`scores` evaluates all candidates at once: the same regressors as
+:func:`~aeid_struct.simulation.project` (CCF forced states, input, the first state's free
+response, ones), solved by column-scaled normal equations with one step of iterative refinement
+(the ranking needs the cost, not ``lstsq``'s last digits, and this is one batched product for
+all candidates).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from aeid_struct.simulation import Projection
+
+__all__ = ["MOST_WINDOWS", "Windows", "candidates", "ccf", "cut", "decimate", "rescale",
+           "scales", "scores", "solution"]
+
+#: At most this many windows per time scale.
+MOST_WINDOWS = 8
+
+
+def scales(steps: int, window: int) -> list[int]:
+    """Decimation factors ``1, 2, 4, ...`` that leave at least ``window`` samples.
+
+    Parameters
+    ----------
+    steps, window : int, steps >= window >= 1
+
+    Returns
+    -------
+    list of int
+    """
+    out, m = [], 1
+    while steps // m >= window:
+        out.append(m)
+        m *= 2
+    return out
+
+
+def decimate(x: np.ndarray, m: int) -> np.ndarray:
+    """Block averages of ``m`` samples (the tail that does not fill a block is dropped).
+
+    Parameters
+    ----------
+    x : (steps,) array
+    m : int, >= 1
+
+    Returns
+    -------
+    (steps // m,) array
+    """
+    if m == 1:
+        return x
+    L = x.shape[0] // m
+    return x[: L * m].reshape(L, m).mean(axis=1)
+
+
+def cut(length: int, window: int, most: int = MOST_WINDOWS) -> np.ndarray:
+    """First samples of ``K = min(most, ceil(length / window))`` windows spread evenly over
+    ``[0, length - window]`` (overlapping when ``K window > length``).
+
+    Parameters
+    ----------
+    length, window : int, length >= window
+    most : int, >= 1
+
+    Returns
+    -------
+    (K,) int array
+    """
+    K = min(most, math.ceil(length / window))
+    return np.unique(np.linspace(0, length - window, K).round().astype(int))
+
+
+class Windows:
+    """The windows of a record at every time scale, stacked for one identifier call.
+
+    Parameters
+    ----------
+    y, u : (steps,) arrays
+    window : int, <= steps
+    most : int
+        Windows per scale, at most.
+
+    Attributes
+    ----------
+    y, u : (K, window) arrays
+    scale : (K,) int array
+        The decimation factor of each window.
+    """
+
+    def __init__(self, y: np.ndarray, u: np.ndarray, window: int,
+                 most: int = MOST_WINDOWS) -> None:
+        ys, us, ms = [], [], []
+        for m in scales(y.shape[0], window):
+            yd, ud = decimate(y, m), decimate(u, m)
+            for s in cut(yd.shape[0], window, most):
+                ys.append(yd[s : s + window])
+                us.append(ud[s : s + window])
+                ms.append(m)
+        self.y, self.u = np.stack(ys), np.stack(us)
+        self.scale = np.asarray(ms)
+
+
+def rescale(dens: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Denominators found in decimated time (one sample = ``scale`` samples) in the original
+    sample time: poles divided by ``scale``, ``a_k -> a_k / scale^(n-k)``.
+
+    Parameters
+    ----------
+    dens : (K, n + 1) array
+        Monic, highest power first.
+    scale : (K,) array
+
+    Returns
+    -------
+    (K, n + 1) array
+    """
+    n = dens.shape[1] - 1
+    return dens / np.asarray(scale, float)[:, None] ** np.arange(n + 1)
+
+
+def candidates(identifier, y: np.ndarray, u: np.ndarray,
+               most: int = MOST_WINDOWS) -> np.ndarray:
+    """The identifier's denominators of all windows at all scales, in normalised time of the
+    record (one batched ``denominators`` call); unusable (non-finite) rows are dropped.
+
+    Parameters
+    ----------
+    identifier : object
+        ``config.window`` (samples) and ``denominators(Y (K, window), U) -> (K, n + 1)``.
+    y, u : (steps,) arrays, steps >= window
+    most : int
+
+    Returns
+    -------
+    (K', n + 1) array
+        Monic denominators, highest power first; possibly none.
+    """
+    w = Windows(y, u, int(identifier.config.window), most)
+    dens = np.asarray(identifier.denominators(w.y, w.u), dtype=np.float64)
+    dens = rescale(dens, w.scale)
+    return dens[np.isfinite(dens).all(axis=1)]
+
+
+def ccf(den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bottom-row controllable canonical form (Eq. 5) of monic denominators.
+
+    Parameters
+    ----------
+    den : (K, n + 1) or (n + 1,) array
+
+    Returns
+    -------
+    A : (K, n, n) or (n, n) array
+    b : (K, n) or (n,) array
+    """
+    den = np.asarray(den, dtype=np.float64)
+    one = den.ndim == 1
+    den = np.atleast_2d(den)
+    K, n = den.shape[0], den.shape[1] - 1
+    A = np.zeros((K, n, n))
+    A[:, np.arange(n - 1), np.arange(1, n)] = 1.0
+    A[:, n - 1, :] = -den[:, :0:-1]
+    b = np.zeros((K, n))
+    b[:, -1] = 1.0
+    return (A[0], b[0]) if one else (A, b)
+
+
+def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: bool):
+    """``M (K, N, p)`` of :func:`~aeid_struct.simulation.project` for each candidate (dt = 1),
+    with ``Phi (K, n, n)`` and ``gamma2 (K, n)``."""
+    A, b = ccf(dens)
+    K, n = b.shape
+    N = uu.shape[0]
+    E = np.zeros((K, n + 2, n + 2))
+    E[:, :n, :n], E[:, :n, n], E[:, n, n + 1] = A, b, 1.0
+    X = scipy.linalg.expm(E)
+    Phi, gamma1, gamma2 = X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
+    Bd = gamma1 - gamma2 + np.einsum("kij,kj->ki", Phi, gamma2)
+    # discrete denominator from the poles (exp of the continuous ones), as np.poly would
+    z = np.exp(np.linalg.eigvals(A))
+    a = np.zeros((K, n + 1), dtype=complex)
+    a[:, 0] = 1.0
+    for j in range(n):
+        a[:, 1 : j + 2] = a[:, 1 : j + 2] - z[:, j : j + 1] * a[:, : j + 1]
+    a = a.real
+    markov = np.empty((K, n, n))
+    markov[:, 0] = Bd
+    for m in range(1, n):
+        markov[:, m] = np.einsum("kij,kj->ki", Phi, markov[:, m - 1])
+    num = np.zeros((K, n + 1, n))
+    for k in range(1, n + 1):
+        num[:, k] = sum(a[:, i, None] * markov[:, k - 1 - i] for i in range(k))
+    # forced states X = W num + u gamma2^T (W: the filtered input and its n shifts)
+    W = np.zeros((K, N, n + 1))
+    for i in range(K):
+        W[i, :, 0] = scipy.signal.lfilter([1.0], a[i], uu)
+    for k in range(1, n + 1):
+        W[:, k:, k] = W[:, : N - k, 0]
+    cols = [W @ num + uu[:, None] * gamma2[:, None, :]]
+    if feedthrough:
+        cols.append(np.broadcast_to(uu[:, None], (K, N, 1)))
+    # free response of the first state, e_1^T Phi^k, by doubling (one batched product a level)
+    F = np.empty((K, N, n))
+    F[:, 0, :] = 0.0
+    F[:, 0, 0] = 1.0
+    P, k = Phi, 1
+    while k < N:
+        m = min(k, N - k)
+        F[:, k : k + m] = F[:, :m] @ P
+        k += m
+        if k < N:
+            P = P @ P
+    cols.append(F)
+    if offset:
+        cols.append(np.ones((K, N, 1)))
+    return np.concatenate(cols, axis=2), Phi, gamma2
+
+
+def _solve(M: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched column-scaled normal equations with one refinement step; a tiny ridge keeps a
+    rank-deficient problem (a step input: its column equals the offset's) solvable."""
+    scale = np.abs(M).max(axis=1)
+    scale = np.where(scale > 0, scale, 1.0)
+    Ms = M / scale[:, None, :]
+    Mt = Ms.transpose(0, 2, 1)
+    G = Mt @ Ms
+    G += 1e-13 * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(G.shape[1])
+    z = np.linalg.solve(G, Mt @ r[:, None])
+    res = r[:, None] - Ms @ z
+    z += np.linalg.solve(G, Mt @ res)
+    z = z[..., 0] / scale
+    return z, (M @ z[..., None])[..., 0]
+
+
+def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
+           feedthrough: bool = True, offset: bool = True) -> np.ndarray:
+    """Mean squared output error on the whole record of each candidate denominator, with
+    ``c, d, x_0`` and the offset projected (normalised time, dt = 1); ``inf`` where the
+    candidate's response is not finite (an unstable candidate on a long record).
+
+    Parameters
+    ----------
+    dens : (K, n + 1) array
+        Monic denominators, highest power first.
+    y, u : (steps,) arrays
+    delay : int, 0 <= delay < steps - 1
+    feedthrough, offset : bool
+        As for :func:`~aeid_struct.simulation.project`.
+
+    Returns
+    -------
+    (K,) array
+    """
+    N = y.shape[0] - delay
+    with np.errstate(all="ignore"):
+        M, _, _ = _regressors(dens, u[:N], feedthrough, offset)
+        good = np.isfinite(M).all(axis=(1, 2))
+        cost = np.full(dens.shape[0], np.inf)
+        if good.any():
+            _, fitted = _solve(M[good], y[delay:])
+            cost[good] = np.mean((y[delay:] - fitted) ** 2, axis=1)
+    return np.where(np.isfinite(cost), cost, np.inf)
+
+
+def solution(den: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
+             feedthrough: bool = True, offset: bool = True) -> Projection:
+    """:func:`~aeid_struct.simulation.project` of the CCF of one denominator (dt = 1) by the
+    batched solver of :func:`scores`: the same model, a cheaper solve.
+
+    Parameters
+    ----------
+    den : (n + 1,) array
+    y, u : (steps,) arrays
+    delay : int
+    feedthrough, offset : bool
+
+    Returns
+    -------
+    Projection
+    """
+    n = den.shape[0] - 1
+    N = y.shape[0] - delay
+    uu = u[:N]
+    M, Phi, gamma2 = _regressors(den[None], uu, feedthrough, offset)
+    z, fitted = _solve(M, y[delay:])
+    z, fitted = z[0], fitted[0]
+    c = z[:n]
+    d = z[n] if feedthrough else 0.0
+    theta = z[n + int(feedthrough) : 2 * n + int(feedthrough)]
+    # delta from c^T Phi^k delta = F theta on the first rows, as project does
+    rows = min(N, 4 * n)
+    O = np.empty((rows, n))
+    O[0] = c
+    for k in range(1, rows):
+        O[k] = O[k - 1] @ Phi[0]
+    F = M[0, :rows, n + int(feedthrough) : 2 * n + int(feedthrough)]
+    delta = np.linalg.lstsq(O, F @ theta, rcond=None)[0]
+    x0 = delta + gamma2[0] * uu[0]
+    used = y[delay:]
+    y_hat = np.full(y.shape, np.nan)
+    y_hat[delay:] = fitted
+    res = used - fitted
+    den_ = np.linalg.norm(used - used.mean())
+    fit = 100.0 * (1.0 - np.linalg.norm(res) / den_) if np.ptp(used) > 0 else np.nan
+    return Projection(c=c, d=float(d), x0=x0, y_offset=float(z[-1]) if offset else 0.0,
+                      y_hat=y_hat, fit=fit, cost=float(np.mean(res ** 2)), delay=delay)
