@@ -6,11 +6,11 @@ Layer: above ``identification`` (its :func:`identify` returns an ``Estimate``) a
 
 Modules: ``windows`` (candidates from windows at several time scales, the whole-record choice),
 ``delay`` (the input delay: ARX scan, projection re-scan), ``one_call`` (:func:`identify`),
-``compare`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
+``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
 """
 
-from aeid_struct.generic.compare import Comparison as Comparison
-from aeid_struct.generic.compare import compare as compare
+from aeid_struct.generic.comparison import Comparison as Comparison
+from aeid_struct.generic.comparison import compare as compare
 from aeid_struct.generic.delay import arx_delay as arx_delay
 from aeid_struct.generic.delay import rescan as rescan
 from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
