@@ -22,11 +22,13 @@ from aeid_struct.records.checks import overflow_problem as overflow_problem
 from aeid_struct.records.checks import record_problems as record_problems
 from aeid_struct.records.checks import require_finite as require_finite
 from aeid_struct.records.checks import unit_step as unit_step
+from aeid_struct.records.measured import Record as Record
 from aeid_struct.records.record import RecordBatch as RecordBatch
 from aeid_struct.records.record import check_record as check_record
 
 __all__ = [
     "Checked",
+    "Record",
     "RecordBatch",
     "RecordError",
     "as_array",
