@@ -10,7 +10,8 @@ cores, for training loops and other packages that have checked their input alrea
 Modules: ``foh`` (:func:`simulate`, :func:`states`, :func:`discretise`), ``kernels`` (the batch
 kernels), ``initial`` (:func:`initial_state`), ``normalise`` (Eq. 4, 14, 15), ``overflow`` (the
 +inf rule), ``checks`` (argument handling), ``casadi_foh`` (:func:`casadi_simulate`,
-:func:`expm`).
+:func:`expm`), ``projection`` (:func:`project`, :func:`fit_initial`: the linear part of a
+record's model by least squares).
 """
 
 from aeid_struct.simulation.casadi_foh import THETA13 as THETA13
@@ -36,6 +37,11 @@ from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
 from aeid_struct.simulation.kernels import states_batch as states_batch
 from aeid_struct.simulation.kernels import states_loop as states_loop
 from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
+from aeid_struct.simulation.projection import Projection as Projection
+from aeid_struct.simulation.projection import fit_initial as fit_initial
+from aeid_struct.simulation.projection import forced_states as forced_states
+from aeid_struct.simulation.projection import free_basis as free_basis
+from aeid_struct.simulation.projection import project as project
 from aeid_struct.simulation.scaling import denormalise as denormalise
 from aeid_struct.simulation.scaling import loss as loss
 from aeid_struct.simulation.scaling import loss_batch as loss_batch
@@ -74,6 +80,12 @@ __all__ = [
     "states_batch",
     "states_loop",
     "stationary_value_batch",
+    # numpy variable projection of a record's linear part (unchecked)
+    "Projection",
+    "fit_initial",
+    "forced_states",
+    "free_basis",
+    "project",
     # CasADi, for the refinement NLP
     "THETA13",
     "augmented",
