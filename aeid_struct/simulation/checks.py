@@ -104,6 +104,8 @@ def prepare(named: dict[str, object]) -> tuple[dict[str, torch.Tensor | None], b
                 raise ValueError(f"{name} must be a real array; got {type(v).__name__}") from err
             if arr.dtype.kind not in "iuf":
                 raise ValueError(f"{name} must be a real array; got dtype {arr.dtype}")
+            if not arr.flags.writeable:   # a Record's arrays: torch warns on read-only memory
+                arr = arr.copy()
             out[name] = torch.as_tensor(arr, dtype=dtype, device=device)
     return out, bool(tensors)
 
