@@ -71,9 +71,10 @@ class RecordFit:
     elements : dict name -> float
         All elements of the structure (fixed ones at their values), within its bounds.
     A : (n, n) float64 array
-    b, c : (n,) float64 arrays
-    d : float
         The model in physical time units (the structure's assembly of ``elements``).
+    b : (n,) float64 array
+    c : (n,) float64 array
+    d : float
     x0 : (n,) float64 array
         The state at sample ``delay`` (least squares).
     y_offset : float
