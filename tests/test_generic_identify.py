@@ -358,3 +358,45 @@ def test_compare_figure_is_written_as_png(tmp_path):
 
 def test_top_level_names():
     assert ae.identify is identify and ae.compare is compare
+
+
+# -- refinement ----------------------------------------------------------------------------------
+def transfer(est, s):
+    """G(s) = c (sI - A)^-1 b + d of an estimate, at complex frequencies ``s``."""
+    n = est.A.shape[0]
+    return np.array([est.c @ np.linalg.solve(x * np.eye(n) - est.A, est.b) + est.d for x in s])
+
+
+S = 1j * np.array([0.1, 1.0, 3.0, 8.0, 20.0, 100.0])
+G_TRUE = np.polyval(NUM[::-1], S) / np.polyval(DEN, S)
+
+
+def test_identify_refined_from_a_perturbed_identifier_is_the_true_system():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert est.refined and est.delay == 2 and est.info["converged"]
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+    assert est.offset == pytest.approx(0.7, abs=1e-6) and est.fit > 99.9999
+    # the refined model's x0 reproduces the record (compare fits x0 itself: same fit)
+    assert compare(est, (y, u, DT)).fit == pytest.approx(est.fit, abs=1e-6)
+
+
+def test_identify_refined_in_mcf_and_with_a_fixed_element():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, structure="mcf", identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert est.refined and isinstance(est.structure, ae.MCF)
+    assert (est.elements["lambda0"], est.elements["delta0"], est.elements["omega0"]) == \
+        pytest.approx((-2.0, -1.5, 8.0), rel=1e-8)
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+    # a0 fixed at its true value in the user's time unit (refined in physical time)
+    fixed = ae.CCF(3, feedthrough=True).fixed(a0=float(DEN[3]))
+    est = identify((y, u, DT), 3, structure=fixed, identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert est.refined and est.elements["a0"] == DEN[3]
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+
+
+def test_identify_refine_false_keeps_the_encoder_model():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert not est.refined and "iterations" not in est.info
+    assert np.max(np.abs(transfer(est, S) / G_TRUE - 1)) > 1e-3

@@ -38,6 +38,7 @@ from aeid_struct.generic.delay import arx_delay, rescan
 from aeid_struct.generic.windows import candidates, ccf, scores, solution
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.records import as_array, check_dt, require_finite, unit_step
+from aeid_struct.refinement import BUCKETS, refine_record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
@@ -288,10 +289,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     refined = False
     info = {"candidates": fit.candidates, "order_fits": order_fits}
     if refine:
-        better = _refine(structure, model, data, int(max_delay))
-        if better is not None and better[0].cost < model.cost:
-            model, refined = better[0], True
-            info |= better[1]
+        better, about = _refine(structure, model, data, int(max_delay))
+        info |= about
+        if better is not None and better.cost < model.cost:
+            model, refined = better, True
     return model.estimate(structure, data, time.perf_counter() - start, refined, info)
 
 
@@ -377,13 +378,12 @@ def _controllability(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _refine(structure: Structure, m: _Model, data: Measured, max_delay: int):
-    """``(_Model, info)`` of ``refinement.refine_record`` from ``m``, or None where it failed.
+    """``(_Model, info)`` of ``refinement.refine_record`` from ``m``; the model is None where
+    the refinement did not run (a record longer than its largest bucket) or failed.
 
     A structure with fixed elements (or one that is not canonical) holds its elements in the
     user's time unit, so it is refined in physical time; the canonical forms are refined in
     normalised time (better scaled: a_k ~ (|p| dt)^(n-k) instead of |p|^(n-k))."""
-    from aeid_struct.refinement import refine_record  # noqa: PLC0415 (helper REF's module)
-
     physical = bool(structure.fixed_values) or not isinstance(structure, (CCF, MCF))
     dt = data.dt if physical else 1.0
     scale = data.dt if physical else 1.0
@@ -391,14 +391,17 @@ def _refine(structure: Structure, m: _Model, data: Measured, max_delay: int):
     D = m.delay
     delays = (D,) if data.delay is not None else tuple(
         k for k in (D - 1, D, D + 1) if 0 <= k <= max_delay)
+    if data.steps - min(delays) > BUCKETS[-1]:
+        return None, {"refinement": f"skipped: more than {BUCKETS[-1]} samples"}
     r = refine_record(structure, start.to(torch.float64).numpy(), data.y, data.u, dt,
                       delay=D, delays=delays, offset=True)
     if not np.isfinite(r.cost):
-        return None
+        return None, {"refinement": "failed: no finite cost"}
     y_hat = np.asarray(r.y_hat, dtype=np.float64)
     used = ~np.isnan(y_hat)
     cost = float(np.mean((data.y[used] - y_hat[used]) ** 2))
     A, b = np.asarray(r.A, float) * scale, np.asarray(r.b, float) * scale
     model = _Model(A, b, np.asarray(r.c, float), float(r.d), np.asarray(r.x0, float),
                    float(r.y_offset), int(r.delay), y_hat, float(r.fit), cost)
-    return model, {"iterations": r.iterations, "converged": r.converged}
+    return model, {"iterations": r.iterations, "converged": r.converged,
+                   "refine_seconds": r.seconds}
