@@ -292,9 +292,12 @@ def test_identify_bad_records_name_the_argument():
 
 def test_identify_takes_a_record_object():
     y, u = make_record()
-    rec = SimpleNamespace(y=y, u=u, dt=DT, delay=2, t0=0.0)
+    rec = ae.Record(y, u, DT, delay=2, t0=5.0)
     est = identify(rec, 3, refine=False, identifier=ArxDouble(3))
     assert est.delay == 2 and est.fit > 99.9 and est.dt == DT
+    np.testing.assert_allclose(compare(est, rec).t, 5.0 + DT * np.arange(1000))
+    duck = SimpleNamespace(y=y, u=u, dt=DT)            # any object with y, u, dt
+    assert identify(duck, 3, refine=False, identifier=ArxDouble(3)).fit == est.fit
 
 
 # -- compare -----------------------------------------------------------------------------------

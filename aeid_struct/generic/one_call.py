@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from importlib import import_module
 
 import numpy as np
 import torch
@@ -180,7 +181,8 @@ def _identifiers(order, identifier, structure) -> dict:
     elif identifier is not None:
         chosen = {int(identifier.config.order): identifier}
     else:
-        from aeid_struct.generic.model import load_generic  # GEN's loader of shipped ones
+        # the shipped identifiers' loader (module generic.model), looked up when needed
+        load_generic = import_module("aeid_struct.generic.model").load_generic
         orders = ORDERS if order is None else (order,)
         chosen = {n: load_generic(f"generic-{n}") for n in orders}
     if order is not None:
