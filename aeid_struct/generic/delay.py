@@ -12,18 +12,20 @@ misses the term ``u_{k-D-n}``, one too long the term ``u_{k-D}``, so the true ``
 least residual on noise-free data. All ``D`` share one Gram matrix of the lagged signals; each
 ``D`` is a small sub-block solve.
 
-*Re-scan* (:func:`rescan`): equation error is biased by noise, so once the candidate poles are
-chosen, ``D`` is re-scanned over ``D_arx - width .. D_arx + width`` by the model of a record
-(output error with ``c, d, x_0`` and the offset projected, :func:`~aeid_struct.generic.windows.
-scores`): the rule is the least mean squared residual per FITTED sample (a longer delay fits
-``steps - D`` samples, so the mean, not the sum, compares them); ties go to the smaller delay.
+*Re-scan* (:func:`rescan`): equation error is biased by noise, so ``D`` is re-scanned over
+``D_arx - width .. D_arx + width`` by the model of a record (output error with ``c, d, x_0``
+and the offset projected, :func:`~aeid_struct.generic.windows.select`): the rule is the least
+mean squared residual per FITTED sample (a longer delay fits ``steps - D`` samples, so the
+mean, not the sum, compares them); ties go to the smaller delay. ``identify`` does this jointly
+with the choice of the candidate denominator (every candidate at every delay of the range, one
+batched evaluation).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from aeid_struct.generic.windows import scores
+from aeid_struct.generic.windows import select
 
 __all__ = ["arx_delay", "rescan"]
 
@@ -90,10 +92,6 @@ def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay
     cost : float
         Its mean squared residual.
     """
-    best = (around, np.inf)
-    for D in range(max(0, around - width), min(max_delay, around + width) + 1):
-        cost = float(scores(den[None], y, u, delay=D, feedthrough=feedthrough,
-                            offset=offset)[0])
-        if cost < best[1]:
-            best = (D, cost)
-    return best
+    delays = range(max(0, around - width), min(max_delay, around + width) + 1)
+    chosen = select(den[None], y, u, delays, feedthrough=feedthrough, offset=offset)
+    return chosen.delay, float(chosen.costs[0, list(delays).index(chosen.delay)])

@@ -11,9 +11,10 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
    detrended (the offset is a parameter of the model);
 2. the input delay by an ARX scan (:func:`~aeid_struct.generic.delay.arx_delay`) unless known;
 3. candidate denominators from windows at several time scales, one batched identifier call
-   (:func:`~aeid_struct.generic.windows.candidates`), the best by whole-record projection;
-4. the delay re-scanned around the ARX estimate by projection (:func:`~aeid_struct.generic.
-   delay.rescan`);
+   (:func:`~aeid_struct.generic.windows.candidates`);
+4. the best candidate and delay jointly by whole-record projection, every candidate at the
+   delays ``D_arx - 1 .. D_arx + 1`` (:func:`~aeid_struct.generic.windows.select`; only the
+   known delay where it is known);
 5. unless ``refine=False``, CasADi output-error refinement over the whole record in the chosen
    structure (``refinement.refine_record``), with delays ``D - 1, D, D + 1``; the refined
    model is kept if its mean squared residual is lower.
@@ -35,8 +36,8 @@ from importlib import import_module
 import numpy as np
 import torch
 
-from aeid_struct.generic.delay import arx_delay, rescan
-from aeid_struct.generic.windows import candidates, ccf, scores, solution
+from aeid_struct.generic.delay import arx_delay
+from aeid_struct.generic.windows import candidates, ccf, select
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.records import as_array, check_dt, require_finite, unit_step
 from aeid_struct.refinement import BUCKETS, refine_record
@@ -163,15 +164,13 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
     if dens.shape[1] != order + 1:
         raise ValueError(f"identifier must give denominators of order {order} ((K, "
                          f"{order + 1}) arrays); got shape {dens.shape}")
-    cost = scores(dens, y, u, delay=D0, feedthrough=feedthrough) if len(dens) else dens[:, 0]
-    if not np.isfinite(cost).any():
+    if len(dens) == 0:
         raise ValueError(f"the generic identifier of order {order} found no usable model in "
                          f"any window of this record ({N} samples)")
-    den = dens[int(np.argmin(cost))]
-    D = D0
-    if known is None:
-        D, _ = rescan(den, y, u, D0, min(max_delay, N - window), feedthrough=feedthrough)
-    return _Fit(den, solution(den, y, u, delay=D, feedthrough=feedthrough), len(dens))
+    top = min(max_delay, N - window)
+    delays = [D0] if known is not None else range(max(0, D0 - 1), min(top, D0 + 1) + 1)
+    chosen = select(dens, y, u, delays, feedthrough=feedthrough)
+    return _Fit(dens[chosen.index], chosen.projection, len(dens))
 
 
 def _identifiers(order, identifier, structure) -> dict:

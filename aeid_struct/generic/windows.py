@@ -28,6 +28,7 @@ all candidates).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
@@ -35,8 +36,8 @@ import scipy.signal
 
 from aeid_struct.simulation import Projection
 
-__all__ = ["MOST_WINDOWS", "Windows", "candidates", "ccf", "cut", "decimate", "rescale",
-           "scales", "scores", "solution"]
+__all__ = ["MOST_WINDOWS", "Selection", "Windows", "candidates", "ccf", "cut", "decimate",
+           "rescale", "scales", "scores", "select", "solution"]
 
 #: At most this many windows per time scale.
 MOST_WINDOWS = 8
@@ -241,56 +242,151 @@ def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: boo
     return np.concatenate(cols, axis=2), Phi, gamma2
 
 
-def _solve(M: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched column-scaled normal equations with one refinement step; a tiny ridge keeps a
-    rank-deficient problem (a step input: its column equals the offset's) solvable."""
-    scale = np.abs(M).max(axis=1)
-    scale = np.where(scale > 0, scale, 1.0)
-    Ms = M / scale[:, None, :]
-    Mt = Ms.transpose(0, 2, 1)
-    G = Mt @ Ms
-    G += 1e-13 * np.trace(G, axis1=1, axis2=2)[:, None, None] * np.eye(G.shape[1])
-    z = np.linalg.solve(G, Mt @ r[:, None])
-    res = r[:, None] - Ms @ z
-    z += np.linalg.solve(G, Mt @ res)
-    z = z[..., 0] / scale
-    return z, (M @ z[..., None])[..., 0]
+@dataclass(frozen=True)
+class Selection:
+    """The best (candidate, delay) pair of :func:`select`.
+
+    Attributes
+    ----------
+    index : int
+        The candidate's row.
+    delay : int
+    costs : (K, L) array
+        Mean squared residual per fitted sample of every candidate at every delay (``inf``
+        where the response is not finite).
+    projection : Projection
+        The winner's ``c, d, x_0, y_offset``, output and fit.
+    """
+
+    index: int
+    delay: int
+    costs: np.ndarray
+    projection: Projection
 
 
-def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
-           feedthrough: bool = True, offset: bool = True) -> np.ndarray:
-    """Mean squared output error on the whole record of each candidate denominator, with
-    ``c, d, x_0`` and the offset projected (normalised time, dt = 1); ``inf`` where the
-    candidate's response is not finite (an unstable candidate on a long record).
+def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
+           feedthrough: bool = True, offset: bool = True) -> Selection:
+    """Every candidate denominator at every delay, evaluated on the whole record with ``c, d,
+    x_0`` and the offset projected (normalised time, dt = 1), and the best pair by the mean
+    squared residual per fitted sample.
+
+    The regressors of :func:`~aeid_struct.simulation.project` are causal in the input, so those
+    of delay ``D`` are the first ``steps - D`` rows of those of the smallest delay: one set of
+    regressors per candidate serves every delay, and each (candidate, delay) is one small
+    normal-equation solve (column-scaled, one refinement step; the ranking needs the cost, not
+    ``lstsq``'s last digits).
 
     Parameters
     ----------
     dens : (K, n + 1) array
         Monic denominators, highest power first.
     y, u : (steps,) arrays
-    delay : int, 0 <= delay < steps - 1
+    delays : sequence of int
+        Each in ``[0, steps - 2]``.
     feedthrough, offset : bool
         As for :func:`~aeid_struct.simulation.project`.
 
     Returns
     -------
-    (K,) array
+    Selection
+
+    Raises
+    ------
+    ValueError
+        When no candidate has a finite response.
     """
-    N = y.shape[0] - delay
+    delays = sorted({int(D) for D in delays})
+    D0 = delays[0]
+    N = y.shape[0] - D0
     with np.errstate(all="ignore"):
-        M, _, _ = _regressors(dens, u[:N], feedthrough, offset)
-        good = np.isfinite(M).all(axis=(1, 2))
-        cost = np.full(dens.shape[0], np.inf)
-        if good.any():
-            _, fitted = _solve(M[good], y[delay:])
-            cost[good] = np.mean((y[delay:] - fitted) ** 2, axis=1)
-    return np.where(np.isfinite(cost), cost, np.inf)
+        M, Phi, gamma2 = _regressors(dens, u[:N], feedthrough, offset)
+        good = np.flatnonzero(np.isfinite(M).all(axis=(1, 2)))
+    costs = np.full((dens.shape[0], len(delays)), np.inf)
+    if good.size == 0:
+        raise ValueError(f"no candidate denominator has a finite response on this record "
+                         f"({y.shape[0]} samples)")
+    M = M[good]
+    # column scaling from the Gram matrix's diagonal (slow and fast modes' columns differ by
+    # orders of magnitude); a tiny ridge keeps a rank-deficient problem solvable (a step input:
+    # its column equals the offset's)
+    G_all = M.transpose(0, 2, 1) @ M
+    scale = np.sqrt(np.einsum("kii->ki", G_all))
+    scale = np.where(scale > 0, scale, 1.0)
+    outer = scale[:, :, None] * scale[:, None, :]
+    ridge = 1e-13 * M.shape[2] * np.eye(M.shape[2])
+    solved = []
+    for j, D in enumerate(delays):
+        rows = N - (D - D0)
+        tail = M[:, rows:]
+        G = (G_all - tail.transpose(0, 2, 1) @ tail) / outer + ridge
+        target = y[D:]
+        head = M[:, :rows]
+        zs = np.linalg.solve(G, (target @ head / scale)[..., None])[..., 0]
+        res = target - (head @ (zs / scale)[..., None])[..., 0]
+        zs += np.linalg.solve(G, ((res[:, None, :] @ head)[:, 0] / scale)[..., None])[..., 0]
+        z = zs / scale
+        fitted = (head @ z[..., None])[..., 0]
+        costs[good, j] = np.mean((target - fitted) ** 2, axis=1)
+        solved.append((z, fitted))
+    costs = np.where(np.isfinite(costs), costs, np.inf)
+    k, j = np.unravel_index(np.argmin(costs), costs.shape)
+    i = int(np.flatnonzero(good == k)[0])
+    z, fitted = solved[j][0][i], solved[j][1][i]
+    return Selection(int(k), delays[j], costs, _projection(
+        z, fitted, M[i], Phi[good[i]], gamma2[good[i]], y, u, delays[j], feedthrough, offset))
+
+
+def _projection(z, fitted, M, Phi, gamma2, y, u, delay, feedthrough, offset) -> Projection:
+    """The :class:`~aeid_struct.simulation.Projection` of one solved candidate."""
+    n = Phi.shape[0]
+    c = z[:n]
+    f = n + int(feedthrough)
+    theta = z[f : f + n]
+    # delta from c^T Phi^k delta = F theta on the first rows, as project does
+    rows = min(fitted.shape[0], 4 * n)
+    O = np.empty((rows, n))
+    O[0] = c
+    for k in range(1, rows):
+        O[k] = O[k - 1] @ Phi
+    delta = np.linalg.lstsq(O, M[:rows, f : f + n] @ theta, rcond=None)[0]
+    used = y[delay:]
+    y_hat = np.full(y.shape, np.nan)
+    y_hat[delay:] = fitted
+    res = used - fitted
+    fit = (100.0 * (1.0 - np.linalg.norm(res) / np.linalg.norm(used - used.mean()))
+           if np.ptp(used) > 0 else np.nan)
+    return Projection(c=c, d=float(z[n]) if feedthrough else 0.0, x0=delta + gamma2 * u[0],
+                      y_offset=float(z[-1]) if offset else 0.0, y_hat=y_hat, fit=fit,
+                      cost=float(np.mean(res ** 2)), delay=delay)
+
+
+def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
+           feedthrough: bool = True, offset: bool = True) -> np.ndarray:
+    """Mean squared output error on the whole record of each candidate denominator at one
+    delay (:func:`select`'s costs).
+
+    Parameters
+    ----------
+    dens : (K, n + 1) array
+    y, u : (steps,) arrays
+    delay : int, 0 <= delay < steps - 1
+    feedthrough, offset : bool
+
+    Returns
+    -------
+    (K,) array
+        ``inf`` where the candidate's response is not finite.
+    """
+    try:
+        return select(dens, y, u, [delay], feedthrough=feedthrough, offset=offset).costs[:, 0]
+    except ValueError:
+        return np.full(dens.shape[0], np.inf)
 
 
 def solution(den: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
              feedthrough: bool = True, offset: bool = True) -> Projection:
     """:func:`~aeid_struct.simulation.project` of the CCF of one denominator (dt = 1) by the
-    batched solver of :func:`scores`: the same model, a cheaper solve.
+    solver of :func:`select`: the same model, a cheaper solve.
 
     Parameters
     ----------
@@ -303,29 +399,4 @@ def solution(den: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
     -------
     Projection
     """
-    n = den.shape[0] - 1
-    N = y.shape[0] - delay
-    uu = u[:N]
-    M, Phi, gamma2 = _regressors(den[None], uu, feedthrough, offset)
-    z, fitted = _solve(M, y[delay:])
-    z, fitted = z[0], fitted[0]
-    c = z[:n]
-    d = z[n] if feedthrough else 0.0
-    theta = z[n + int(feedthrough) : 2 * n + int(feedthrough)]
-    # delta from c^T Phi^k delta = F theta on the first rows, as project does
-    rows = min(N, 4 * n)
-    O = np.empty((rows, n))
-    O[0] = c
-    for k in range(1, rows):
-        O[k] = O[k - 1] @ Phi[0]
-    F = M[0, :rows, n + int(feedthrough) : 2 * n + int(feedthrough)]
-    delta = np.linalg.lstsq(O, F @ theta, rcond=None)[0]
-    x0 = delta + gamma2[0] * uu[0]
-    used = y[delay:]
-    y_hat = np.full(y.shape, np.nan)
-    y_hat[delay:] = fitted
-    res = used - fitted
-    den_ = np.linalg.norm(used - used.mean())
-    fit = 100.0 * (1.0 - np.linalg.norm(res) / den_) if np.ptp(used) > 0 else np.nan
-    return Projection(c=c, d=float(d), x0=x0, y_offset=float(z[-1]) if offset else 0.0,
-                      y_hat=y_hat, fit=fit, cost=float(np.mean(res ** 2)), delay=delay)
+    return select(den[None], y, u, [delay], feedthrough=feedthrough, offset=offset).projection
