@@ -167,6 +167,11 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
     if len(dens) == 0:
         raise ValueError(f"the generic identifier of order {order} found no usable model in "
                          f"any window of this record ({N} samples)")
+    if len(dens) >= 3:
+        # the coefficient-wise median as one more candidate: measured on 300 random systems
+        # (orders 1-4, 5 perturbed candidates and an outlier), choosing among candidates plus
+        # their median beat both the median alone and the candidates alone
+        dens = np.vstack([dens, np.median(dens, axis=0)])
     top = min(max_delay, N - window)
     delays = [D0] if known is not None else range(max(0, D0 - 1), min(top, D0 + 1) + 1)
     chosen = select(dens, y, u, delays, feedthrough=feedthrough)
