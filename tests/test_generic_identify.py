@@ -405,3 +405,14 @@ def test_identify_refine_false_keeps_the_encoder_model():
     est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3, perturb=0.1, seed=3))
     assert not est.refined and "iterations" not in est.info
     assert np.max(np.abs(transfer(est, S) / G_TRUE - 1)) > 1e-3
+
+
+def test_order_none_with_refinement_selects_and_refines():
+    # perturbed identifiers of every order: each order refined on 70 % and validated on 30 %
+    y, u = make_record()
+    doubles = {n: ArxDouble(n, perturb=0.1, seed=n) for n in (1, 2, 3, 4)}
+    est = identify((y, u, DT), identifier=doubles)
+    assert est.A.shape == (3, 3) and est.refined
+    fits = est.info["order_fits"]
+    assert fits[3] > 99.99 and fits[2] < fits[3] - 0.5
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)

@@ -19,8 +19,9 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
    structure (``refinement.refine_record``), with delays ``D - 1, D, D + 1``; the refined
    model is kept if its mean squared residual is lower.
 
-*Order selection* (``order=None``): each available order is identified (without refinement)
-on the first 70 % of the record and validated on the last 30 % (NRMSE fit with the initial
+*Order selection* (``order=None``): each available order is identified (refined where
+``refine``: an encoder's error in the poles would otherwise favour a higher order that absorbs
+it) on the first 70 % of the record and validated on the last 30 % (NRMSE fit with the initial
 state and offset fitted, MATLAB's ``compare``); the smallest order whose validation fit is
 within :data:`ORDER_TOLERANCE` points of the best is chosen and identified on the whole
 record. Where 70 % of the record is shorter than the identifier's window, the whole-record
@@ -215,23 +216,25 @@ def _check_order(order, structure):
     return None if order is None else int(order)
 
 
-def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough) -> dict:
+def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough,
+                  refine: bool) -> dict:
     """Validation fit per order (see the module docstring); returns order -> fit."""
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
     holdout = cut >= max(int(i.config.window) for i in identifiers.values())
+    part = Measured(data.y[:cut], data.u[:cut], data.dt, data.delay) if holdout else data
     fits = {}
     for n, ident in sorted(identifiers.items()):
+        fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough)
+        model = _Model.of_ccf(fit.den, fit.projection)
+        if refine:
+            better, _ = _refine(CCF(n, feedthrough=feedthrough), model, part, max_delay)
+            model = better if better is not None and better.cost < model.cost else model
         if not holdout:
-            fits[n] = _encoder_fit(ident, data.y, data.u, n, data.delay, max_delay,
-                                   feedthrough).projection.fit
+            fits[n] = model.fit
             continue
-        est = _encoder_fit(ident, data.y[:cut], data.u[:cut], n, data.delay, max_delay,
-                           feedthrough)
-        A, b = ccf(est.den)
-        p = est.projection
-        fits[n] = fit_initial(A, b, p.c, p.d, data.y[cut:], data.u[cut:], 1.0,
-                              delay=min(p.delay, N - cut - 2)).fit
+        fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
+                              1.0, delay=min(model.delay, N - cut - 2)).fit
     return fits
 
 
@@ -285,7 +288,7 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     feedthrough = _feedthrough(structure)
     order_fits = None
     if order is None:
-        order_fits = _select_order(identifiers, data, int(max_delay), feedthrough)
+        order_fits = _select_order(identifiers, data, int(max_delay), feedthrough, refine)
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
     fit = _encoder_fit(identifiers[order], data.y, data.u, order, data.delay, int(max_delay),

@@ -314,26 +314,34 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
     scale = np.where(scale > 0, scale, 1.0)
     outer = scale[:, :, None] * scale[:, None, :]
     ridge = 1e-13 * M.shape[2] * np.eye(M.shape[2])
-    solved = []
+    # every delay at once: its target y[D:] zero-padded to N rows (the padded rows add nothing
+    # to the normal equations), its Gram matrix that of the first N - (D - D0) rows
+    L = len(delays)
+    rows = N - (np.asarray(delays) - D0)
+    T = np.zeros((N, L))
     for j, D in enumerate(delays):
-        rows = N - (D - D0)
-        tail = M[:, rows:]
-        G = (G_all - tail.transpose(0, 2, 1) @ tail) / outer + ridge
-        target = y[D:]
-        head = M[:, :rows]
-        zs = np.linalg.solve(G, (target @ head / scale)[..., None])[..., 0]
-        res = target - (head @ (zs / scale)[..., None])[..., 0]
-        zs += np.linalg.solve(G, ((res[:, None, :] @ head)[:, 0] / scale)[..., None])[..., 0]
-        z = zs / scale
-        fitted = (head @ z[..., None])[..., 0]
-        costs[good, j] = np.mean((target - fitted) ** 2, axis=1)
-        solved.append((z, fitted))
+        T[: rows[j], j] = y[D:]
+    mask = np.arange(N)[:, None] < rows[None, :]                          # (N, L)
+    G = np.repeat(G_all[:, None], L, axis=1)                              # (K, L, p, p)
+    for j in range(L):
+        tail = M[:, rows[j]:]
+        if tail.shape[1]:
+            G[:, j] -= tail.transpose(0, 2, 1) @ tail
+    G = G / outer[:, None] + ridge
+    Mt = M.transpose(0, 2, 1)
+    zs = np.linalg.solve(G, ((Mt @ T) / scale[:, :, None]).transpose(0, 2, 1)[..., None])
+    fitted = (M @ (zs[..., 0] / scale[:, None, :]).transpose(0, 2, 1)) * mask   # (K, N, L)
+    zs += np.linalg.solve(G, ((Mt @ (T - fitted)) / scale[:, :, None]).transpose(0, 2, 1)
+                          [..., None])
+    Z = zs[..., 0] / scale[:, None, :]                                    # (K, L, p)
+    fitted = (M @ Z.transpose(0, 2, 1)) * mask
+    costs[good] = np.sum((T - fitted) ** 2, axis=1) / rows
     costs = np.where(np.isfinite(costs), costs, np.inf)
     k, j = np.unravel_index(np.argmin(costs), costs.shape)
     i = int(np.flatnonzero(good == k)[0])
-    z, fitted = solved[j][0][i], solved[j][1][i]
     return Selection(int(k), delays[j], costs, _projection(
-        z, fitted, M[i], Phi[good[i]], gamma2[good[i]], y, u, delays[j], feedthrough, offset))
+        Z[i, j], fitted[i, : rows[j], j], M[i], Phi[k], gamma2[k], y, u, delays[j],
+        feedthrough, offset))
 
 
 def _projection(z, fitted, M, Phi, gamma2, y, u, delay, feedthrough, offset) -> Projection:
