@@ -61,7 +61,8 @@ class Measured:
 
     Attributes
     ----------
-    y, u : (steps,) float64 arrays
+    y : (steps,) float64 array
+    u : (steps,) float64 array
     dt : float
     delay : int or None
         The known input delay in samples, or None.
