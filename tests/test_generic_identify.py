@@ -416,3 +416,17 @@ def test_order_none_with_refinement_selects_and_refines():
     fits = est.info["order_fits"]
     assert fits[3] > 99.99 and fits[2] < fits[3] - 0.5
     np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+
+
+def test_select_shortlist_scores_all_at_the_arx_delay_and_the_best_at_all():
+    from aeid_struct.generic.windows import select
+
+    y, u = make_record(delay=0, noise=0.01)
+    den, _ = normalised()
+    dens = np.stack([den * [1, 1.2, 0.8, 1.1], den, den * [1, 0.9, 1.1, 1.0]])
+    full = select(dens, y, u, [0, 1])
+    short = select(dens, y, u, [0, 1], shortlist=1, around=0)
+    assert short.index == full.index == 1 and short.delay == full.delay == 0
+    np.testing.assert_allclose(short.costs[:, 0], full.costs[:, 0], rtol=1e-10)
+    assert np.isinf(short.costs[[0, 2], 1]).all() and np.isfinite(short.costs[1, 1])
+    assert short.projection.fit == pytest.approx(project(*ccf(den), y, u, 1.0).fit, abs=1e-8)

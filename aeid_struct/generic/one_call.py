@@ -12,9 +12,9 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
 2. the input delay by an ARX scan (:func:`~aeid_struct.generic.delay.arx_delay`) unless known;
 3. candidate denominators from windows at several time scales, one batched identifier call
    (:func:`~aeid_struct.generic.windows.candidates`);
-4. the best candidate and delay jointly by whole-record projection, every candidate at the
-   delays ``D_arx - 1 .. D_arx + 1`` (:func:`~aeid_struct.generic.windows.select`; only the
-   known delay where it is known);
+4. the best candidate and delay by whole-record projection: every candidate at the ARX delay,
+   the :data:`SHORTLIST` best of them also at ``D_arx - 1`` and ``D_arx + 1``
+   (:func:`~aeid_struct.generic.windows.select`; only the known delay where it is known);
 5. unless ``refine=False``, CasADi output-error refinement over the whole record in the chosen
    structure (``refinement.refine_record``), with delays ``D - 1, D, D + 1``; the refined
    model is kept if its mean squared residual is lower.
@@ -51,6 +51,8 @@ __all__ = ["ESTIMATION_SHARE", "ORDER_TOLERANCE", "Measured", "identify", "measu
 ORDER_TOLERANCE = 0.5
 #: The estimation part of the record when the order is selected.
 ESTIMATION_SHARE = 0.7
+#: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
+SHORTLIST = 2
 #: Orders tried by ``order=None`` (those of the shipped generic identifiers).
 ORDERS = (1, 2, 3, 4)
 
@@ -176,7 +178,8 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
         dens = np.vstack([dens, np.median(dens, axis=0)])
     top = min(max_delay, N - window)
     delays = [D0] if known is not None else range(max(0, D0 - 1), min(top, D0 + 1) + 1)
-    chosen = select(dens, y, u, delays, feedthrough=feedthrough)
+    chosen = select(dens, y, u, delays, feedthrough=feedthrough, shortlist=SHORTLIST,
+                    around=D0)
     return _Fit(dens[chosen.index], chosen.projection, len(dens))
 
 

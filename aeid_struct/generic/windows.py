@@ -265,7 +265,8 @@ class Selection:
 
 
 def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
-           feedthrough: bool = True, offset: bool = True) -> Selection:
+           feedthrough: bool = True, offset: bool = True,
+           shortlist: int | None = None, around: int | None = None) -> Selection:
     """Every candidate denominator at every delay, evaluated on the whole record with ``c, d,
     x_0`` and the offset projected (normalised time, dt = 1), and the best pair by the mean
     squared residual per fitted sample.
@@ -285,6 +286,11 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         Each in ``[0, steps - 2]``.
     feedthrough, offset : bool
         As for :func:`~aeid_struct.simulation.project`.
+    shortlist : int, optional
+        Evaluate every candidate at the delay ``around`` only, and the ``shortlist`` best of
+        them at every delay (their other costs stay ``inf``); default: every pair.
+    around : int, optional
+        One of ``delays`` (default: the middle one).
 
     Returns
     -------
@@ -306,16 +312,38 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         raise ValueError(f"no candidate denominator has a finite response on this record "
                          f"({y.shape[0]} samples)")
     M = M[good]
-    # column scaling from the Gram matrix's diagonal (slow and fast modes' columns differ by
-    # orders of magnitude); a tiny ridge keeps a rank-deficient problem solvable (a step input:
-    # its column equals the offset's)
     G_all = M.transpose(0, 2, 1) @ M
+    if shortlist is not None and len(delays) > 1 and good.size > shortlist:
+        # the candidates at one delay, then the best few at every delay
+        mid = len(delays) // 2 if around is None else delays.index(int(around))
+        first = _solve_delays(M, G_all, y, [delays[mid]], D0)[0][:, 0]
+        costs[good, mid] = first
+        top = np.argsort(first)[:shortlist]
+        good, M, G_all = good[top], M[top], G_all[top]
+    cost, Z, fitted, rows = _solve_delays(M, G_all, y, delays, D0)
+    costs[good] = cost
+    costs = np.where(np.isfinite(costs), costs, np.inf)
+    k, j = np.unravel_index(np.argmin(costs), costs.shape)
+    i = int(np.flatnonzero(good == k)[0])
+    return Selection(int(k), delays[j], costs, _projection(
+        Z[i, j], fitted[i, : rows[j], j], M[i], Phi[k], gamma2[k], y, u, delays[j],
+        feedthrough, offset))
+
+
+def _solve_delays(M: np.ndarray, G_all: np.ndarray, y: np.ndarray, delays: list, D0: int):
+    """Costs ``(K, L)``, solutions ``Z (K, L, p)``, outputs ``(K, N, L)`` and fitted rows
+    ``(L,)`` of regressors ``M (K, N, p)`` (of delay ``D0``) at each delay.
+
+    Column scaling from the Gram matrix's diagonal (slow and fast modes' columns differ by
+    orders of magnitude); a tiny ridge keeps a rank-deficient problem solvable (a step input:
+    its column equals the offset's). Every delay at once: its target ``y[D:]`` zero-padded to
+    ``N`` rows (the padded rows add nothing to the normal equations), its Gram matrix that of
+    the first ``N - (D - D0)`` rows."""
+    N = M.shape[1]
     scale = np.sqrt(np.einsum("kii->ki", G_all))
     scale = np.where(scale > 0, scale, 1.0)
     outer = scale[:, :, None] * scale[:, None, :]
     ridge = 1e-13 * M.shape[2] * np.eye(M.shape[2])
-    # every delay at once: its target y[D:] zero-padded to N rows (the padded rows add nothing
-    # to the normal equations), its Gram matrix that of the first N - (D - D0) rows
     L = len(delays)
     rows = N - (np.asarray(delays) - D0)
     T = np.zeros((N, L))
@@ -335,13 +363,7 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
                           [..., None])
     Z = zs[..., 0] / scale[:, None, :]                                    # (K, L, p)
     fitted = (M @ Z.transpose(0, 2, 1)) * mask
-    costs[good] = np.sum((T - fitted) ** 2, axis=1) / rows
-    costs = np.where(np.isfinite(costs), costs, np.inf)
-    k, j = np.unravel_index(np.argmin(costs), costs.shape)
-    i = int(np.flatnonzero(good == k)[0])
-    return Selection(int(k), delays[j], costs, _projection(
-        Z[i, j], fitted[i, : rows[j], j], M[i], Phi[k], gamma2[k], y, u, delays[j],
-        feedthrough, offset))
+    return np.sum((T - fitted) ** 2, axis=1) / rows, Z, fitted, rows
 
 
 def _projection(z, fitted, M, Phi, gamma2, y, u, delay, feedthrough, offset) -> Projection:
