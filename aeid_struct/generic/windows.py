@@ -192,8 +192,8 @@ def ccf(den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: bool):
-    """``M (K, N, p)`` of :func:`~aeid_struct.simulation.project` for each candidate (dt = 1),
-    with ``Phi (K, n, n)`` and ``gamma2 (K, n)``."""
+    """The regressors of :func:`~aeid_struct.simulation.project` for each candidate (dt = 1),
+    one per row: ``M (K, p, N)``, with ``Phi (K, n, n)`` and ``gamma2 (K, n)``."""
     A, b = ccf(dens)
     K, n = b.shape
     N = uu.shape[0]
@@ -216,30 +216,35 @@ def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: boo
     num = np.zeros((K, n + 1, n))
     for k in range(1, n + 1):
         num[:, k] = sum(a[:, i, None] * markov[:, k - 1 - i] for i in range(k))
+    # one regressor per row of M (K, p, N): each column of the least-squares problem is
+    # contiguous, and nothing is concatenated (memory traffic dominates at these sizes)
+    M = np.empty((K, 2 * n + int(feedthrough) + int(offset), N))
     # forced states X = W num + u gamma2^T (W: the filtered input and its n shifts)
-    W = np.zeros((K, N, n + 1))
+    W = np.zeros((K, n + 1, N))
     for i in range(K):
-        W[i, :, 0] = scipy.signal.lfilter([1.0], a[i], uu)
+        W[i, 0] = scipy.signal.lfilter([1.0], a[i], uu)
     for k in range(1, n + 1):
-        W[:, k:, k] = W[:, : N - k, 0]
-    cols = [W @ num + uu[:, None] * gamma2[:, None, :]]
+        W[:, k, k:] = W[:, 0, : N - k]
+    M[:, :n] = num.transpose(0, 2, 1) @ W
+    M[:, :n] += gamma2[:, :, None] * uu
+    col = n
     if feedthrough:
-        cols.append(np.broadcast_to(uu[:, None], (K, N, 1)))
-    # free response of the first state, e_1^T Phi^k, by doubling (one batched product a level)
-    F = np.empty((K, N, n))
-    F[:, 0, :] = 0.0
+        M[:, n] = uu
+        col += 1
+    # free response of the first state, (Phi^T)^k e_1, by doubling (one batched product a level)
+    F = M[:, col : col + n]
+    F[:, :, 0] = 0.0
     F[:, 0, 0] = 1.0
-    P, k = Phi, 1
+    P, k = Phi.transpose(0, 2, 1), 1
     while k < N:
         m = min(k, N - k)
-        F[:, k : k + m] = F[:, :m] @ P
+        F[:, :, k : k + m] = P @ F[:, :, :m]
         k += m
         if k < N:
             P = P @ P
-    cols.append(F)
     if offset:
-        cols.append(np.ones((K, N, 1)))
-    return np.concatenate(cols, axis=2), Phi, gamma2
+        M[:, -1] = 1.0
+    return M, Phi, gamma2
 
 
 @dataclass(frozen=True)
@@ -312,7 +317,7 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         raise ValueError(f"no candidate denominator has a finite response on this record "
                          f"({y.shape[0]} samples)")
     M = M[good]
-    G_all = M.transpose(0, 2, 1) @ M
+    G_all = M @ M.transpose(0, 2, 1)
     if shortlist is not None and len(delays) > 1 and good.size > shortlist:
         # the candidates at one delay, then the best few at every delay
         mid = len(delays) // 2 if around is None else delays.index(int(around))
@@ -332,18 +337,18 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
 
 def _solve_delays(M: np.ndarray, G_all: np.ndarray, y: np.ndarray, delays: list, D0: int):
     """Costs ``(K, L)``, solutions ``Z (K, L, p)``, outputs ``(K, N, L)`` and fitted rows
-    ``(L,)`` of regressors ``M (K, N, p)`` (of delay ``D0``) at each delay.
+    ``(L,)`` of regressors ``M (K, p, N)`` (of delay ``D0``) at each delay.
 
     Column scaling from the Gram matrix's diagonal (slow and fast modes' columns differ by
     orders of magnitude); a tiny ridge keeps a rank-deficient problem solvable (a step input:
     its column equals the offset's). Every delay at once: its target ``y[D:]`` zero-padded to
     ``N`` rows (the padded rows add nothing to the normal equations), its Gram matrix that of
     the first ``N - (D - D0)`` rows."""
-    N = M.shape[1]
+    N = M.shape[2]
     scale = np.sqrt(np.einsum("kii->ki", G_all))
     scale = np.where(scale > 0, scale, 1.0)
     outer = scale[:, :, None] * scale[:, None, :]
-    ridge = 1e-13 * M.shape[2] * np.eye(M.shape[2])
+    ridge = 1e-13 * M.shape[1] * np.eye(M.shape[1])
     L = len(delays)
     rows = N - (np.asarray(delays) - D0)
     T = np.zeros((N, L))
@@ -352,17 +357,17 @@ def _solve_delays(M: np.ndarray, G_all: np.ndarray, y: np.ndarray, delays: list,
     mask = np.arange(N)[:, None] < rows[None, :]                          # (N, L)
     G = np.repeat(G_all[:, None], L, axis=1)                              # (K, L, p, p)
     for j in range(L):
-        tail = M[:, rows[j]:]
-        if tail.shape[1]:
-            G[:, j] -= tail.transpose(0, 2, 1) @ tail
+        tail = M[:, :, rows[j]:]
+        if tail.shape[2]:
+            G[:, j] -= tail @ tail.transpose(0, 2, 1)
     G = G / outer[:, None] + ridge
-    Mt = M.transpose(0, 2, 1)
-    zs = np.linalg.solve(G, ((Mt @ T) / scale[:, :, None]).transpose(0, 2, 1)[..., None])
-    fitted = (M @ (zs[..., 0] / scale[:, None, :]).transpose(0, 2, 1)) * mask   # (K, N, L)
-    zs += np.linalg.solve(G, ((Mt @ (T - fitted)) / scale[:, :, None]).transpose(0, 2, 1)
+    Mt = M.transpose(0, 2, 1)                                             # (K, N, p)
+    zs = np.linalg.solve(G, ((M @ T) / scale[:, :, None]).transpose(0, 2, 1)[..., None])
+    fitted = (Mt @ (zs[..., 0] / scale[:, None, :]).transpose(0, 2, 1)) * mask  # (K, N, L)
+    zs += np.linalg.solve(G, ((M @ (T - fitted)) / scale[:, :, None]).transpose(0, 2, 1)
                           [..., None])
     Z = zs[..., 0] / scale[:, None, :]                                    # (K, L, p)
-    fitted = (M @ Z.transpose(0, 2, 1)) * mask
+    fitted = (Mt @ Z.transpose(0, 2, 1)) * mask
     return np.sum((T - fitted) ** 2, axis=1) / rows, Z, fitted, rows
 
 
@@ -378,7 +383,7 @@ def _projection(z, fitted, M, Phi, gamma2, y, u, delay, feedthrough, offset) -> 
     O[0] = c
     for k in range(1, rows):
         O[k] = O[k - 1] @ Phi
-    delta = np.linalg.lstsq(O, M[:rows, f : f + n] @ theta, rcond=None)[0]
+    delta = np.linalg.lstsq(O, theta @ M[f : f + n, :rows], rcond=None)[0]
     used = y[delay:]
     y_hat = np.full(y.shape, np.nan)
     y_hat[delay:] = fitted
