@@ -83,6 +83,23 @@ def launched(env=None) -> bool:
     return all(key in env for key in LAUNCH_VARIABLES)
 
 
+def process_rank(env=None) -> int:
+    """This process's rank under ``torchrun`` (``RANK``), 0 when not launched by it: the
+    process that writes files and reports.
+
+    Parameters
+    ----------
+    env : mapping, optional
+        The environment (default ``os.environ``).
+
+    Returns
+    -------
+    int
+    """
+    env = os.environ if env is None else env
+    return int(env["RANK"]) if launched(env) else 0
+
+
 def shares(count: int, world_size: int) -> list[slice]:
     """Each process's rows of a global batch of ``count`` rows: contiguous, in rank order,
     sizes differing by at most one (the first ``count % world_size`` ranks take one more).
@@ -128,8 +145,6 @@ class Context:
         ``"gloo"`` or ``"nccl"``; None when not launched by ``torchrun``.
     device : torch.device
         Where the encoder, the decoder and the batches run.
-    owner : bool
-        Whether ``setup`` created the process group (``close`` then destroys it).
     """
 
     rank: int = 0
@@ -137,7 +152,6 @@ class Context:
     local_rank: int = 0
     backend: str | None = None
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
-    owner: bool = False
 
     @property
     def distributed(self) -> bool:
@@ -184,11 +198,6 @@ class Context:
         ids = [self.device.index] if self.device.type == "cuda" else None
         return _Parallel(encoder, device_ids=ids)
 
-    def close(self) -> None:
-        """Leave the process group if ``setup`` created it."""
-        if self.owner and dist.is_initialized():
-            dist.destroy_process_group()
-
     @property
     def _comm(self) -> torch.device:
         return self.device if self.backend == "nccl" else torch.device("cpu")
@@ -207,7 +216,10 @@ def setup(device: str, env=None) -> Context:
     Returns
     -------
     Context
-        Joined to the process group (created here, or the one already initialised).
+        Joined to the process group: created here, or the one already initialised (by an
+        earlier run of the process, or by the caller). It stays for the process's later runs:
+        a process group destroyed and created again under the same ``torchrun`` store can read
+        the old group's addresses and fail to connect.
 
     Raises
     ------
@@ -237,12 +249,12 @@ def setup(device: str, env=None) -> Context:
         where = f"{env.get('MASTER_ADDR', '?')}:{env.get('MASTER_PORT', '?')}"
         raise RuntimeError(f"training process {rank} of {world} could not join the process "
                            f"group ({backend} at {where}): {_first_line(err)}") from err
-    return Context(rank=rank, world_size=world, local_rank=local, backend=backend, device=dev,
-                   owner=True)
+    return Context(rank=rank, world_size=world, local_rank=local, backend=backend, device=dev)
 
 
 def _first_line(err: BaseException) -> str:
-    return (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+    line = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    return line if len(line) <= 240 else line[:240] + "..."
 
 
 def failure(err: BaseException, ctx: Context, checkpoint) -> RuntimeError:

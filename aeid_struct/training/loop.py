@@ -138,7 +138,6 @@ def train(structure: Structure, family, config: TrainConfig, *,
         raise
     finally:
         torch.set_num_threads(threads)     # the setting is the run's, not the process's
-        ctx.close()
 
 
 def _check_arguments(structure, family, config) -> None:
