@@ -488,14 +488,9 @@ def _refine_separable(structure: Structure, m: _Model, data: Measured, max_delay
             if other.cost < best.cost:
                 best, converged = other, ok
     poles = np.linalg.eigvals(best.A)
+    real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
     if isinstance(structure, MCF) and not (np.all(poles.real < 0) and (
-            not split or _fits_mcf(structure, poles))):
+            not split or real == structure.real)):
         return None, {"refinement": "separable optimum not a stable MCF: CasADi"}
     return best, {"iterations": iterations, "converged": converged, "refine_seconds": seconds,
                   "method": "separable"}
-
-
-def _fits_mcf(structure: MCF, poles: np.ndarray) -> bool:
-    """The real/pair split of ``poles`` is ``structure``'s."""
-    real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
-    return real == structure.real
