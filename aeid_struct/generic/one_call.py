@@ -15,9 +15,13 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
 4. the best candidate and delay by whole-record projection: every candidate at the ARX delay,
    the :data:`SHORTLIST` best of them also at ``D_arx - 1`` and ``D_arx + 1``
    (:func:`~aeid_struct.generic.windows.select`; only the known delay where it is known);
-5. unless ``refine=False``, CasADi output-error refinement over the whole record in the chosen
-   structure (``refinement.refine_record``), with delays ``D - 1, D, D + 1``; the refined
-   model is kept if its mean squared residual is lower.
+5. unless ``refine=False``, output-error refinement over the whole record, kept if its mean
+   squared residual is lower. The free CCF (the default) and MCF: separable least squares
+   (``refinement.refine_separable``: only the denominator iterated, ``c, d, x_0`` and the
+   offset projected) at the chosen delay; then ``D - 1`` and ``D + 1`` are re-checked by
+   projection with the refined poles and refined again only where one is better. An MCF whose
+   separable optimum is not stable, and every other structure (fixed elements, physical):
+   CasADi (``refinement.refine_record``) with delays ``D - 1, D, D + 1``.
 
 *Order selection* (``order=None``): each available order is identified (refined where
 ``refine``: an encoder's error in the poles would otherwise favour a higher order that absorbs
@@ -41,11 +45,11 @@ from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.windows import candidates, ccf, select
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.records import as_array, check_dt, require_finite, unit_step
-from aeid_struct.refinement import BUCKETS, refine_record
+from aeid_struct.refinement import BUCKETS, refine_record, refine_separable
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["ESTIMATION_SHARE", "ORDER_TOLERANCE", "Measured", "identify", "measured"]
+__all__ = ["ESTIMATION_SHARE", "METHODS", "ORDER_TOLERANCE", "Measured", "identify", "measured"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``).
 ORDER_TOLERANCE = 0.5
@@ -55,6 +59,8 @@ ESTIMATION_SHARE = 0.7
 SHORTLIST = 2
 #: Orders tried by ``order=None`` (those of the shipped generic identifiers).
 ORDERS = (1, 2, 3, 4)
+#: Refinement methods of :func:`identify`.
+METHODS = ("auto", "separable", "casadi")
 
 
 @dataclass(frozen=True)
@@ -221,7 +227,7 @@ def _check_order(order, structure):
 
 
 def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough,
-                  refine: bool) -> dict:
+                  refine: bool, method: str) -> dict:
     """Validation fit per order (see the module docstring); returns order -> fit."""
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
@@ -232,7 +238,9 @@ def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough)
         model = _Model.of_ccf(fit.den, fit.projection)
         if refine:
-            better, _ = _refine(CCF(n, feedthrough=feedthrough), model, part, max_delay)
+            ccf_n = CCF(n, feedthrough=feedthrough)
+            better, _ = (_refine(ccf_n, model, part, max_delay) if method == "casadi" else
+                         _refine_separable(ccf_n, model, part, max_delay))
             model = better if better is not None and better.cost < model.cost else model
         if not holdout:
             fits[n] = model.fit
@@ -243,7 +251,7 @@ def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough
 
 
 def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=10,
-             identifier=None) -> Estimate:
+             identifier=None, method="auto") -> Estimate:
     """Identify a continuous-time model of a measured record in one call (see the module
     docstring): generic identifier, whole-record projection, input delay, refinement.
 
@@ -267,6 +275,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         Largest delay considered when it is estimated.
     identifier : generic identifier or dict order -> identifier, optional
         Default: the shipped ``generic-n`` (``load_generic``).
+    method : {"auto", "separable", "casadi"}
+        The refinement (module docstring, step 5): ``"auto"`` separable for the free CCF and
+        MCF, CasADi otherwise; ``"separable"`` refuses other structures; ``"casadi"`` always
+        CasADi.
 
     Returns
     -------
@@ -279,34 +291,62 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     Raises
     ------
     ValueError
-        For a bad record, order, structure, delay or max_delay, or a record shorter than the
-        identifier's window.
+        For a bad record, order, structure, delay, max_delay or method, or a record shorter
+        than the identifier's window.
     """
     start = time.perf_counter()
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}; got "
+                         f"{method!r}")
     data = measured(record, delay)
     if isinstance(max_delay, bool) or not isinstance(max_delay, (int, np.integer)) or (
             max_delay < 0):
         raise ValueError(f"max_delay must be an integer >= 0; got {max_delay!r}")
     order = _check_order(order, structure)
+    if method == "separable" and not _separable(structure):
+        raise ValueError(f"method='separable' refines the free CCF and MCF only; got "
+                         f"structure {structure!r} (use 'auto' or 'casadi')")
     identifiers = _identifiers(order, identifier, structure)
     feedthrough = _feedthrough(structure)
     order_fits = None
     if order is None:
-        order_fits = _select_order(identifiers, data, int(max_delay), feedthrough, refine)
+        order_fits = _select_order(identifiers, data, int(max_delay), feedthrough, refine,
+                                   method)
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
     fit = _encoder_fit(identifiers[order], data.y, data.u, order, data.delay, int(max_delay),
                        feedthrough)
     model = _Model.of_ccf(fit.den, fit.projection)
-    structure = _structure(structure, order, fit.den)
+    spec, structure = structure, _structure(structure, order, fit.den)
     refined = False
     info = {"candidates": fit.candidates, "order_fits": order_fits}
     if refine:
-        better, about = _refine(structure, model, data, int(max_delay))
+        better, about = None, {}
+        if method != "casadi" and _separable(spec):
+            better, about = _refine_separable(structure, model, data, int(max_delay),
+                                              split=isinstance(spec, MCF))
+            if better is not None and spec == "mcf":
+                # the refined poles decide the modal form's real poles and pairs
+                structure = _structure(spec, order, _den(better.A))
+        if better is None:
+            better, casadi_about = _refine(structure, model, data, int(max_delay))
+            about |= casadi_about
         info |= about
         if better is not None and better.cost < model.cost:
             model, refined = better, True
     return model.estimate(structure, data, time.perf_counter() - start, refined, info)
+
+
+def _separable(structure) -> bool:
+    """The structures :func:`refine_separable` serves: the free CCF and MCF."""
+    if structure is None or structure in ("ccf", "mcf"):
+        return True
+    return isinstance(structure, (CCF, MCF)) and not structure.fixed_values
+
+
+def _den(A: np.ndarray) -> np.ndarray:
+    """The monic denominator of a bottom-row CCF ``A``."""
+    return np.concatenate([[1.0], -A[-1, ::-1]])
 
 
 def _feedthrough(structure) -> bool:
@@ -418,3 +458,39 @@ def _refine(structure: Structure, m: _Model, data: Measured, max_delay: int):
                    float(r.y_offset), int(r.delay), y_hat, float(r.fit), cost)
     return model, {"iterations": r.iterations, "converged": r.converged,
                    "refine_seconds": r.seconds}
+
+
+def _refine_separable(structure: Structure, m: _Model, data: Measured, max_delay: int, *,
+                      split: bool = False):
+    """``(_Model, info)`` of ``refinement.refine_separable`` from ``m`` (normalised time) at its
+    delay; ``D - 1`` and ``D + 1`` re-checked by projection with the refined poles, refined
+    again where one is better. None for an MCF whose optimum is not stable in its form (the
+    caller falls back to CasADi, which keeps ``Re < 0``): not stable, or (``split``: the
+    user's MCF) with other real poles and pairs than the structure's."""
+    feedthrough = "d" in structure.element_names and "d" not in structure.fixed_values
+    seconds, iterations = 0.0, 0
+
+    def run(den, D):
+        nonlocal seconds, iterations
+        r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough)
+        seconds, iterations = seconds + r.seconds, iterations + r.iterations
+        y_hat = np.asarray(r.y_hat, dtype=np.float64)
+        cost = float(np.mean((data.y[D:] - y_hat[D:]) ** 2))
+        return _Model(r.A, r.b, r.c, r.d, r.x0, r.y_offset, D, y_hat, r.fit, cost), r.converged
+
+    best, converged = run(_den(m.A), m.delay)
+    if data.delay is None:
+        D = best.delay
+        delays = [k for k in (D - 1, D, D + 1) if 0 <= k <= max_delay]
+        chosen = select(_den(best.A)[None], data.y, data.u, delays, feedthrough=feedthrough)
+        if chosen.delay != D:
+            other, ok = run(_den(best.A), chosen.delay)
+            if other.cost < best.cost:
+                best, converged = other, ok
+    poles = np.linalg.eigvals(best.A)
+    real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
+    if isinstance(structure, MCF) and not (np.all(poles.real < 0) and (
+            not split or real == structure.real)):
+        return None, {"refinement": "separable optimum not a stable MCF: CasADi"}
+    return best, {"iterations": iterations, "converged": converged, "refine_seconds": seconds,
+                  "method": "separable"}

@@ -16,6 +16,8 @@ from aeid_struct.refinement.nlp import expm as expm
 from aeid_struct.refinement.record import BUCKETS as BUCKETS
 from aeid_struct.refinement.record import RecordFit as RecordFit
 from aeid_struct.refinement.record import refine_record as refine_record
+from aeid_struct.refinement.separable import projected_cost as projected_cost
+from aeid_struct.refinement.separable import refine_separable as refine_separable
 from aeid_struct.refinement.solve import refine as refine
 from aeid_struct.refinement.solve import refine_elements as refine_elements
 
@@ -31,7 +33,9 @@ __all__ = [
     "casadi_simulate",
     "clear_cache",
     "expm",
+    "projected_cost",
     "refine",
     "refine_elements",
     "refine_record",
+    "refine_separable",
 ]
