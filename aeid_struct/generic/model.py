@@ -220,7 +220,7 @@ class GenericIdentifier:
         shape = (None, self.config.window)
         arrays = []
         for name, x in (("y", y), ("u", u)):
-            x = np.asarray(x, dtype=np.float64)
+            x = np.ascontiguousarray(x, dtype=np.float64)     # torch refuses negative strides
             if x.ndim != 2 or x.shape[1] != self.config.window:
                 raise ValueError(f"{name} must be a (K, {self.config.window}) array of windows; "
                                  f"got shape {x.shape}")

@@ -176,10 +176,11 @@ def _windows(family, count: int, steps: int, rng: np.random.Generator):
     return y[ok], u[ok]
 
 
-def _family_dict(family) -> dict | str:
-    if dataclasses.is_dataclass(family):
-        return json.loads(json.dumps(dataclasses.asdict(family), default=str))
-    return repr(family)
+def _family_dict(family) -> dict:
+    """The family's settings as JSON data (the recipe, the checkpoint's fingerprint)."""
+    fields = (dataclasses.asdict(family) if dataclasses.is_dataclass(family)
+              else {k: repr(v) for k, v in sorted(vars(family).items())})
+    return json.loads(json.dumps({"type": type(family).__name__, **fields}, default=str))
 
 
 @dataclass
