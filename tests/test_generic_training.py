@@ -150,3 +150,32 @@ def test_the_nmse_loss_is_one_minus_r_squared():
         p = project(A[i].numpy(), b[i].numpy(), y[i].numpy(), u[i].numpy(), 1.0)
         assert float(e[i]) == pytest.approx((1 - p.fit / 100) ** 2, rel=1e-6)
     assert math.isfinite(float(e.sum()))
+
+
+# -- the command -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv, message", [
+    (["--order", "5"], "train-generic: order must be an integer in 1..4; got 5"),
+    (["--order", "x"], "argument --order: expected an integer > 0; got 'x'"),
+    (["--order", "2", "--minutes", "-1"], "argument --minutes: expected a finite number > 0"),
+    (["--order", "2", "--loss", "l1"], r"train-generic: loss must be one of \('log', 'nmse'\)"),
+])
+def test_the_command_refuses_bad_values_in_one_line(tmp_path, argv, message):
+    from aeid_struct.cli.errors import UsageExit
+    from aeid_struct.cli.main import main
+
+    with pytest.raises(UsageExit, match=message) as err:
+        main(["train-generic", *argv, "--out", str(tmp_path / "g.aeid")])
+    assert err.value.code == 2 and "\n" not in str(err.value)
+    assert not (tmp_path / "g.aeid").exists()
+
+
+def test_the_command_does_not_extend_a_run_without_resume(tmp_path):
+    from aeid_struct.cli.errors import UsageExit
+    from aeid_struct.cli.main import main
+
+    (tmp_path / "g.aeid.ckpt").write_bytes(b"")
+    with pytest.raises(UsageExit, match="checkpoint .*g.aeid.ckpt' exists; pass --resume"):
+        main(["train-generic", "--order", "2", "--out", str(tmp_path / "g.aeid")])
+    with pytest.raises(UsageExit, match="--out .* is a folder"):
+        main(["train-generic", "--order", "2", "--out", str(tmp_path)])

@@ -16,6 +16,7 @@ from aeid_struct.generic.model import ORDERS as ORDERS
 from aeid_struct.generic.model import GenericConfig as GenericConfig
 from aeid_struct.generic.model import GenericIdentifier as GenericIdentifier
 from aeid_struct.generic.model import normalise_windows as normalise_windows
+from aeid_struct.generic.model import spectra as spectra
 from aeid_struct.generic.poles import denominator as denominator
 from aeid_struct.generic.poles import factors as factors
 from aeid_struct.generic.poles import poles_of as poles_of
@@ -35,4 +36,5 @@ __all__ = [
     "raw_of",
     "read_generic",
     "save_generic",
+    "spectra",
 ]

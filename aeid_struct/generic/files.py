@@ -78,9 +78,9 @@ def _config(head, source: str) -> GenericConfig:
         raise ValueError(f"{source}: header entry 'config' must be a dict; got "
                          f"{type(config).__name__}")
     fields = set(GenericConfig.__dataclass_fields__)
-    if not set(config) <= fields or "order" not in config:
-        raise ValueError(f"{source}: header entry 'config' must have 'order' and only the "
-                         f"entries {sorted(fields)}; got {sorted(config)}")
+    if set(config) != fields:
+        raise ValueError(f"{source}: header entry 'config' must have exactly the entries "
+                         f"{sorted(fields)}; got {sorted(config)}")
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
     try:
         return GenericConfig(**values)

@@ -24,7 +24,7 @@ from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.generic.poles import denominator, factors, poles_of
 from aeid_struct.structures import CCF
 
-__all__ = ["GenericConfig", "GenericIdentifier", "normalise_windows"]
+__all__ = ["GenericConfig", "GenericIdentifier", "normalise_windows", "spectra"]
 
 #: The orders generic identifiers are built for.
 ORDERS = (1, 2, 3, 4)
@@ -54,8 +54,24 @@ class GenericConfig:
         Natural frequencies ``|p| dt`` (rad/sample) the poles can take.
     damping : (lo, hi)
         Damping ratios of the second-order factors (above 1: two real poles).
-    width, kernel, depth, dense, pool, activation
-        The encoder's (:class:`~aeid_struct.encoder.EncoderConfig`; it reads ``y`` and ``u``).
+    width : int
+        Channels of the encoder's convolutions (:class:`~aeid_struct.encoder.EncoderConfig`,
+        which reads ``y`` and ``u`` as two channels).
+    kernel : int
+        Their kernel size, odd.
+    depth : int
+        Convolutions on the encoder's main path.
+    dense : tuple of int
+        Widths of the encoder's hidden dense layers.
+    pool : int
+        Average-pooling factor of the window before the convolutions.
+    activation : str
+        The encoder's activation (``EncoderConfig.activation``).
+    spectrum : bool
+        Also give the dense layers the log magnitude spectra of the Hann-windowed ``y`` and
+        ``u`` (``window // 2 + 1`` bins each, :func:`spectra`). Why: a lightly damped resonance
+        is one sharp peak there, at its frequency, where the pooled convolutions see it only
+        spread over the whole window (or not at all above half the Nyquist frequency).
 
     Raises
     ------
@@ -73,6 +89,7 @@ class GenericConfig:
     dense: tuple[int, ...] = (64, 64)
     pool: int = 2
     activation: str = "gelu"
+    spectrum: bool = True
 
     def __post_init__(self) -> None:
         def integer(v) -> bool:
@@ -85,6 +102,8 @@ class GenericConfig:
             raise ValueError(f"window must be an integer >= 16 (samples); got {self.window!r}")
         object.__setattr__(self, "band", _range("band", self.band, "frequencies (rad/sample)"))
         object.__setattr__(self, "damping", _range("damping", self.damping, "damping ratios"))
+        if not isinstance(self.spectrum, bool):
+            raise ValueError(f"spectrum must be True or False; got {self.spectrum!r}")
         if isinstance(self.dense, list):
             object.__setattr__(self, "dense", tuple(self.dense))
         try:
@@ -103,6 +122,7 @@ class GenericConfig:
         EncoderConfig
         """
         return EncoderConfig(steps=self.window, outputs=self.order, inputs=True,
+                             features=2 * (self.window // 2 + 1) if self.spectrum else 0,
                              width=self.width, kernel=self.kernel, depth=self.depth,
                              dense=self.dense, pool=self.pool, activation=self.activation)
 
@@ -141,6 +161,25 @@ def normalise_windows(y: torch.Tensor, u: torch.Tensor):
         out.append(x / torch.where(good, peak, torch.ones_like(peak))[:, None])
     nan = torch.full_like(out[0], math.nan)
     return (torch.where(ok[:, None], out[0], nan), torch.where(ok[:, None], out[1], nan), ok)
+
+
+def spectra(y_n: torch.Tensor, u_n: torch.Tensor) -> torch.Tensor:
+    """The spectral features: ``log(|rfft(h x)| / sqrt(steps) + 1e-3) / 4`` of the Hann-windowed
+    ``x = y_n, u_n`` (the floor keeps bins without power finite; the scale keeps the features of
+    order one, like the normalised windows).
+
+    Parameters
+    ----------
+    y_n, u_n : (batch, steps) tensors
+
+    Returns
+    -------
+    (batch, 2 (steps // 2 + 1)) tensor
+    """
+    steps = y_n.shape[1]
+    h = torch.hann_window(steps, periodic=False, dtype=y_n.dtype, device=y_n.device)
+    mags = [torch.fft.rfft(x * h, dim=1).abs() / math.sqrt(steps) for x in (y_n, u_n)]
+    return torch.log(torch.cat(mags, dim=1) + 1e-3) / 4
 
 
 class GenericIdentifier:
@@ -194,7 +233,8 @@ class GenericIdentifier:
         """
         weight = next(self.encoder.parameters())
         x = torch.stack([y_n, u_n], dim=1).to(weight.dtype)
-        raw = self.encoder(x).to(torch.float64)
+        features = spectra(y_n, u_n).to(weight.dtype) if self.config.spectrum else None
+        raw = self.encoder(x, features).to(torch.float64)
         return factors(raw, self.config.band, self.config.damping)
 
     def companion_batch(self, y_n: torch.Tensor, u_n: torch.Tensor):
