@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.identification import Estimate as Estimate
     from aeid_struct.identification import Identifier as Identifier
     from aeid_struct.identification import load_pretrained as load_pretrained
+    from aeid_struct.records import Record as Record
     from aeid_struct.refinement import RefineConfig as RefineConfig
     from aeid_struct.simulation import discretise as discretise
     from aeid_struct.simulation import initial_state as initial_state
@@ -55,6 +56,7 @@ _SOURCES = {
     "Estimate": "identification",
     "Identifier": "identification",
     "load_pretrained": "identification",
+    "Record": "records",
     "RefineConfig": "refinement",
     "CCF": "structures",
     "MCF": "structures",
@@ -75,6 +77,7 @@ __all__ = [
     "LegFamily",
     "Physical",
     "PoleFamily",
+    "Record",
     "RefineConfig",
     "Structure",
     "System",

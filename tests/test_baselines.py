@@ -428,3 +428,143 @@ def test_classical_stacks_per_record_estimates_like_an_identifier():
         runner.identify(rec.y[:, :50])
     with pytest.raises(ValueError, match=r"method must be callable"):
         bl.Classical("least_squares", 0.01, 100)
+
+
+
+# ---------------------------------------------------------------------------------------------
+# Records not at rest (issue 14 deliver 6): free initial state, offset, known delay
+# ---------------------------------------------------------------------------------------------
+#: 3rd order with zeros: G(s) = (2 s^2 + s + 6) / ((s + 0.5)(s^2 + 2 s + 10)).
+_DEN = np.real(np.poly([-0.5, -1 + 3j, -1 - 3j]))
+_NUM = np.array([2.0, 1.0, 6.0])
+_X0 = np.array([1.0, -2.0, 0.5])
+
+
+def _third_order():
+    """The system in bottom-row CCF ``(A, b, c)``."""
+    A = np.eye(3, k=1)
+    A[-1] = -_DEN[1:][::-1]
+    return A, np.eye(3)[-1], _NUM[::-1].copy()
+
+
+def _moving_record(noise=0.0, seed=0, steps=1000, dt=0.05, delay=None, offset=1.7):
+    """A PRBS record of the 3rd-order system that starts mid-motion (``x0 = _X0``), with an
+    output offset, an input level 0.3 and ``noise`` (a fraction of std y)."""
+    rng = np.random.default_rng(seed)
+    A, b, c = _third_order()
+    u = _prbs(steps, rng, hold=10) + 0.3
+    D = delay or 0
+    y = np.empty(steps)
+    y[D:] = ae.simulate(A, b, c, 0.0, u[: steps - D], dt, x0=_X0)
+    y[:D] = rng.normal(size=D)                       # answers inputs before the record
+    y += offset + noise * np.std(y) * rng.normal(size=steps)
+    return ae.Record(y, u, dt, delay=delay)
+
+
+def _validation_fit(est, record):
+    """MATLAB's compare: the NRMSE fit on ``record`` with x0 and the offset fitted."""
+    from aeid_struct.simulation import fit_initial
+
+    return fit_initial(est.A, est.b, est.c, est.d, record.y, record.u, record.dt,
+                       delay=record.delay or 0).fit
+
+
+def _transfer_function(A, b, c, d=0.0):
+    """(num, den) of python-control's ss2tf, den monic."""
+    import control
+
+    tf = control.ss2tf(A, b[:, None], c[None], d)
+    num, den = np.asarray(tf.num[0][0], float), np.asarray(tf.den[0][0], float)
+    return np.trim_zeros(num / den[0], "f"), den / den[0]
+
+
+def test_record_n4sid_fits_a_record_not_at_rest_where_zero_padding_fails():
+    record = _moving_record()
+    new = bl.n4sid(record, order=3)
+    old = bl.n4sid(record.y, record.u, record.dt, order=3)           # pads zeros: assumes rest
+    assert not new.info["failed"] and new.info["delay"] == 0 and new.initial == "fitted"
+    assert new.info["fit"] > 99.0                     # measured 100.00 (noise-free)
+    assert old.fit < 0.0                              # measured -196
+    assert new.fit == pytest.approx(new.info["fit"], abs=1e-6)        # Estimate.fit agrees
+    assert new.info["y_offset"] == pytest.approx(1.7, abs=1e-6)
+    assert _pole_error(new.A, _third_order()[0]) < 1e-6
+    # the fitted x0 reproduces the record: simulate from it, add the offset
+    y_hat = ae.simulate(new.A, new.b, new.c, new.d, record.u, record.dt, x0=new.info["x0"])
+    np.testing.assert_allclose(y_hat + new.info["y_offset"], record.y, atol=1e-6)
+
+
+def test_record_n4sid_constant_channel_beats_mean_removal():
+    # the mean of y is not the offset plus the stationary response to the mean input (the
+    # transient has a mean of its own), so mean removal leaves a bias; a constant channel does not
+    record = _moving_record()
+    channel = bl.n4sid(record, order=3, offset="channel").info["fit"]
+    mean = bl.n4sid(record, order=3, offset="mean").info["fit"]
+    assert channel > 99.99 and mean < 95.0            # measured 100.00 and 90.1
+
+
+def test_record_least_squares_recovers_the_transfer_function():
+    record = _moving_record()
+    est = bl.least_squares(record, order=3)
+    assert not est.info["failed"] and est.info["start"] == "n4sid"
+    num, den = _transfer_function(est.A, est.b, est.c)
+    num_true, den_true = _transfer_function(*_third_order())
+    assert rel_max_error(den, den_true) < 1e-6
+    assert rel_max_error(num, num_true) < 1e-6
+    np.testing.assert_allclose(est.info["x0"], _X0, rtol=1e-6, atol=1e-6)   # the same CCF
+    assert est.info["y_offset"] == pytest.approx(1.7, rel=1e-6)
+    assert est.info["fit"] > 99.999 and est.fit == pytest.approx(est.info["fit"], abs=1e-6)
+    assert sorted(est.elements) == ["a0", "a1", "a2", "c0", "c1", "c2"]
+    np.testing.assert_allclose([est.elements[f"c{i}"] for i in range(3)], _NUM[::-1], rtol=1e-6)
+
+
+def test_record_least_squares_validates_at_least_as_well_as_n4sid_with_noise():
+    estimation, validation = _moving_record(noise=0.02, seed=2).split()
+    ls = _validation_fit(bl.least_squares(estimation, order=3), validation)
+    sub = _validation_fit(bl.n4sid(estimation, order=3), validation)
+    assert ls >= sub > 90.0                           # measured 95.79 and 95.46
+
+
+def test_record_baselines_apply_a_known_delay():
+    record = _moving_record(delay=4)
+    for method in (bl.n4sid, bl.least_squares):
+        est = method(record, order=3)
+        assert est.info["delay"] == 4 and est.info["fit"] > 99.99
+        assert est.y.shape == (996,)                  # y[4:] fitted against u[:996]
+        assert _pole_error(est.A, _third_order()[0]) < 1e-6
+
+
+def test_record_least_squares_starts_from_arx_where_n4sid_cannot_run():
+    # 30 samples are too few for n4sid's Hankel matrices at order 2 (39 needed)
+    A, b, c = np.array([[0.0, 1.0], [-4.0, -0.8]]), np.array([0.0, 1.0]), np.array([3.0, 0.5])
+    u = _prbs(30, np.random.default_rng(3), hold=3)
+    y = ae.simulate(A, b, c, 0.0, u, 0.1, x0=np.array([0.5, -1.0])) - 0.4
+    record = ae.Record(y, u, 0.1)
+    with pytest.raises(ValueError, match="record must have at least 39 samples"):
+        bl.n4sid(record, order=2)
+    est = bl.least_squares(record, order=2)
+    assert est.info["start"] == "arx" and est.info["fit"] > 99.999
+    assert _pole_error(est.A, A) < 1e-6
+
+
+def test_record_forms_reject_array_arguments():
+    record = _moving_record(steps=200)
+    cases = [
+        (lambda: bl.n4sid(record, record.u, order=3), r"u must not be given with a Record"),
+        (lambda: bl.n4sid(record, dt=0.1, order=3), r"dt must not be given with a Record"),
+        (lambda: bl.n4sid(record, order=3, pre_zeros=0), r"pre_zeros must not be given"),
+        (lambda: bl.n4sid(record, order=0), r"order must be an integer >= 1; got 0"),
+        (lambda: bl.n4sid(record, order=3, offset="median"),
+         r"offset must be one of \('mean', 'channel'\); got 'median'"),
+        (lambda: bl.n4sid(record, order=3, block_rows=3), r"block_rows must be > order = 3"),
+        (lambda: bl.least_squares(record), r"order must be given with a Record"),
+        (lambda: bl.least_squares(record, order=3, structure=ae.CCF(3)),
+         r"structure must not be given with a Record"),
+        (lambda: bl.least_squares(record, order=1.5), r"order must be an integer >= 1"),
+        (lambda: bl.least_squares(record.y, record.u, record.dt, structure=ae.CCF(3), order=3),
+         r"order is for a Record"),
+        (lambda: bl.least_squares(ae.Record(record.y[:11], record.u[:11]), order=3),
+         r"record must have at least 12 samples after the delay"),
+    ]
+    for call, match in cases:
+        with pytest.raises(ValueError, match=match):
+            call()

@@ -1004,3 +1004,14 @@ def test_gradcheck_training_decoder_at_large_pole_dt():
     y = 1.001 * y + 0.01 * y.abs().amax(1, keepdim=True) * torch.cos(torch.arange(7.0))
     assert torch.autograd.gradcheck(lambda *a: decoder.fit_initial_state(*a, u, y, 1.0)[1], args)
     assert torch.autograd.gradcheck(lambda *a: decoder.fit_initial_state(*a, u, y, 1.0)[0], args)
+
+
+def test_simulate_takes_reversed_views():
+    """A view with negative strides (``c[::-1]``, ``u[::-1]``) is an ordinary array to numpy;
+    torch refuses it, so the boundary copies it (it raised a torch error before)."""
+    A = np.array([[0.0, 1.0], [-4.0, -0.4]])
+    b = np.array([0.0, 1.0])
+    c = np.array([3.0, 1.0])
+    u = np.linspace(0.0, 1.0, 50)
+    y = ae.simulate(A, b, c[::-1], 0.0, u[::-1], 0.01)
+    np.testing.assert_array_equal(y, ae.simulate(A, b, c[::-1].copy(), 0.0, u[::-1].copy(), 0.01))

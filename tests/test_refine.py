@@ -481,12 +481,12 @@ def test_refine_of_a_collected_estimate_names_the_record_set_aside():
 def test_an_estimate_built_by_hand_has_its_record_checked_when_refined():
     # Estimate(...) of arrays taken as they are (no check at construction, as the baselines
     # build theirs); refine checks such a record before fitting it.
-    from aeid_struct.records import Record
+    from aeid_struct.records import RecordBatch
 
     ident = _identifier()
     est = ident.identify(_record())
     bare = ae.Estimate(A=est.A, b=est.b, c=est.c, d=est.d, elements=est.elements,
-                       record=Record.of(np.zeros(60), None, 0.05),
+                       record=RecordBatch.of(np.zeros(60), None, 0.05),
                        provenance=est.provenance)
     assert not bare.record.checked and est.record.checked
     with pytest.raises(ValueError, match=r"y must not be all zero \(record 0 of 1\)"):

@@ -7,7 +7,8 @@ comes back with ``info["failed"] = True`` and a ``info["reason"]``; bad argument
 ``ValueError`` naming the argument.
 
 Modules: ``continuous`` (discrete -> continuous time), ``subspace`` (:func:`n4sid`),
-``output_error`` (:func:`least_squares`), ``cold_nlp`` (:func:`casadi_cold`), ``start`` (the
+``output_error`` (:func:`least_squares`), ``free_initial`` (both on a ``Record`` not at rest:
+free initial state, offset, known delay), ``cold_nlp`` (:func:`casadi_cold`), ``start`` (the
 generic start), ``models`` (a structure's model in numpy), ``checks``, ``failures``
 (:func:`failure`), ``classical`` (:class:`Classical`). No module shares a name with a function
 the package exports, so ``from aeid_struct.baselines import failure`` is the function to every

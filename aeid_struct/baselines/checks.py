@@ -18,7 +18,7 @@ from aeid_struct.identification import Estimate
 from aeid_struct.records import as_array, require_finite, unit_step
 
 __all__ = ["check_int", "check_record", "estimate", "in_structure", "nan_model",
-           "physical_source"]
+           "only_record", "physical_source"]
 
 
 def check_int(name: str, value, lowest: int) -> int:
@@ -70,6 +70,27 @@ def check_record(y, u) -> tuple[np.ndarray, np.ndarray]:
     if out[0].shape != out[1].shape:
         raise ValueError(f"u must have the shape of y {out[0].shape}; got {out[1].shape}")
     return out[0], out[1]
+
+
+def only_record(method: str, **given) -> None:
+    """Raise for an argument given beside a ``Record`` (which carries ``u`` and ``dt``).
+
+    Parameters
+    ----------
+    method : str
+        The baseline's name in messages.
+    **given
+        Arguments that must be None with a ``Record``.
+
+    Raises
+    ------
+    ValueError
+        Naming the first one given.
+    """
+    for name, value in given.items():
+        if value is not None:
+            raise ValueError(f"{name} must not be given with a Record ({method}(record, "
+                             f"order=n) takes u and dt from the record); got {value!r}")
 
 
 def physical_source(structure, inverse):

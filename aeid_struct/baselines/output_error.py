@@ -33,11 +33,14 @@ from aeid_struct.baselines.checks import (
     check_record,
     estimate,
     nan_model,
+    only_record,
     physical_source,
 )
+from aeid_struct.baselines.free_initial import least_squares_record
 from aeid_struct.baselines.models import bounds, check_structure, finish, free_indices, model_of
 from aeid_struct.baselines.start import start_vector
 from aeid_struct.identification import Estimate
+from aeid_struct.records import Record
 from aeid_struct.simulation import check_dt, simulate_outputs
 
 __all__ = ["JACOBIANS", "SOLVERS", "Problem", "least_squares"]
@@ -153,22 +156,29 @@ class Problem:
         return self._J
 
 
-def least_squares(y, u, dt: float, *, structure, start: dict | None = None, inverse=None,
-                  jac: str = "exact", solver: str = "auto", xtol: float = 1e-12,
-                  ftol: float = 1e-12, gtol: float = 1e-12, max_nfev: int = 200) -> Estimate:
+def least_squares(y, u=None, dt: float | None = None, *, structure=None,
+                  start: dict | None = None, inverse=None, jac: str = "exact",
+                  solver: str = "auto", xtol: float = 1e-12, ftol: float = 1e-12,
+                  gtol: float = 1e-12, max_nfev: int = 200, order: int | None = None,
+                  feedthrough: bool = False) -> Estimate:
     """Output-error least squares on the structure's free elements from a generic start.
 
     Minimises ``sum_k ((y_hat_k - y_k) / max|y|)^2`` with ``y_hat`` the exact FOH response from
     rest (Eq. 10-13) by ``scipy.optimize.least_squares`` within the structure's bounds (module
-    docstring: solver, Jacobian).
+    docstring: solver, Jacobian). ``least_squares(record, order=n)`` on a
+    :class:`~aeid_struct.records.Record` not at rest fits a CCF of order ``n`` with the initial
+    state, the output offset and a known delay
+    (:func:`~aeid_struct.baselines.free_initial.least_squares_record`).
 
     Parameters
     ----------
-    y : (steps,)
+    y : (steps,) or Record
+        A record from rest, or a measured ``Record`` (then only ``order``, ``feedthrough`` and
+        ``max_nfev`` apply).
     u : (steps,), or None for a unit step
     dt : float, > 0
     structure : CCF, MCF or Physical
-        Fixed elements stay exactly at their values.
+        Fixed elements stay exactly at their values (required unless ``y`` is a Record).
     start : dict name -> value, optional
         Start values for some or all elements; the rest from
         :func:`~aeid_struct.baselines.generic_start`.
@@ -182,18 +192,35 @@ def least_squares(y, u, dt: float, *, structure, start: dict | None = None, inve
         ``scipy.optimize.least_squares`` stopping rules (per solver run).
     max_nfev : int, >= 1
         Function evaluations per solver run.
+    order : int >= 1, optional
+        ``Record`` form: the CCF's order (required there, not given otherwise).
+    feedthrough : bool
+        ``Record`` form: estimate ``d`` (else 0).
 
     Returns
     -------
     Estimate
         ``info``: method, seconds, failed, reason, start, jac, solver ("lm", "trf", "lm+trf"),
-        nfev, njev, cost, status, message.
+        nfev, njev, cost, status, message; the ``Record`` form: method, failed, reason, order,
+        delay, start, restarts, nfev, x0, y_offset, fit (NRMSE % with ``x0`` and the offset
+        fitted), cost.
 
     Raises
     ------
     ValueError
         For a bad argument, or a record shorter than the number of free elements.
     """
+    if isinstance(y, Record):
+        only_record("least_squares", u=u, dt=dt, structure=structure, start=start,
+                    inverse=inverse)
+        if order is None:
+            raise ValueError("order must be given with a Record: least_squares(record, order=n)")
+        return least_squares_record(y, order=check_int("order", order, 1),
+                                    feedthrough=feedthrough,
+                                    max_nfev=check_int("max_nfev", max_nfev, 1))
+    if order is not None:
+        raise ValueError(f"order is for a Record (least_squares(record, order=n)); with arrays "
+                         f"the structure gives the order; got order={order!r}")
     start_time = time.perf_counter()
     y, u = check_record(y, u)
     dt = check_dt(dt)

@@ -47,24 +47,32 @@ from aeid_struct.baselines.checks import (
     estimate,
     in_structure,
     nan_model,
+    only_record,
     physical_source,
 )
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
 from aeid_struct.identification import Estimate
+from aeid_struct.records import Record
 from aeid_struct.simulation import check_dt
 
-__all__ = ["n4sid"]
+__all__ = ["n4sid", "nfoursid_model"]
 
 
-def n4sid(y, u, dt: float, *, order: int, structure=None, inverse=None,
+def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inverse=None,
           feedthrough: bool = False, pre_zeros: int | None = None,
-          block_rows: int | None = None) -> Estimate:
+          block_rows: int | None = None, offset: str = "channel") -> Estimate:
     """Subspace identification (nfoursid's PO-MOESP/N4SID) converted exactly to continuous time.
+
+    Two forms: ``n4sid(y, u, dt, order=n)``, a record from rest (module docstring), and
+    ``n4sid(record, order=n)`` for a :class:`~aeid_struct.records.Record` not at rest: no zero
+    padding, a constant input channel for the offset, the initial state and the output offset
+    fitted, a known delay applied (:func:`~aeid_struct.baselines.free_initial.n4sid_record`).
 
     Parameters
     ----------
-    y : (steps,)
-        One record from rest (``x(0) = 0``).
+    y : (steps,) or Record
+        One record from rest (``x(0) = 0``), or a measured ``Record`` (then ``u``, ``dt``,
+        ``structure``, ``inverse`` and ``pre_zeros`` are not given).
     u : (steps,), or None for a unit step
     dt : float, > 0
     order : int >= 1
@@ -83,12 +91,16 @@ def n4sid(y, u, dt: float, *, order: int, structure=None, inverse=None,
         becomes visible and exact). 0 passes the record as one FOH channel.
     block_rows : int > order, default ``min(20, steps // (2 (m + 1)))``, at least ``order + 1``
         Block rows of the Hankel matrices (``m``: 1 or 2 input channels; module docstring).
+    offset : {"channel", "mean"}
+        ``Record`` form only: a constant input channel absorbs the output offset, or the means
+        are removed first (biased; :mod:`aeid_struct.baselines.free_initial`).
 
     Returns
     -------
     Estimate
         ``info``: method, seconds, failed, reason, channels (the holds of the input channels),
-        discrete (``Phi, B, C, D`` as identified), singular_values.
+        discrete (``Phi, B, C, D`` as identified), singular_values; the ``Record`` form adds
+        x0, y_offset, delay and fit (NRMSE % with ``x0`` and the offset fitted).
 
     Raises
     ------
@@ -99,6 +111,13 @@ def n4sid(y, u, dt: float, *, order: int, structure=None, inverse=None,
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
+    if isinstance(y, Record):
+        from aeid_struct.baselines.free_initial import n4sid_record  # it imports this module
+
+        only_record("n4sid", u=u, dt=dt, structure=structure, inverse=inverse,
+                     pre_zeros=pre_zeros)
+        return n4sid_record(y, order=check_int("order", order, 1), feedthrough=feedthrough,
+                            block_rows=_check_sizes(order, None, block_rows)[1], offset=offset)
     start = time.perf_counter()
     y, u_in = check_record(y, u)
     dt = check_dt(dt)
@@ -116,7 +135,7 @@ def n4sid(y, u, dt: float, *, order: int, structure=None, inverse=None,
                         {**info, "failed": True, "reason": reason}, None)
 
     try:
-        Phi, B, C, D, sv = _nfoursid(y, channels, order, block_rows, pre_zeros)
+        Phi, B, C, D, sv = nfoursid_model(y, channels, order, block_rows, pre_zeros)
         info["discrete"] = {"Phi": Phi, "B": B, "C": C, "D": D}
         info["singular_values"] = sv
         model = convert(Phi, B, C[0], D[0], dt, holds, feedthrough)
@@ -193,7 +212,7 @@ def _sizes(steps: int, m: int, order: int, block_rows, pre_zeros) -> tuple[int, 
     return block_rows, pre_zeros
 
 
-def _nfoursid(y, channels, order, block_rows, pre_zeros):
+def nfoursid_model(y, channels, order, block_rows, pre_zeros):
     """nfoursid on zero-padded channels: ``Phi (n, n), B (n, m), C (1, n), D (1, m)``, and the
     leading singular values of its ``R32`` decomposition (order selection)."""
     import pandas as pd

@@ -19,7 +19,7 @@ from aeid_struct.identification.physical import inverse_of_models as inverse_of_
 from aeid_struct.identification.physical import through_ccf as through_ccf
 from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
 from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
-from aeid_struct.records import Record as Record
+from aeid_struct.records import RecordBatch as RecordBatch
 
 __all__ = [
     "ERROR_MODES",
@@ -31,7 +31,7 @@ __all__ = [
     "Identifier",
     "PRETRAINED",
     "Provenance",
-    "Record",
+    "RecordBatch",
     "SCALE_MODES",
     "excess",
     "inverse_of_models",

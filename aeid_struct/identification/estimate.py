@@ -1,8 +1,8 @@
 """An identified model (:class:`Estimate`) and where it comes from (:class:`Provenance`).
 
-An Estimate holds the validated :class:`~aeid_struct.records.Record` it was made from and refers
-to its provenance (one object per identifier) instead of copying the identifier's fields; its
-fit, response, initial state and physical parameters are computed on first access, so that a
+An Estimate holds the validated :class:`~aeid_struct.records.RecordBatch` it was made from and
+refers to its provenance (one object per identifier) instead of copying the identifier's fields;
+its fit, response, initial state and physical parameters are computed on first access, so that a
 plain identification costs one encoder pass.
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 from aeid_struct.identification import calibration
 from aeid_struct.identification.physical import inverse_of_models
 from aeid_struct.metrics import nrmse_fit
-from aeid_struct.records import Record
+from aeid_struct.records import RecordBatch
 from aeid_struct.simulation import initial_state, simulate
 from aeid_struct.structures import CCF
 
@@ -74,7 +74,7 @@ class Estimate:
     d : (batch,) array or float
     elements : dict name -> (batch,) array or float
         The structure's named elements (e.g. ``a0``, ``c1``, ``k``).
-    record : Record
+    record : RecordBatch
         The records the estimate was made from (checked once, at the boundary).
     provenance : Provenance
         Structure, physical parameters' source, initial state mode, training range.
@@ -98,7 +98,7 @@ class Estimate:
     c: np.ndarray
     d: np.ndarray
     elements: dict
-    record: Record = field(repr=False)
+    record: RecordBatch = field(repr=False)
     provenance: Provenance = field(repr=False)
     seconds: float = 0.0
     refined: bool = False
@@ -343,7 +343,7 @@ def _state_spaces(est: Estimate):
     return [one(*m) for m in zip(est.A, est.b, est.c, est.d, strict=True)]
 
 
-def _record(record: Record | None, old: dict, ndim: int) -> Record:
+def _record(record: RecordBatch | None, old: dict, ndim: int) -> RecordBatch:
     """The estimate's record: ``record``, or one of the old keywords ``y, u, dt`` (over
     ``record``'s where both are given)."""
     if record is not None and not {"y", "u", "dt"} & set(old):
@@ -353,7 +353,7 @@ def _record(record: Record | None, old: dict, ndim: int) -> Record:
     y = old["y"] if "y" in old else record.given(record.y)
     u = old["u"] if "u" in old else (None if record is None else record.given(record.u))
     dt = old["dt"] if "dt" in old else (None if record is None else record.times)
-    return Record.of(y, u, dt, batched=ndim == (4 if isinstance(y, tuple) else 3))
+    return RecordBatch.of(y, u, dt, batched=ndim == (4 if isinstance(y, tuple) else 3))
 
 
 def _provenance(provenance: Provenance | None, old: dict) -> Provenance:

@@ -13,7 +13,7 @@ import torch
 
 from aeid_struct.identification.estimate import Estimate
 from aeid_struct.identification.fast_path import fast_path
-from aeid_struct.records import Record, normalise, overflow_problem
+from aeid_struct.records import RecordBatch, normalise, overflow_problem
 from aeid_struct.structures import System
 
 __all__ = ["differentiable", "encode", "estimate_of", "identify_record"]
@@ -60,13 +60,13 @@ def differentiable(ident, y, u, *, raw: bool = False):
     return (sys, elements, z) if raw else (sys, elements)
 
 
-def identify_record(ident, record: Record, start: float, errors: str) -> Estimate:
+def identify_record(ident, record: RecordBatch, start: float, errors: str) -> Estimate:
     """The Estimate of a checked record (``Identifier.identify`` after its checks).
 
     Parameters
     ----------
     ident : Identifier
-    record : Record
+    record : RecordBatch
         From ``records.check_record``, with each system's problem.
     start : float
         ``time.perf_counter()`` when the identification began.
@@ -89,7 +89,7 @@ def identify_record(ident, record: Record, start: float, errors: str) -> Estimat
                        else record.problems)
 
 
-def _on_rows(ident, record: Record, good: np.ndarray) -> tuple:
+def _on_rows(ident, record: RecordBatch, good: np.ndarray) -> tuple:
     """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False; one
     single record through the batch-1 path (``fast_path``), the others batched."""
     ys, us, rows = record.y, record.u, np.flatnonzero(good)
@@ -180,7 +180,7 @@ def _decoded(ident, x: list, features, count: int) -> tuple:
             torch.set_num_threads(threads)
 
 
-def _overflowed(record: Record, good: np.ndarray, model: tuple) -> tuple:
+def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:
     """The record's problems with a reason added for each good record whose identified model
     is not finite, and its model rows set to NaN (in place).
 
@@ -204,14 +204,14 @@ def _overflowed(record: Record, good: np.ndarray, model: tuple) -> tuple:
     return tuple(out)
 
 
-def estimate_of(ident, record: Record, model: tuple, start: float, errors) -> Estimate:
+def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors) -> Estimate:
     """Wrap float64 ``A (count, ...), b, c, d, elements (count, q)`` of ``record`` as the
     Estimate (unbatched where the record is).
 
     Parameters
     ----------
     ident : Identifier
-    record : Record
+    record : RecordBatch
     model : tuple of arrays
     start : float
     errors : tuple or None

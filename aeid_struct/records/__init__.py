@@ -3,9 +3,12 @@
 Every entry point that reads a record -- ``Identifier.identify``, ``export.OnnxIdentifier``,
 ``online.Tracker`` (both engines), ``refine`` and the baselines -- checks it here, so that a bad
 input gets the same answer (the same exception, the same message) whichever way it comes in.
-:func:`check_record` checks a user's records once into a frozen :class:`Record` (``y, u, dt``
-per record, the batch flag, each system's problem); everything behind the boundary (the
+:func:`check_record` checks a user's records once into a frozen :class:`RecordBatch` (``y, u,
+dt`` per record, the batch flag, each system's problem); everything behind the boundary (the
 encoder pass, the ``Estimate``, the refinement) takes that value and checks nothing again.
+
+:class:`Record` is the user's measured record (MATLAB's ``iddata``): one output, one input, a
+sample time, offsets, a known or unknown input delay, validated once when it is made.
 """
 
 from aeid_struct.records.checks import Checked as Checked
@@ -19,12 +22,14 @@ from aeid_struct.records.checks import overflow_problem as overflow_problem
 from aeid_struct.records.checks import record_problems as record_problems
 from aeid_struct.records.checks import require_finite as require_finite
 from aeid_struct.records.checks import unit_step as unit_step
-from aeid_struct.records.record import Record as Record
+from aeid_struct.records.measured import Record as Record
+from aeid_struct.records.record import RecordBatch as RecordBatch
 from aeid_struct.records.record import check_record as check_record
 
 __all__ = [
     "Checked",
     "Record",
+    "RecordBatch",
     "RecordError",
     "as_array",
     "as_records",

@@ -1,4 +1,4 @@
-"""The validated record: :class:`Record`, made once by :func:`check_record` at the public
+"""The validated record: :class:`RecordBatch`, made once by :func:`check_record` at the public
 boundary and taken by everything behind it."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ import numpy as np
 
 from aeid_struct.records.checks import Checked, check_records, unit_step
 
-__all__ = ["Record", "check_record"]
+__all__ = ["RecordBatch", "check_record"]
 
 
 @dataclass(frozen=True, eq=False)
-class Record:
+class RecordBatch:
     """Records checked once, at the public boundary (:func:`check_record`).
 
     Everything behind the boundary takes this value and checks nothing again. One system's
@@ -34,7 +34,7 @@ class Record:
         Per system, why it cannot be identified (the first of its records' problems), or None
         for a good one; default: all good.
     checked : bool
-        Whether the records passed :func:`check_record` (or an equivalent check); a Record of
+        Whether the records passed :func:`check_record` (or an equivalent check); a RecordBatch of
         arrays taken as they are (:meth:`of`) is checked by whoever needs it checked.
     """
 
@@ -50,8 +50,8 @@ class Record:
             object.__setattr__(self, "problems", (None,) * self.count)
 
     @classmethod
-    def of(cls, y, u, dt, *, batched: bool | None = None) -> Record:
-        """A Record of arrays taken as they are, unchecked (an ``Estimate`` built by hand).
+    def of(cls, y, u, dt, *, batched: bool | None = None) -> RecordBatch:
+        """A RecordBatch of arrays taken as they are, unchecked (an ``Estimate`` built by hand).
 
         Parameters
         ----------
@@ -63,7 +63,7 @@ class Record:
 
         Returns
         -------
-        Record
+        RecordBatch
         """
         several = isinstance(y, tuple)
         ys = tuple(np.asarray(v) for v in (y if several else (y,)))
@@ -115,8 +115,8 @@ class Record:
         """``dt`` as given: a float, or a tuple of ``R`` floats for several records."""
         return self.dt[0] if len(self.dt) == 1 else self.dt
 
-    def take(self, index) -> Record:
-        """The systems ``index`` of a batch (an int gives an unbatched Record).
+    def take(self, index) -> RecordBatch:
+        """The systems ``index`` of a batch (an int gives an unbatched RecordBatch).
 
         Parameters
         ----------
@@ -124,16 +124,16 @@ class Record:
 
         Returns
         -------
-        Record
+        RecordBatch
         """
         rows = np.atleast_1d(np.arange(self.count)[index])
         batched = np.ndim(np.arange(self.count)[index]) == 1
-        return Record(tuple(v[rows] for v in self.y), tuple(v[rows] for v in self.u), self.dt,
+        return RecordBatch(tuple(v[rows] for v in self.y), tuple(v[rows] for v in self.u), self.dt,
                       batched, tuple(self.problems[i] for i in rows), self.checked)
 
 
-def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
-    """Check a user's records once, into a :class:`Record` (the public boundary).
+def check_record(y, u=None, *, steps, dt, reads_u: bool) -> RecordBatch:
+    """Check a user's records once, into a :class:`RecordBatch` (the public boundary).
 
     Parameters
     ----------
@@ -151,9 +151,9 @@ def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
 
     Returns
     -------
-    Record
+    RecordBatch
         With each system's problem (non-finite, all zero, ...): the caller decides whether to
-        raise (:meth:`Record.raise_first`) or to set those systems aside.
+        raise (:meth:`RecordBatch.raise_first`) or to set those systems aside.
 
     Raises
     ------
@@ -170,7 +170,7 @@ def check_record(y, u=None, *, steps, dt, reads_u: bool) -> Record:
     # A system is good when each of its R records is; its reason is the first one's.
     problems = tuple(next((c.problems[i] for c in checks if c.problems[i] is not None), None)
                      for i in range(checks[0].count))
-    return Record(tuple(c.y for c in checks),
+    return RecordBatch(tuple(c.y for c in checks),
                   tuple(unit_step(np.shape(c.y)) if c.u is None else np.asarray(c.u)
                         for c in checks),
                   tuple(float(t) for _, t in grids), checks[0].batched, problems, checked=True)

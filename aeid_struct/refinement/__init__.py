@@ -13,12 +13,17 @@ from aeid_struct.refinement.nlp import cache_info as cache_info
 from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate
 from aeid_struct.refinement.nlp import clear_cache as clear_cache
 from aeid_struct.refinement.nlp import expm as expm
+from aeid_struct.refinement.record import BUCKETS as BUCKETS
+from aeid_struct.refinement.record import RecordFit as RecordFit
+from aeid_struct.refinement.record import refine_record as refine_record
 from aeid_struct.refinement.solve import refine as refine
 from aeid_struct.refinement.solve import refine_elements as refine_elements
 
 __all__ = [
+    "BUCKETS",
     "CacheInfo",
     "Numeric",
+    "RecordFit",
     "RefineConfig",
     "RefineResult",
     "SOLVERS",
@@ -28,4 +33,5 @@ __all__ = [
     "expm",
     "refine",
     "refine_elements",
+    "refine_record",
 ]

@@ -33,8 +33,8 @@ from aeid_struct.refinement.config import SOLVERS, CacheInfo, RefineConfig
 from aeid_struct.simulation import THETA13, casadi_simulate, expm, squarings_for
 from aeid_struct.structures import Structure
 
-__all__ = ["SOLVERS", "THETA13", "Numeric", "assembly", "build", "cache_info", "casadi_simulate",
-           "clear_cache", "expm", "problem", "structure_key"]
+__all__ = ["SOLVERS", "THETA13", "Numeric", "assembly", "build", "cache_info", "cached",
+           "casadi_simulate", "clear_cache", "expm", "problem", "structure_key"]
 
 #: Relative Levenberg floor of the Gauss-Newton Hessian ``2 (J^T J + mu I)``.
 _DAMPING = 1e-12
@@ -133,6 +133,27 @@ def cache_info() -> CacheInfo:
     CacheInfo
     """
     return CacheInfo(builds=_PROBLEMS.builds, hits=_PROBLEMS.hits, size=len(_PROBLEMS.items))
+
+
+def cached(key, build):
+    """The value kept under ``key`` in the solver cache, built by ``build()`` on a miss.
+
+    Shared with other builders of the package (``record.py``), so that :func:`cache_info`
+    counts and :func:`clear_cache` empties every built graph.
+
+    Parameters
+    ----------
+    key : hashable
+        Unique among all cached problems (lead it with the builder's name).
+    build : callable
+        ``build() -> value``, called only on a miss.
+
+    Returns
+    -------
+    object
+        The cached value.
+    """
+    return _PROBLEMS.get(key, build)
 
 
 def clear_cache() -> None:

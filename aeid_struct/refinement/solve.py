@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from aeid_struct.records import Record, as_array, check_dt, require_finite, unit_step
+from aeid_struct.records import RecordBatch, as_array, check_dt, require_finite, unit_step
 from aeid_struct.refinement import nlp
 from aeid_struct.refinement.config import RefineConfig, RefineResult
 from aeid_struct.structures import Structure
@@ -251,7 +251,7 @@ def _records(name: str, value, count: int, batched: bool) -> np.ndarray:
     return arr
 
 
-def _given_record(estimate, y, u, dt) -> Record:
+def _given_record(estimate, y, u, dt) -> RecordBatch:
     """The records ``y, u`` at ``dt`` checked for ``estimate`` (the deprecated form, and an
     estimate whose record was never checked: one built by hand)."""
     dt = check_dt(estimate.record.dt[0] if dt is None else dt)
@@ -262,10 +262,10 @@ def _given_record(estimate, y, u, dt) -> Record:
     if U.shape != Y.shape:
         raise ValueError(f"u must have {Y.shape[1]} samples like y; got {U.shape[1]}")
     _check_not_zero(Y)
-    return Record((Y.copy(),), (U.copy(),), (dt,), batched, checked=True)
+    return RecordBatch((Y.copy(),), (U.copy(),), (dt,), batched, checked=True)
 
 
-def _own_record(estimate) -> Record:
+def _own_record(estimate) -> RecordBatch:
     """The estimate's record, checked once already where an Identifier made it."""
     record = estimate.record
     if not record.checked:
@@ -372,7 +372,7 @@ def refine(estimate, y=None, u=None, dt=None, *, structure: Structure | None = N
     return _refine_estimate(estimate, record, structure, config, start)
 
 
-def _refine_estimate(estimate, record: Record, structure: Structure, config: RefineConfig,
+def _refine_estimate(estimate, record: RecordBatch, structure: Structure, config: RefineConfig,
                      start: float):
     """``refine`` of checked arguments: each record of ``record`` from the estimate's
     elements."""

@@ -104,6 +104,10 @@ def prepare(named: dict[str, object]) -> tuple[dict[str, torch.Tensor | None], b
                 raise ValueError(f"{name} must be a real array; got {type(v).__name__}") from err
             if arr.dtype.kind not in "iuf":
                 raise ValueError(f"{name} must be a real array; got dtype {arr.dtype}")
+            # A Record's arrays are read-only (torch warns on such memory) and a reversed view
+            # has negative strides (torch refuses it): both are copied.
+            if not arr.flags.writeable or any(s < 0 for s in arr.strides):
+                arr = arr.copy()
             out[name] = torch.as_tensor(arr, dtype=dtype, device=device)
     return out, bool(tensors)
 

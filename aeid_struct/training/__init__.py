@@ -1,12 +1,13 @@
 """Training: system families, excitations, simulated records and the unsupervised training loop
 (paper Eq. 14-15).
 
-Modules: ``families`` (the true systems), ``excitation`` (the inputs), ``datasets`` (simulated
-records and the per-record time grid), ``config`` (``TrainConfig``), ``objective`` (Eq. 14 on
-Eq. 15-normalised records), ``tensors`` (the run's records as tensors), ``loop`` (``train``),
-``checkpoints``, ``generic`` (``train_generic``: generic identifiers by variable projection),
-``calibration`` (the training range and flag thresholds) and ``progress`` (the
-budget, the progress line, the warning).
+Modules: ``families`` (the true systems), ``generic_family`` (stable systems of order 1-4 and
+their records in normalised time, for the generic identifiers), ``excitation`` (the inputs),
+``datasets`` (simulated records and the per-record time grid), ``config`` (``TrainConfig``),
+``objective`` (Eq. 14 on Eq. 15-normalised records), ``tensors`` (the run's records as
+tensors), ``loop`` (``train``), ``generic`` (``train_generic``: generic identifiers by
+variable projection), ``checkpoints``, ``calibration`` (the training range and flag
+thresholds) and ``progress`` (the budget, the progress line, the warning).
 """
 
 from aeid_struct.training.calibration import recalibrate as recalibrate
@@ -15,23 +16,33 @@ from aeid_struct.training.datasets import Records as Records
 from aeid_struct.training.datasets import grids as grids
 from aeid_struct.training.datasets import records as records
 from aeid_struct.training.excitation import EXCITATIONS as EXCITATIONS
+from aeid_struct.training.excitation import GENERIC_EXCITATIONS as GENERIC_EXCITATIONS
 from aeid_struct.training.excitation import excitation as excitation
+from aeid_struct.training.excitation import generic_excitation as generic_excitation
 from aeid_struct.training.families import LegFamily as LegFamily
 from aeid_struct.training.families import PoleFamily as PoleFamily
 from aeid_struct.training.families import Systems as Systems
 from aeid_struct.training.generic import GenericTrainConfig as GenericTrainConfig
 from aeid_struct.training.generic import train_generic as train_generic
+from aeid_struct.training.generic_family import GenericFamily as GenericFamily
+from aeid_struct.training.generic_family import GenericRecords as GenericRecords
+from aeid_struct.training.generic_family import GenericSystems as GenericSystems
 from aeid_struct.training.loop import train as train
 from aeid_struct.training.progress import UndertrainedWarning as UndertrainedWarning
 
 __all__ = [
     "EXCITATIONS",
+    "GENERIC_EXCITATIONS",
+    "GenericFamily",
+    "GenericRecords",
+    "GenericSystems",
     "GenericTrainConfig",
     "LegFamily",
     "PoleFamily",
     "Records",
     "Systems",
     "excitation",
+    "generic_excitation",
     "grids",
     "records",
     "TrainConfig",

@@ -34,6 +34,7 @@ from aeid_struct.generic import GenericConfig, GenericIdentifier, normalise_wind
 from aeid_struct.simulation import project_batch
 from aeid_struct.training import checkpoints
 from aeid_struct.training.checks import real
+from aeid_struct.training.generic_family import GenericFamily
 from aeid_struct.training.progress import (
     UndertrainedWarning,
     learning_rate,
@@ -243,8 +244,6 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
     if not isinstance(train, GenericTrainConfig):
         raise ValueError(f"train must be a GenericTrainConfig; got {type(train).__name__}")
     if family is None:
-        from aeid_struct.training.generic_family import GenericFamily
-
         family = GenericFamily(order=config.order, band=config.band)
     if not callable(getattr(family, "records", None)) or getattr(family, "order", None) \
             != config.order:

@@ -1,0 +1,246 @@
+"""The user's measured record (:class:`Record`, MATLAB's ``iddata``): one output, one input, a
+sample time, offsets and a known or unknown input delay, validated once when it is made.
+
+Time axis: sample ``k`` is taken at ``t_k = t0 + k dt``; the input is linear between samples
+(first-order hold, docs/architecture.md). An input delay of ``D`` samples means that ``y_k``
+answers ``u_{k-D}``: :meth:`Record.shifted` pairs ``y[D:]`` with ``u[:steps - D]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import KW_ONLY, dataclass
+
+import numpy as np
+
+from aeid_struct.records.checks import as_array, check_dt, require_finite, unit_step
+
+__all__ = ["DETRENDS", "Record"]
+
+#: What :meth:`Record.detrend` removes.
+DETRENDS = ("mean", "initial", "linear")
+
+
+def _number(name: str, value) -> float:
+    """``value`` as a finite float, or a ValueError naming ``name`` (no bool, no string)."""
+    if isinstance(value, (bool, str)) or not isinstance(value, (int, float, np.number)):
+        raise ValueError(f"{name} must be a finite number; got {value!r}")
+    if not math.isfinite(float(value)):
+        raise ValueError(f"{name} must be a finite number; got {value!r}")
+    return float(value)
+
+
+def _samples(name: str, value) -> np.ndarray:
+    """A read-only ``(steps,)`` float64 copy of ``value``, steps >= 2, finite and real."""
+    arr = as_array(name, value)
+    if arr.ndim != 1 or arr.shape[0] < 2:
+        raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record); got "
+                         f"shape {arr.shape}")
+    require_finite(name, arr)
+    arr = np.array(arr, dtype=np.float64)          # our own copy: the caller's may change
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Record:
+    """A measured SISO record ``(y, u)`` on the grid ``t_k = t0 + k dt``, checked once.
+
+    Parameters
+    ----------
+    y : (steps,) array_like, steps >= 2
+        Measured output (real, finite); stored as a read-only float64 array.
+    u : (steps,) array_like, optional
+        Input (real, finite), as long as ``y``; None is a unit step (``records.unit_step``).
+    dt : float, > 0
+        Sample time.
+    delay : int, optional
+        Input delay in samples, ``0 <= delay < steps``; None: unknown.
+    name : str
+        Shown in ``repr`` and carried by :meth:`split`.
+    t0 : float
+        Time of the first sample.
+    y_offset, u_offset : float
+        Offsets already removed from ``y`` and ``u`` (:meth:`detrend` adds to them): the
+        measured signals are ``y + y_offset`` and ``u + u_offset``.
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: not real numbers, a wrong shape, a non-finite sample, ``u`` of
+        another length, a bad ``dt``, ``delay``, ``name``, ``t0`` or offset.
+    """
+
+    y: np.ndarray
+    u: np.ndarray | None = None
+    dt: float = 1.0
+    _: KW_ONLY
+    delay: int | None = None
+    name: str = ""
+    t0: float = 0.0
+    y_offset: float = 0.0
+    u_offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        y = _samples("y", self.y)
+        u = _samples("u", unit_step(y.shape[0]) if self.u is None else self.u)
+        if u.shape != y.shape:
+            raise ValueError(f"u must have as many samples as y ({y.shape[0]}); got "
+                             f"{u.shape[0]}")
+        delay = self.delay
+        if delay is not None:
+            if isinstance(delay, bool) or not isinstance(delay, (int, np.integer)):
+                raise ValueError(f"delay must be None (unknown) or an integer number of "
+                                 f"samples; got {delay!r}")
+            if not 0 <= delay < y.shape[0]:
+                raise ValueError(f"delay must be >= 0 and < steps = {y.shape[0]}; got {delay}")
+            delay = int(delay)
+        if not isinstance(self.name, str):
+            raise ValueError(f"name must be a str; got {type(self.name).__name__}")
+        values = {"y": y, "u": u, "dt": check_dt(self.dt), "delay": delay,
+                  **{k: _number(k, getattr(self, k)) for k in ("t0", "y_offset", "u_offset")}}
+        for key, value in values.items():
+            object.__setattr__(self, key, value)
+
+    @property
+    def steps(self) -> int:
+        """Samples in the record."""
+        return self.y.shape[0]
+
+    @property
+    def t(self) -> np.ndarray:
+        """``(steps,)`` sample times ``t0 + k dt``."""
+        return self.t0 + self.dt * np.arange(self.steps)
+
+    def __len__(self) -> int:
+        return self.steps
+
+    def __repr__(self) -> str:
+        return (f"Record(name={self.name!r}, steps={self.steps}, dt={self.dt:g}, "
+                f"delay={self.delay}, y_offset={self.y_offset:g}, u_offset={self.u_offset:g})")
+
+    def _like(self, **changes) -> Record:
+        """A Record with ``changes``, the rest kept (checked again: a split part may be short)."""
+        return dataclasses.replace(self, **changes)
+
+    def detrend(self, kind: str = "mean") -> Record:
+        """The record without its offsets; the removed offsets are added to ``y_offset`` and
+        ``u_offset``.
+
+        Parameters
+        ----------
+        kind : {"mean", "initial", "linear"}
+            ``"mean"``: subtract the means of ``y`` and ``u``; ``"initial"``: their first
+            samples; ``"linear"``: from ``y`` the least-squares line ``alpha + beta k`` and from
+            ``u`` its mean. For ``"linear"`` ``y_offset`` grows by the line's value at the first
+            sample (``alpha``); the slope is not kept.
+
+        Returns
+        -------
+        Record
+
+        Raises
+        ------
+        ValueError
+            For an unknown ``kind``.
+        """
+        if kind not in DETRENDS:
+            raise ValueError(f"kind must be one of {DETRENDS}; got {kind!r}")
+        if kind == "initial":
+            y_trend, u_level = np.full(self.steps, self.y[0]), self.u[0]
+        elif kind == "mean":
+            y_trend, u_level = np.full(self.steps, self.y.mean()), self.u.mean()
+        else:
+            k = np.arange(self.steps, dtype=np.float64)
+            line = np.linalg.lstsq(np.stack([np.ones_like(k), k], 1), self.y, rcond=None)[0]
+            y_trend, u_level = line[0] + line[1] * k, self.u.mean()
+        return self._like(y=self.y - y_trend, u=self.u - u_level,
+                          y_offset=self.y_offset + float(y_trend[0]),
+                          u_offset=self.u_offset + float(u_level))
+
+    def split(self, fraction: float = 0.5, *, at: int | None = None) -> tuple[Record, Record]:
+        """An estimation part and a validation part (the validation part's ``t0`` continues
+        the time axis); both keep ``dt``, ``delay`` and the offsets.
+
+        Parameters
+        ----------
+        fraction : float in (0, 1)
+            The estimation part's share of the samples (rounded); ignored when ``at`` is given.
+        at : int, optional
+            The first sample of the validation part.
+
+        Returns
+        -------
+        estimation, validation : Record
+            Named ``name + " (estimation)"`` and ``name + " (validation)"``.
+
+        Raises
+        ------
+        ValueError
+            For a bad ``fraction`` or ``at``, or a part with fewer than 2 samples (or not more
+            samples than the known ``delay``).
+        """
+        if at is None:
+            fraction = _number("fraction", fraction)
+            if not 0.0 < fraction < 1.0:
+                raise ValueError(f"fraction must be in (0, 1); got {fraction}")
+            at = int(round(fraction * self.steps))
+        elif isinstance(at, bool) or not isinstance(at, (int, np.integer)):
+            raise ValueError(f"at must be an integer sample index; got {at!r}")
+        least = max(2, (self.delay or 0) + 1)
+        if not least <= at <= self.steps - least:
+            raise ValueError(f"the split must leave each part at least {least} samples (steps = "
+                             f"{self.steps}, delay = {self.delay}): at must be in [{least}, "
+                             f"{self.steps - least}]; got {at}")
+        return (self._like(y=self.y[:at], u=self.u[:at], name=f"{self.name} (estimation)"),
+                self._like(y=self.y[at:], u=self.u[at:], name=f"{self.name} (validation)",
+                           t0=self.t0 + at * self.dt))
+
+    def shifted(self, delay: int | None = None) -> Record:
+        """The record aligned for an input delay of ``D`` samples: ``y[D:]`` with
+        ``u[:steps - D]`` (delay 0, ``t0`` of the sample ``y[D]``).
+
+        Parameters
+        ----------
+        delay : int, optional
+            ``D``, ``0 <= D <= steps - 2``; default: the record's known ``delay``.
+
+        Returns
+        -------
+        Record
+
+        Raises
+        ------
+        ValueError
+            When no delay is given or known, or for a bad one.
+        """
+        D = self.delay if delay is None else delay
+        if D is None:
+            raise ValueError("delay must be given: the record's delay is unknown (None)")
+        if isinstance(D, bool) or not isinstance(D, (int, np.integer)) or not (
+                0 <= D <= self.steps - 2):
+            raise ValueError(f"delay must be an integer in [0, {self.steps - 2}] (2 samples "
+                             f"left); got {D!r}")
+        D = int(D)
+        return self._like(y=self.y[D:], u=self.u[: self.steps - D], delay=0,
+                          t0=self.t0 + D * self.dt)
+
+    def with_delay(self, delay: int | None) -> Record:
+        """A copy with the known input delay set (None: unknown).
+
+        Parameters
+        ----------
+        delay : int or None
+            ``0 <= delay < steps``.
+
+        Returns
+        -------
+        Record
+
+        Raises
+        ------
+        ValueError
+            For a bad ``delay``.
+        """
+        return self._like(delay=delay)

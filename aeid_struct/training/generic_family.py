@@ -1,0 +1,454 @@
+"""Generic families in normalised time: stable SISO systems of order 1-4 that look like real ones
+(zeros, resonances to overdamped modes, gains of either sign, feedthrough, input delay) and their
+records (excitations people apply, a mid-motion start, offsets, noise), for training and
+benchmarking the generic identifiers.
+
+Normalised time: ``dt = 1``, time in samples, poles ``|p| dt`` in rad/sample. A normalised model
+``(A_n, b_n, c, d)`` is, at sample time ``dt``, ``A = A_n / dt``, ``b = b_n / dt`` with the same
+``c``, ``d`` and state (:meth:`GenericSystems.at`); the samples of a record do not change.
+Systems come in the bottom-row CCF (paper Eq. 5, ``b = e_n``); every random draw comes from an
+explicit generator. The model of a record is docs/architecture.md's: the exact FOH response
+(Eq. 10-13) of the delayed input from the record's initial state, plus an output offset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from aeid_struct.simulation import states_batch
+from aeid_struct.structures import ccf_matrices
+from aeid_struct.training.checks import count as positive_int
+from aeid_struct.training.checks import generator, positive, real, value_range
+from aeid_struct.training.excitation import GENERIC_EXCITATIONS, generic_excitation
+
+__all__ = ["GenericFamily", "GenericRecords", "GenericSystems"]
+
+#: Share of drawn zeros (real ones, and complex pairs) in the right half plane.
+RHP_ZEROS = 0.25
+#: Frequencies (rad/sample) of the grid the numerator is scaled on, besides each |pole|.
+_GRID = np.logspace(-4, np.log10(np.pi), 256)
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float, size) -> np.ndarray:
+    return np.exp(rng.uniform(np.log(lo), np.log(hi), size=size))
+
+
+def _poly(roots: np.ndarray) -> np.ndarray:
+    """Monic polynomials of rows of roots, ascending: ``(B, k) -> (B, k + 1)`` complex."""
+    coef = np.ones((roots.shape[0], 1), dtype=complex)
+    for j in range(roots.shape[1]):
+        shifted = np.concatenate([np.zeros_like(coef[:, :1]), coef], axis=1)   # s * p(s)
+        coef = shifted - roots[:, j : j + 1] * np.concatenate([coef, 0 * coef[:, :1]], axis=1)
+    return coef
+
+
+def _pairs(rng, size, magnitude, damping):
+    """Root pairs ``w (-z +- sqrt(z^2 - 1))``: complex for ``z < 1``, two real ones otherwise."""
+    w = _log_uniform(rng, *magnitude, size)
+    z = _log_uniform(rng, *damping, size)
+    root = np.sqrt(z.astype(complex) ** 2 - 1)
+    return w * (-z + root), w * (-z - root)
+
+
+@dataclass(frozen=True)
+class GenericSystems:
+    """A batch of stable SISO systems in the bottom-row CCF (paper Eq. 5) with an input delay.
+
+    Attributes
+    ----------
+    A : (N, n, n) float64 array
+        Companion matrices (ones above the diagonal, last row ``-a``).
+    b : (N, n) float64 array
+        ``e_n`` (``e_n / dt`` after :meth:`at`).
+    c : (N, n) float64 array
+        Numerator coefficients ``c_0..c_{n-1}`` (ascending).
+    d : (N,) float64 array
+        Feedthrough (0 for most systems).
+    poles : (N, n) complex array
+        The eigenvalues of ``A``: the pairs first (conjugate pairs, or two real poles), then the
+        real pole of an odd order.
+    delay : (N,) int array
+        Input delay in samples.
+    dt : float
+        The sample time these matrices are for (1: normalised time).
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    poles: np.ndarray
+    delay: np.ndarray
+    dt: float = 1.0
+
+    def __len__(self) -> int:
+        return self.A.shape[0]
+
+    @property
+    def order(self) -> int:
+        """The order ``n``."""
+        return self.A.shape[-1]
+
+    def take(self, index) -> GenericSystems:
+        """The systems at ``index`` (int array, slice or boolean mask along the batch axis).
+
+        Parameters
+        ----------
+        index : int array, slice or boolean mask
+
+        Returns
+        -------
+        GenericSystems
+        """
+        return GenericSystems(self.A[index], self.b[index], self.c[index], self.d[index],
+                              self.poles[index], self.delay[index], self.dt)
+
+    def at(self, dt: float) -> GenericSystems:
+        """The same systems for records sampled at ``dt``: ``A dt_0 / dt``, ``b dt_0 / dt``.
+
+        With ``dt_0 = self.dt`` (1 in normalised time): ``A = A_n / dt``, ``b = b_n / dt``, the
+        same ``c``, ``d``, state and delay in samples; poles scale as ``A``. The samples of a
+        record are the same at any ``dt``.
+
+        Parameters
+        ----------
+        dt : float
+            Sample time (s), positive.
+
+        Returns
+        -------
+        GenericSystems
+        """
+        scale = self.dt / positive("dt", dt)
+        return dataclasses.replace(self, A=self.A * scale, b=self.b * scale,
+                                   poles=self.poles * scale, dt=float(dt))
+
+
+@dataclass(frozen=True)
+class GenericRecords:
+    """Simulated records of generic systems (:meth:`GenericFamily.records`).
+
+    Attributes
+    ----------
+    y : (N, steps) float64 array
+        Measured output: ``y_clean`` plus white noise.
+    y_clean : (N, steps) float64 array
+        Noise-free output, offset included: ``c^T x_k + d u_plant_k + offsets[:, 1]`` with the
+        exact FOH state ``x_k`` from ``x0`` (Eq. 10-13).
+    u : (N, steps) float64 array
+        Measured input: the excitation plus ``offsets[:, 0]``.
+    u_plant : (N, steps) float64 array
+        The input the plant saw over the record, without offset: ``u - offsets[:, 0]`` delayed
+        by ``systems.delay`` samples, its first ``delay`` samples from before the record.
+    x0 : (N, n) float64 array
+        The state at the record's first sample (mid-motion).
+    noise : (N,) float64 array
+        Noise std over the std of the clean output, per record.
+    offsets : (N, 2) float64 array
+        The constant (input, output) offsets added.
+    systems : GenericSystems
+        The true systems.
+    """
+
+    y: np.ndarray
+    y_clean: np.ndarray
+    u: np.ndarray
+    u_plant: np.ndarray
+    x0: np.ndarray
+    noise: np.ndarray
+    offsets: np.ndarray
+    systems: GenericSystems
+
+    def __len__(self) -> int:
+        return self.y.shape[0]
+
+    def at(self, dt: float) -> GenericRecords:
+        """The same records read at sample time ``dt``: samples unchanged, systems
+        :meth:`GenericSystems.at` ``dt``.
+
+        Parameters
+        ----------
+        dt : float
+            Sample time (s), positive.
+
+        Returns
+        -------
+        GenericRecords
+        """
+        return dataclasses.replace(self, systems=self.systems.at(dt))
+
+
+def _pair_range(name: str, value, lower: float, strict: bool) -> tuple[float, float]:
+    lo, hi = value_range(name, value)
+    if lo < lower or (strict and lo == lower):
+        bound = f"> {lower}" if strict else f">= {lower}"
+        raise ValueError(f"{name} must have lo {bound}; got {value!r}")
+    return lo, hi
+
+
+def _share(name: str, value) -> float:
+    return real(name, value, "a number in [0, 1]", lambda v: 0.0 <= v <= 1.0)
+
+
+def _whole(name: str, value, lower: int = 0) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or value < lower:
+        raise ValueError(f"{name} must be an integer >= {lower}; got {value!r}")
+    return int(value)
+
+
+@dataclass(frozen=True, kw_only=True)
+class GenericFamily:
+    """Stable SISO systems of one order in normalised time (``dt = 1``) and their records.
+
+    Poles: ``floor(n/2)`` second-order factors, natural frequency log-uniform in ``band`` and
+    damping ratio log-uniform in ``damping`` (above 1: two real poles), or with probability
+    ``real_fraction`` two real poles log-uniform in ``band``; and one real pole log-uniform in
+    ``band`` for odd ``n``. Every pole has a negative real part: integrators and unstable plants
+    are outside the family. Numerator: relative degree uniform in ``1..n`` (``n`` without
+    ``zeros``), its zeros of magnitude log-uniform in ``band`` (complex pairs with the damping
+    range, or real pairs, as the poles), each real zero or pair in the right half plane with
+    probability ``RHP_ZEROS``; high-frequency gain of either sign with probability 1/2, scaled
+    so that the largest ``|G(j w)|`` over ``w`` in ``[1e-4, pi]`` and at each ``|pole|`` is 1
+    (outputs of std O(1) for inputs of peak 1). With probability ``feedthrough`` ``d`` is
+    ``+-(0.2..1)``.
+
+    Attributes
+    ----------
+    order : int
+        ``n``, 1..4.
+    band : (lo, hi)
+        Natural frequencies ``|p| dt`` (rad/sample), log-uniform; ``lo > 0``.
+    damping : (lo, hi)
+        Damping ratio of the second-order factors, log-uniform; ``lo > 0``.
+    real_fraction : float
+        Share of second-order factors drawn as two real poles instead, in [0, 1].
+    zeros : bool
+        Numerators with zeros (relative degree 1..n); all-pole otherwise.
+    feedthrough : float
+        Share of systems with ``d != 0``, in [0, 1].
+    max_delay : int
+        Input delays uniform in ``0..max_delay`` samples, >= 0.
+    noise : (lo, hi)
+        White output noise std over the std of the clean output, uniform; ``lo >= 0``.
+    excitations : tuple of str
+        The kinds of ``generic_excitation`` the records draw from, uniformly per record.
+    preroll : (lo, hi)
+        Samples simulated from rest before the record starts, uniform integers; ``lo >= 0``.
+    offset : float
+        Std of the normal constant input and output offsets added (0: none), >= 0.
+
+    Raises
+    ------
+    ValueError
+        If a field is out of its range (the message names it).
+    """
+
+    order: int
+    band: tuple = (0.005, 2.5)
+    damping: tuple = (0.005, 4.0)
+    real_fraction: float = 0.3
+    zeros: bool = True
+    feedthrough: float = 0.2
+    max_delay: int = 0
+    noise: tuple = (0.0, 0.1)
+    excitations: tuple = GENERIC_EXCITATIONS
+    preroll: tuple = (0, 400)
+    offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        order = self.order
+        if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) \
+                or not 1 <= order <= 4:
+            raise ValueError(f"order must be an integer in 1..4; got {self.order!r}")
+        setattr_ = object.__setattr__
+        setattr_(self, "order", int(self.order))
+        setattr_(self, "band", _pair_range("band", self.band, 0.0, strict=True))
+        setattr_(self, "damping", _pair_range("damping", self.damping, 0.0, strict=True))
+        setattr_(self, "real_fraction", _share("real_fraction", self.real_fraction))
+        if not isinstance(self.zeros, (bool, np.bool_)):
+            raise ValueError(f"zeros must be a bool; got {self.zeros!r}")
+        setattr_(self, "zeros", bool(self.zeros))
+        setattr_(self, "feedthrough", _share("feedthrough", self.feedthrough))
+        setattr_(self, "max_delay", _whole("max_delay", self.max_delay))
+        setattr_(self, "noise", _pair_range("noise", self.noise, 0.0, strict=False))
+        kinds = self.excitations
+        if isinstance(kinds, str) or not isinstance(kinds, (tuple, list)) or not kinds \
+                or any(k not in GENERIC_EXCITATIONS for k in kinds):
+            raise ValueError(f"excitations must be a non-empty tuple of kinds from "
+                             f"{GENERIC_EXCITATIONS}; got {kinds!r}")
+        setattr_(self, "excitations", tuple(kinds))
+        lo, hi = value_range("preroll", self.preroll)
+        if lo < 0 or lo != int(lo) or hi != int(hi):
+            raise ValueError(f"preroll must be a (lo, hi) pair of integers, 0 <= lo <= hi; "
+                             f"got {self.preroll!r}")
+        setattr_(self, "preroll", (int(lo), int(hi)))
+        setattr_(self, "offset", real("offset", self.offset, "a finite number >= 0",
+                                      lambda v: v >= 0))
+
+    def _numerator(self, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Ascending numerator coefficients before scaling ``(count, n)``, and relative degrees."""
+        n = self.order
+        rel = rng.integers(1, n + 1, size=count) if self.zeros else np.full(count, n)
+        m = n - rel                                   # zeros per system, 0..n-1
+        # Slots: (n - 1) // 2 pair slots (two zeros each), then one real slot; a system with m
+        # zeros fills m // 2 pair slots and the real slot when m is odd.
+        slots = (n - 1) // 2
+        first, second = _pairs(rng, (count, slots), self.band, self.damping)
+        rhp = np.where(rng.random((count, slots)) < RHP_ZEROS, -1.0, 1.0)
+        single = _log_uniform(rng, *self.band, (count, 1))
+        single = single * np.where(rng.random((count, 1)) < RHP_ZEROS, 1.0, -1.0)
+        num = np.ones((count, 1), dtype=complex)
+        for j in range(slots):
+            on = (j < m // 2)[:, None]
+            # a pair in the right half plane: both roots mirrored (-conj keeps a pair a pair)
+            z1 = np.where(rhp[:, j] < 0, -np.conj(first[:, j]), first[:, j])
+            z2 = np.where(rhp[:, j] < 0, -np.conj(second[:, j]), second[:, j])
+            factor = np.where(on, _poly(np.stack([z1, z2], 1)), np.array([1.0, 0.0, 0.0]))
+            num = _convolve(num, factor)
+        factor = np.where((m % 2 == 1)[:, None], _poly(single.astype(complex)),
+                          np.array([1.0, 0.0]))
+        num = _convolve(num, factor).real
+        c = np.zeros((count, n))
+        width = min(n, num.shape[1])
+        c[:, :width] = num[:, :width]
+        return c, rel
+
+    def sample(self, count: int, rng: np.random.Generator) -> GenericSystems:
+        """Draw ``count`` systems (see the class docstring).
+
+        Parameters
+        ----------
+        count : int
+            Systems, >= 1.
+        rng : numpy.random.Generator
+            Every random draw.
+
+        Returns
+        -------
+        GenericSystems
+            In normalised time (``dt = 1``).
+        """
+        count = positive_int("count", count)
+        generator(rng)
+        n, half = self.order, self.order // 2
+        p1, p2 = _pairs(rng, (count, half), self.band, self.damping)
+        real_pair = rng.random((count, half)) < self.real_fraction
+        reals = -_log_uniform(rng, *self.band, (count, half, 2))
+        p1 = np.where(real_pair, reals[..., 0], p1)
+        p2 = np.where(real_pair, reals[..., 1], p2)
+        poles = np.stack([p1, p2], axis=2).reshape(count, 2 * half)
+        if n % 2:
+            poles = np.concatenate([poles, -_log_uniform(rng, *self.band, (count, 1))], axis=1)
+        poles = poles.astype(complex)
+        a = _poly(poles).real[:, :n]                  # a_0..a_{n-1}; the monic term dropped
+        c, _ = self._numerator(count, rng)
+        sign = np.where(rng.random(count) < 0.5, -1.0, 1.0)
+        peak = _peak_gain(a, c, np.abs(poles))
+        c = c * (sign / peak)[:, None]
+        d = np.where(rng.random(count) < self.feedthrough,
+                     rng.choice([-1.0, 1.0], count) * rng.uniform(0.2, 1.0, count), 0.0)
+        delay = rng.integers(0, self.max_delay + 1, size=count)
+        A, b, c = ccf_matrices(a, c)
+        return GenericSystems(A, b, c, d, poles, delay)
+
+    def records(self, count: int, steps: int, rng: np.random.Generator, *,
+                systems: GenericSystems | None = None) -> GenericRecords:
+        """Simulate ``count`` records of ``steps`` samples that start mid-motion.
+
+        Each system is simulated (exact FOH, Eq. 10-13, :func:`aeid_struct.simulation.states_batch`
+        in float64, ``dt = 1``) from rest with zero input over ``preroll + steps`` samples, its
+        excitation starting ``preroll`` samples (drawn per record) before the record and reaching
+        the plant ``delay`` samples later; the last ``steps`` samples are kept. ``c`` and ``d`` are
+        divided by the std of the clean output over the record (the returned ``systems`` are the
+        scaled ones: outputs of std 1 before the offset). Then the input and output offsets and
+        the noise (std ``noise`` times that of the clean output) are added.
+
+        Parameters
+        ----------
+        count : int
+            Records, >= 1.
+        steps : int
+            Samples per record, >= 2.
+        rng : numpy.random.Generator
+            Every random draw.
+        systems : GenericSystems, optional
+            The systems to simulate (``count`` of this family's order, normalised time);
+            drawn by :meth:`sample` when None.
+
+        Returns
+        -------
+        GenericRecords
+        """
+        count = positive_int("count", count)
+        steps = _whole("steps", steps, 2)
+        generator(rng)
+        if systems is None:
+            systems = self.sample(count, rng)
+        elif not isinstance(systems, GenericSystems) or len(systems) != count \
+                or systems.order != self.order or systems.dt != 1.0:
+            raise ValueError(f"systems must be GenericSystems of {count} systems of order "
+                             f"{self.order} in normalised time (dt = 1); got {systems!r:.80}")
+        pre = rng.integers(self.preroll[0], self.preroll[1] + 1, size=count)
+        first = int(pre.max())
+        total = first + steps
+        u = self._inputs(count, total, first, rng)
+        k = np.arange(total)[None, :]
+        u = np.where(k >= (first - pre)[:, None], u, 0.0)      # at rest before its pre-roll
+        lagged = k - systems.delay[:, None]
+        plant = np.where(lagged >= 0, np.take_along_axis(u, np.maximum(lagged, 0), 1), 0.0)
+        A, b, c, d, v = (torch.from_numpy(np.ascontiguousarray(x)) for x in
+                         (systems.A, systems.b, systems.c, systems.d, plant))
+        X = states_batch(A, b, v, 1.0).numpy()
+        clean = X[:, first:] @ systems.c[:, :, None]
+        clean = clean[..., 0] + systems.d[:, None] * plant[:, first:]
+        # The output's scale is the record's, not the system's: c and d divided by the clean
+        # output's std make it 1 (a constant record, impossible for these excitations, stays).
+        spread = clean.std(axis=1)
+        spread = np.where(spread > 0, spread, 1.0)
+        clean = clean / spread[:, None]
+        systems = dataclasses.replace(systems, c=systems.c / spread[:, None],
+                                      d=systems.d / spread)
+        offsets = (rng.normal(0.0, self.offset, (count, 2)) if self.offset > 0
+                   else np.zeros((count, 2)))
+        level = rng.uniform(*self.noise, size=count)
+        scale = level * clean.std(axis=1)
+        y_clean = clean + offsets[:, 1:]
+        y = y_clean + scale[:, None] * rng.normal(size=(count, steps))
+        return GenericRecords(y=y, y_clean=y_clean, u=u[:, first:] + offsets[:, :1],
+                              u_plant=plant[:, first:], x0=X[:, first].copy(), noise=level,
+                              offsets=offsets, systems=systems)
+
+    def _inputs(self, count: int, total: int, first: int, rng: np.random.Generator):
+        """Excitations of ``total`` samples, a kind drawn per record from ``excitations``."""
+        band = (min(self.band[0], 3.0), min(self.band[1], 3.0))
+        pick = rng.integers(0, len(self.excitations), size=count)
+        u = np.empty((count, total))
+        for j, kind in enumerate(self.excitations):
+            idx = np.flatnonzero(pick == j)
+            if idx.size:
+                u[idx] = generic_excitation(kind, idx.size, total, rng, first=first, band=band)
+        return u
+
+
+def _convolve(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Row-wise products of ascending polynomials ``(B, i) x (B, j) -> (B, i + j - 1)``."""
+    out = np.zeros((p.shape[0], p.shape[1] + q.shape[1] - 1), dtype=complex)
+    for j in range(q.shape[1]):
+        out[:, j : j + p.shape[1]] += p * q[:, j : j + 1]
+    return out
+
+
+def _peak_gain(a: np.ndarray, c: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``max |c(jw) / a(jw)|`` over ``_GRID`` and the frequencies ``at`` (B, k), per system."""
+    w = np.concatenate([np.broadcast_to(_GRID, (a.shape[0], _GRID.size)), at], axis=1)
+    s = 1j * w
+    n = a.shape[1]
+    power = s[..., None] ** np.arange(n + 1)                   # (B, W, n + 1)
+    den = power[..., :n] @ a[:, :, None] + power[..., n : n + 1]
+    num = power[..., :n] @ c[:, :, None].astype(complex)
+    return np.max(np.abs(num / den)[..., 0], axis=1)
