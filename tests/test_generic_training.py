@@ -179,3 +179,12 @@ def test_the_command_does_not_extend_a_run_without_resume(tmp_path):
         main(["train-generic", "--order", "2", "--out", str(tmp_path / "g.aeid")])
     with pytest.raises(UsageExit, match="--out .* is a folder"):
         main(["train-generic", "--order", "2", "--out", str(tmp_path)])
+
+
+def test_non_finite_weights_give_a_nan_loss_not_an_error():
+    ident = GenericIdentifier(CONFIG)
+    rec = TinyFamily().records(4, 64, np.random.default_rng(4))
+    y, u, _ = normalise_windows(torch.tensor(rec.y), torch.tensor(rec.u))
+    with torch.no_grad():
+        ident.encoder.head[-1].bias.fill_(math.nan)
+        assert torch.isnan(window_loss(ident, y, u)).all()

@@ -237,12 +237,37 @@ class GenericIdentifier:
         raw = self.encoder(x, features).to(torch.float64)
         return factors(raw, self.config.band, self.config.damping)
 
+    def companion(self, w: torch.Tensor, zeta: torch.Tensor):
+        """The CCF ``(A, b)`` (paper Eq. 5) of the factors' denominator.
+
+        Parameters
+        ----------
+        w : (batch, ceil(n/2)) tensor
+        zeta : (batch, floor(n/2)) tensor
+            Finite (:meth:`factors_batch`).
+
+        Returns
+        -------
+        A : (batch, n, n) tensor
+        b : (batch, n) tensor
+            ``e_n``.
+
+        Raises
+        ------
+        ValueError
+            Non-finite factors.
+        """
+        a = denominator(w, zeta)
+        system = self._ccf.assemble(torch.cat([a, torch.zeros_like(a)], dim=1))
+        return system.A, system.b
+
     def companion_batch(self, y_n: torch.Tensor, u_n: torch.Tensor):
         """The CCF ``(A, b)`` (paper Eq. 5, float64) of normalised windows' denominators.
 
         Parameters
         ----------
         y_n, u_n : (batch, window) tensors
+            Windows that could be normalised (no NaN rows).
 
         Returns
         -------
@@ -250,9 +275,7 @@ class GenericIdentifier:
         b : (batch, n) float64 tensor
             ``e_n``.
         """
-        a = denominator(*self.factors_batch(y_n, u_n))
-        system = self._ccf.assemble(torch.cat([a, torch.zeros_like(a)], dim=1))
-        return system.A, system.b
+        return self.companion(*self.factors_batch(y_n, u_n))
 
     # -- numpy: identification -----------------------------------------------------------------
     def _windows(self, y, u):

@@ -158,8 +158,13 @@ def window_loss(ident: GenericIdentifier, y: torch.Tensor, u: torch.Tensor):
     Returns
     -------
     e : (batch,) float64 tensor
+        All NaN where the encoder gives non-finite poles (weights gone non-finite): the batch
+        is skipped.
     """
-    A, b = ident.companion_batch(y, u)
+    w, zeta = ident.factors_batch(y, u)
+    if not bool(torch.isfinite(w).all() and torch.isfinite(zeta).all()):
+        return torch.full_like(y[:, 0], math.nan)
+    A, b = ident.companion(w, zeta)
     r = project_batch(A, b, y, u).residual
     centred = y - y.mean(dim=1, keepdim=True)
     return (r ** 2).sum(dim=1) / (centred ** 2).sum(dim=1)
