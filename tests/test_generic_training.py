@@ -188,3 +188,26 @@ def test_non_finite_weights_give_a_nan_loss_not_an_error():
     with torch.no_grad():
         ident.encoder.head[-1].bias.fill_(math.nan)
         assert torch.isnan(window_loss(ident, y, u)).all()
+
+
+def test_the_command_trains_writes_and_resumes(tmp_path, capsys):
+    import json
+
+    from aeid_struct.cli.main import main
+    from aeid_struct.generic import load_generic
+
+    out = tmp_path / "g1.aeid"
+    argv = ["train-generic", "--order", "1", "--epochs", "1", "--count", "32", "--holdout",
+            "16", "--window", "32", "--batch", "16", "--threads", "1", "--quiet", "--out",
+            str(out)]
+    assert main(argv) == 0
+    ident = load_generic(out)
+    assert ident.config.order == 1 and ident.config.window == 32
+    run = json.loads(out.with_suffix(".json").read_text())
+    assert run["meta"]["train"]["epochs"] == 1 and run["meta"]["name"] == "g1"
+    assert run["meta"]["train"]["family"]["type"] == "GenericFamily"
+    assert "wrote" in capsys.readouterr().out
+    # a second epoch from the checkpoint: the first epoch's history is kept
+    assert main([*argv[:4], "2", *argv[5:], "--resume"]) == 0
+    history = load_generic(out).meta["history"]["holdout_loss"]
+    assert len(history) == 2 and history[0] == run["meta"]["history"]["holdout_loss"][0]

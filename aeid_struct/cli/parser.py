@@ -219,6 +219,8 @@ def _add_train_generic(sub) -> None:
                     help="at most this many epochs (default 100)")
     tg.add_argument("--count", type=_POSITIVE_INT, default=4096,
                     help="fresh training windows per epoch (default 4096)")
+    tg.add_argument("--holdout", type=_POSITIVE_INT, default=512,
+                    help="held-out windows that pick the best weights (default 512)")
     tg.add_argument("--window", type=_POSITIVE_INT, default=256,
                     help="samples per window the encoder reads (default 256)")
     tg.add_argument("--batch", type=_POSITIVE_INT, default=128,

@@ -47,8 +47,9 @@ def run_train_generic(args: argparse.Namespace) -> int:
         config = GenericConfig(order=args.order, window=args.window)
         train = GenericTrainConfig(
             epochs=args.epochs, seconds=None if args.minutes is None else 60.0 * args.minutes,
-            count=args.count, batch=args.batch, lr=args.lr, seed=args.seed, loss=args.loss,
-            checkpoint=str(ckpt), progress=not args.quiet, threads=args.threads)
+            count=args.count, holdout=args.holdout, batch=args.batch, lr=args.lr,
+            seed=args.seed, loss=args.loss, checkpoint=str(ckpt), progress=not args.quiet,
+            threads=args.threads)
     except ValueError as err:
         raise InputError(f"train-generic: {err}") from None
     meta = {"name": out.stem, "command": "aeid-struct " + " ".join(args.argv)}
