@@ -280,7 +280,6 @@ class GenericIdentifier:
     # -- numpy: identification -----------------------------------------------------------------
     def _windows(self, y, u):
         """Checked ``(K, window)`` windows as float64 tensors, normalised."""
-        shape = (None, self.config.window)
         arrays = []
         for name, x in (("y", y), ("u", u)):
             x = np.ascontiguousarray(x, dtype=np.float64)     # torch refuses negative strides
@@ -289,8 +288,8 @@ class GenericIdentifier:
                                  f"got shape {x.shape}")
             arrays.append(x)
         if arrays[0].shape != arrays[1].shape:
-            raise ValueError(f"y and u must have one shape {shape}; got {arrays[0].shape} and "
-                             f"{arrays[1].shape}")
+            raise ValueError(f"y and u must have one shape (K, {self.config.window}); got "
+                             f"{arrays[0].shape} and {arrays[1].shape}")
         return normalise_windows(torch.from_numpy(arrays[0]), torch.from_numpy(arrays[1]))
 
     def _factors(self, y, u):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import sys
 import time
 import warnings
@@ -129,7 +130,7 @@ class GenericTrainConfig:
             raise ValueError(f"progress must be True or False; got {self.progress!r}")
         if self.threads is not None:
             _positive_int("threads", self.threads)
-        if self.checkpoint is not None and not isinstance(self.checkpoint, (str, Path)):
+        if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
             raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
                              f"got {self.checkpoint!r}")
 
