@@ -19,6 +19,7 @@ from aeid_struct.generic import (
     poles_of,
     raw_of,
     read_generic,
+    spectra,
 )
 from aeid_struct.simulation import initial_states_batch, project, project_batch
 
@@ -240,3 +241,25 @@ def test_torch_projection_gradcheck():
 
     a = torch.tensor([[0.2, 0.5], [0.05, 0.3]], dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(residual_norm, (a,), eps=1e-6, atol=1e-6)
+
+
+def test_spectral_features_peak_at_a_sinusoids_bin():
+    k = np.arange(256)
+    y = torch.tensor(np.sin(2 * np.pi * 20 * k / 256))[None]
+    u = torch.tensor(np.cos(2 * np.pi * 50 * k / 256))[None]
+    f = spectra(y, u)
+    assert f.shape == (1, 2 * 129)
+    assert int(f[0, :129].argmax()) == 20 and int(f[0, 129:].argmax()) == 50
+    # the floor: a window without power gives log(1e-3) / 4, finite
+    assert float(spectra(torch.zeros(1, 256, dtype=torch.float64), u)[0, 0]) == \
+        pytest.approx(np.log(1e-3) / 4)
+
+
+def test_an_identifier_without_spectral_features():
+    config = small(2, spectrum=False)
+    assert config.encoder_config().features == 0 and small(2).encoder_config().features == 66
+    ident = GenericIdentifier(config)
+    y = np.random.default_rng(8).standard_normal((2, 64))
+    assert np.isfinite(ident.denominators(y, y[::-1])).all()
+    with pytest.raises(ValueError, match="spectrum must be True or False; got 1"):
+        small(2, spectrum=1)
