@@ -24,6 +24,8 @@ _compat.install()      # old module paths (aeid_struct.decoder, .refine, ...) ke
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.encoder import EncoderConfig as EncoderConfig
+    from aeid_struct.generic import compare as compare
+    from aeid_struct.generic import identify as identify
     from aeid_struct.identification import Estimate as Estimate
     from aeid_struct.identification import Identifier as Identifier
     from aeid_struct.identification import load_pretrained as load_pretrained
@@ -53,6 +55,8 @@ _SOURCES = {
     "simulate": "simulation",
     "stationary_value": "simulation",
     "EncoderConfig": "encoder",
+    "compare": "generic",
+    "identify": "generic",
     "Estimate": "identification",
     "Identifier": "identification",
     "load_pretrained": "identification",
@@ -83,7 +87,9 @@ __all__ = [
     "System",
     "TrainConfig",
     "UndertrainedWarning",
+    "compare",
     "discretise",
+    "identify",
     "initial_state",
     "load_pretrained",
     "simulate",

@@ -6,7 +6,9 @@ them; so that nothing breaks, each old path is an alias of the module that now h
 ``import aeid_struct.refine`` returns ``aeid_struct.refinement.nlp`` itself (one module object
 under two names, so monkeypatching either patches both). Old paths that became sub-packages of
 the same name (``structures``, ``encoder``, ``training``, ``baselines``, ``online``, ``cli``)
-need no alias: the package re-exports the old module's public names.
+need no alias: the package re-exports the old module's public names. The old module
+``aeid_struct.identify`` has no alias: ``aeid_struct.identify`` is the one-call function
+(``aeid_struct.generic.identify``) now; its code lives in ``aeid_struct.identification``.
 """
 
 from __future__ import annotations
@@ -21,7 +23,6 @@ import sys
 ALIASES = {
     "decoder": "simulation",
     "data": "training",
-    "identify": "identification",
     "refine": "refinement",
     "scorecard": "evaluation.scorecard",
     "plots": "evaluation.plots",

@@ -236,7 +236,7 @@ def test_package_names_resolve_lazily():
         "    obj = getattr(importlib.import_module('aeid_struct.' + module), name)\n"
         "    assert getattr(ae, name) is obj, name\n"
         "from aeid_struct import Identifier, simulate, train\n"
-        "assert Identifier is ae.identify.Identifier and simulate is ae.decoder.simulate\n"
+        "assert Identifier is ae.identification.Identifier and simulate is ae.decoder.simulate\n"
         "assert train is ae.training.train and ae.__version__\n"
         "assert sorted(ae._SOURCES) == sorted(ae.__all__)\n"
         "print('ok')\n"

@@ -173,7 +173,7 @@ def run_train(args: argparse.Namespace) -> int:
                          "agree")
     from aeid_struct.encoder import EncoderConfig
     from aeid_struct.structures import CCF
-    from aeid_struct.training import LegFamily, TrainConfig, train
+    from aeid_struct.training import LegFamily, TrainConfig, process_rank, train
 
     if len(args.noise) > 2:
         raise InputError(f"train: --noise takes one level or LO HI; got {len(args.noise)} "
@@ -184,7 +184,7 @@ def run_train(args: argparse.Namespace) -> int:
                              seconds=args.seconds, batch=args.batch, lr=args.lr,
                              gamma=args.gamma, noise=noise, excitation=args.excitation,
                              seed=args.seed, checkpoint=args.checkpoint,
-                             progress=not args.quiet)
+                             progress=not args.quiet, device=args.device)
         encoder = EncoderConfig(width=args.width, kernel=args.kernel, dense=tuple(args.dense),
                                 pool=args.pool)
     except ValueError as err:
@@ -198,6 +198,8 @@ def run_train(args: argparse.Namespace) -> int:
                       meta={"command": "aeid-struct " + " ".join(args.argv), "seed": args.seed})
     except ValueError as err:
         raise InputError(f"train: {err}") from None
+    if process_rank() != 0:
+        return 0                   # under torchrun, rank 0 writes the identifier and reports
     try:
         path = ident.save(args.out)
     except OSError as err:

@@ -199,6 +199,10 @@ def _add_train(sub) -> None:
     tr.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
                     help="seed of the records, the initial weights and the batches (default 0)")
     tr.add_argument("--checkpoint", default=None, help="checkpoint file to resume from")
+    tr.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu",
+                    help="where the encoder and decoder run: cpu (default), cuda, or auto (a GPU "
+                         "when torch finds one). Launched by torchrun, the run is data-parallel "
+                         "(--batch is the global batch) and rank 0 writes --out")
     tr.add_argument("--out", required=True, help="identifier file to write (.aeid)")
     tr.add_argument("--quiet", action="store_true", help="no progress lines")
     tr.set_defaults(func=run_train)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-from importlib.resources import files
 from pathlib import Path
 
 import torch
@@ -19,12 +18,10 @@ from aeid_struct.encoder import Encoder
 from aeid_struct.generic.model import GenericConfig, GenericIdentifier
 from aeid_struct.identification import writable_file
 
-__all__ = ["FORMAT", "GENERIC", "load_generic", "read_generic", "save_generic"]
+__all__ = ["FORMAT", "read_generic", "save_generic"]
 
 #: The format written and read.
 FORMAT = "aeid-struct/generic/1"
-#: The shipped generic identifiers' names (``aeid_struct/pretrained/<name>.aeid``), one per order.
-GENERIC = ("generic-1", "generic-2", "generic-3", "generic-4")
 _HEADER = ("format", "config", "meta")
 
 
@@ -148,35 +145,3 @@ def read_generic(path) -> GenericIdentifier:
                          f"{err}") from None
     config = _config(head, source)
     return GenericIdentifier(config, _encoder(config, tensors, source), meta=head["meta"])
-
-
-def load_generic(name_or_path) -> GenericIdentifier:
-    """A shipped generic identifier by name (``GENERIC``), or one from a file.
-
-    Parameters
-    ----------
-    name_or_path : str or PathLike
-        ``"generic-1"`` .. ``"generic-4"`` (the order), or the path of a ``.aeid`` file written
-        by :func:`save_generic`.
-
-    Returns
-    -------
-    GenericIdentifier
-
-    Raises
-    ------
-    ValueError
-        A name that is not shipped and not an existing file, or a file that is not a generic
-        identifier (naming it).
-    """
-    if isinstance(name_or_path, str) and name_or_path in GENERIC:
-        shipped = files("aeid_struct.pretrained") / f"{name_or_path}.aeid"
-        if not shipped.is_file():
-            raise ValueError(f"name_or_path {name_or_path!r} is a generic identifier name, but "
-                             "this installation does not ship it (train it with "
-                             "`aeid-struct train-generic`)")
-        return read_generic(Path(str(shipped)))
-    if isinstance(name_or_path, (str, os.PathLike)) and Path(name_or_path).is_file():
-        return read_generic(name_or_path)
-    raise ValueError(f"name_or_path must be one of {list(GENERIC)} or an existing generic "
-                     f"identifier file; got {name_or_path!r}")

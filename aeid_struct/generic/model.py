@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
+from importlib.resources import files
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -24,10 +27,13 @@ from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.generic.poles import denominator, factors, poles_of
 from aeid_struct.structures import CCF
 
-__all__ = ["GenericConfig", "GenericIdentifier", "normalise_windows", "spectra"]
+__all__ = ["GENERIC", "GenericConfig", "GenericIdentifier", "load_generic", "normalise_windows",
+           "spectra"]
 
 #: The orders generic identifiers are built for.
 ORDERS = (1, 2, 3, 4)
+#: The shipped generic identifiers' names (``aeid_struct/pretrained/<name>.aeid``), one per order.
+GENERIC = tuple(f"generic-{n}" for n in ORDERS)
 
 
 def _range(name: str, value, what: str) -> tuple[float, float]:
@@ -385,3 +391,37 @@ class GenericIdentifier:
         from aeid_struct.generic.files import read_generic
 
         return read_generic(path)
+
+
+def load_generic(name_or_path) -> GenericIdentifier:
+    """A shipped generic identifier by name (``GENERIC``), or one from a file.
+
+    Parameters
+    ----------
+    name_or_path : str or PathLike
+        ``"generic-1"`` .. ``"generic-4"`` (the order), or the path of a ``.aeid`` file written
+        by :func:`~aeid_struct.generic.save_generic`.
+
+    Returns
+    -------
+    GenericIdentifier
+
+    Raises
+    ------
+    ValueError
+        A name that is not shipped and not an existing file, or a file that is not a generic
+        identifier (naming it).
+    """
+    from aeid_struct.generic.files import read_generic  # files imports this module
+
+    if isinstance(name_or_path, str) and name_or_path in GENERIC:
+        shipped = files("aeid_struct.pretrained") / f"{name_or_path}.aeid"
+        if not shipped.is_file():
+            raise ValueError(f"name_or_path {name_or_path!r} is a generic identifier name, but "
+                             "this installation does not ship it (train it with "
+                             "`aeid-struct train-generic`)")
+        return read_generic(Path(str(shipped)))
+    if isinstance(name_or_path, (str, os.PathLike)) and Path(name_or_path).is_file():
+        return read_generic(name_or_path)
+    raise ValueError(f"name_or_path must be one of {list(GENERIC)} or an existing generic "
+                     f"identifier file; got {name_or_path!r}")

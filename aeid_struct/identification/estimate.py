@@ -4,13 +4,19 @@ An Estimate holds the validated :class:`~aeid_struct.records.RecordBatch` it was
 refers to its provenance (one object per identifier) instead of copying the identifier's fields;
 its fit, response, initial state and physical parameters are computed on first access, so that a
 plain identification costs one encoder pass.
+
+A generic estimate (``aeid_struct.identify``) models a measured record with an input delay and
+an output offset (docs/architecture.md, "Any system, any record"). Its ``info`` holds ``delay``
+(samples), ``x0`` (the state at sample ``delay``), ``y_offset``, ``fit`` and ``y_hat`` (NaN on
+the first ``delay`` samples); ``Estimate.delay``, ``offset``, ``x0``, ``fit`` and ``y_hat``
+return those instead of computing them for a record without delay and offset.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, wraps
 
 import numpy as np
 
@@ -51,6 +57,36 @@ class Provenance:
     training_range: dict | None = None
 
 
+def _from_info(key: str):
+    """A derived property that returns ``info[key]`` where the estimate carries it (a generic
+    estimate's, made with its delay and offset) and computes it otherwise."""
+    def wrap(compute):
+        @wraps(compute)
+        def get(self):
+            return self.info[key] if key in self.info else compute(self)
+        return get
+    return wrap
+
+
+class _RecordModel:
+    """Fields of an :class:`Estimate` read from its ``info`` (the model of a record: 0 where
+    none was identified) and its provenance."""
+
+    @property
+    def _inverse(self):
+        return self.provenance.inverse
+
+    @property
+    def delay(self) -> int:
+        """Input delay in samples (``info["delay"]``)."""
+        return int(self.info.get("delay", 0))
+
+    @property
+    def offset(self) -> float:
+        """Constant output offset (``info["y_offset"]``)."""
+        return float(self.info.get("y_offset", 0.0))
+
+
 #: The old positional order of ``Estimate(...)`` (kept for code written before Provenance).
 _POSITIONAL = ("A", "b", "c", "d", "elements", "y", "u", "dt", "seconds", "refined", "info",
                "_inverse")
@@ -59,7 +95,7 @@ _OLD = {"y", "u", "dt", "structure", "initial", "training_range", "_inverse"}
 
 
 @dataclass(frozen=True, eq=False, init=False)
-class Estimate:
+class Estimate(_RecordModel):
     """An identified continuous-time model (batched or single), built with keywords.
 
     Parameters
@@ -149,10 +185,6 @@ class Estimate:
         return self.provenance.training_range
 
     @property
-    def _inverse(self):
-        return self.provenance.inverse
-
-    @property
     def records(self) -> int:
         """Records the estimate was made from jointly (1, or ``R`` for a tuple of records)."""
         return self.record.records
@@ -164,6 +196,7 @@ class Estimate:
 
     # -- derived on first access ---------------------------------------------------------------
     @cached_property
+    @_from_info("y_hat")
     def y_hat(self):
         """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
         return self._per_record(
@@ -171,6 +204,7 @@ class Estimate:
             lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
 
     @cached_property
+    @_from_info("x0")
     def x0(self):
         """The state at the first sample: zeros for a record from rest, else the least-squares
         initial state (``simulation.initial_state``); ``(n,)`` / ``(batch, n)``, a tuple of
@@ -183,6 +217,7 @@ class Estimate:
         return tuple(np.zeros(np.shape(self.b[..., r, :])) for r in range(self.records))
 
     @cached_property
+    @_from_info("fit")
     def fit(self):
         """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record (a float,
         ``(batch,)``, or ``(R,)`` / ``(batch, R)``); NaN where undefined (a constant record,

@@ -47,7 +47,7 @@ def differentiable(ident, y, u, *, raw: bool = False):
     features = None
     gain = y_bar / u_bar                                          # (batch, R)
     if ident.scale == "feature":
-        mean, spread = (f.to(gain.dtype) for f in ident._features)
+        mean, spread = (f.to(gain.device, gain.dtype) for f in ident._features)
         features = (torch.log(gain) - mean) / spread
     sys, elements, z = ident._decode(x, features)
     if ident.scale == "denormalise":
@@ -55,7 +55,7 @@ def differentiable(ident, y, u, *, raw: bool = False):
         # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
         sys = System(sys.A, sys.b, sys.c * gain[:, None].to(sys.c.dtype),
                      sys.d * gain.to(sys.d.dtype))
-        mask = ident._output_mask.to(elements.dtype)
+        mask = ident._output_mask.to(elements.device, elements.dtype)
         elements = elements * (1.0 + mask * (gain[:, None].to(elements.dtype) - 1.0))
     return (sys, elements, z) if raw else (sys, elements)
 

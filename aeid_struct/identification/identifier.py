@@ -259,7 +259,7 @@ class Identifier:
         scale ``features`` -> ``(System, elements, z)`` as the structure outputs them (before
         any de-normalisation), with the encoder's standardised output ``z (batch, p)``."""
         z = self.encoder(x[0] if self.records == 1 else x, features)
-        theta = self.theta_mean.to(z.dtype) + self.theta_scale.to(z.dtype) * z
+        theta = self.theta_mean.to(z.device, z.dtype) + self.theta_scale.to(z.device, z.dtype) * z
         elements = self.structure.elements(theta)
         return self.structure.assemble(elements), elements, z
 

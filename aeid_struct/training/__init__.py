@@ -5,8 +5,9 @@ Modules: ``families`` (the true systems), ``generic_family`` (stable systems of 
 their records in normalised time, for the generic identifiers), ``excitation`` (the inputs),
 ``datasets`` (simulated records and the per-record time grid), ``config`` (``TrainConfig``),
 ``objective`` (Eq. 14 on Eq. 15-normalised records), ``tensors`` (the run's records as
-tensors), ``loop`` (``train``), ``generic`` (``train_generic``: generic identifiers by
-variable projection), ``checkpoints``, ``calibration`` (the training range and flag
+tensors), ``loop`` (``train``), ``distributed`` (data-parallel runs under ``torchrun``, the
+device), ``generic`` (``train_generic``: generic identifiers by variable projection),
+``checkpoints``, ``calibration`` (the training range and flag
 thresholds) and ``progress`` (the budget, the progress line, the warning).
 """
 
@@ -15,6 +16,8 @@ from aeid_struct.training.config import TrainConfig as TrainConfig
 from aeid_struct.training.datasets import Records as Records
 from aeid_struct.training.datasets import grids as grids
 from aeid_struct.training.datasets import records as records
+from aeid_struct.training.distributed import DEVICES as DEVICES
+from aeid_struct.training.distributed import process_rank as process_rank
 from aeid_struct.training.excitation import EXCITATIONS as EXCITATIONS
 from aeid_struct.training.excitation import GENERIC_EXCITATIONS as GENERIC_EXCITATIONS
 from aeid_struct.training.excitation import excitation as excitation
@@ -31,6 +34,7 @@ from aeid_struct.training.loop import train as train
 from aeid_struct.training.progress import UndertrainedWarning as UndertrainedWarning
 
 __all__ = [
+    "DEVICES",
     "EXCITATIONS",
     "GENERIC_EXCITATIONS",
     "GenericFamily",
@@ -44,6 +48,7 @@ __all__ = [
     "excitation",
     "generic_excitation",
     "grids",
+    "process_rank",
     "records",
     "TrainConfig",
     "UndertrainedWarning",

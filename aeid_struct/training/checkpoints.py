@@ -25,7 +25,8 @@ from aeid_struct.training.config import TrainConfig, config_dict
 
 def fingerprint(structure, config: TrainConfig, enc: EncoderConfig) -> str:
     """What must match for a checkpoint to be resumed: the structure, the family settings and
-    the encoder (not the budget, the progress flag or the path).
+    the encoder (not the budget, the progress flag, the path, the device or the number of
+    processes: a run may resume on another device or under another ``torchrun``).
 
     Parameters
     ----------
@@ -41,7 +42,7 @@ def fingerprint(structure, config: TrainConfig, enc: EncoderConfig) -> str:
     """
     d = config_dict(config)
     for key in ("epochs", "seconds", "min_epochs", "target_loss", "progress", "checkpoint",
-                "threads"):
+                "threads", "device"):
         d.pop(key)
     return json.dumps({"structure": structure.config(), "config": d,
                        "encoder": enc.to_dict()}, sort_keys=True)

@@ -13,6 +13,7 @@ import numpy as np
 from aeid_struct.identification import INITIAL_STATES
 from aeid_struct.training.checks import real
 from aeid_struct.training.datasets import grids
+from aeid_struct.training.distributed import resolve_device
 from aeid_struct.training.excitation import EXCITATIONS
 
 
@@ -81,6 +82,12 @@ class TrainConfig:
         Print a progress line (to stderr).
     threads : int or None
         Torch threads for the run, restored after it (None: torch's setting).
+    device : {"cpu", "cuda", "auto"}
+        Where the encoder, the decoder and the batches run: ``"auto"`` is CUDA when torch finds
+        a GPU, else the CPU; ``"cuda"`` without one is refused. Under ``torchrun`` each process
+        takes the GPU of its ``LOCAL_RANK`` (``training.distributed``). The records are
+        simulated on the CPU either way, and every random stream stays there, so a run's
+        records and noise do not depend on the device.
     """
 
     dt: float | tuple[float, ...]
@@ -105,6 +112,7 @@ class TrainConfig:
     checkpoint: str | None = None
     progress: bool = True
     threads: int | None = None
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         grids(self.steps, self.dt)
@@ -139,7 +147,8 @@ class TrainConfig:
                  lambda v: v > 0)
 
     def _check_optimiser(self) -> None:
-        """``lr``, ``clip``, ``supervised``, ``gamma``, ``seed``, the switches, ``checkpoint``."""
+        """``lr``, ``clip``, ``supervised``, ``gamma``, ``seed``, the switches, ``device``,
+        ``checkpoint``."""
         real("lr", self.lr, "positive and finite", lambda v: v > 0)
         # clip = inf is "no clipping" (notebook 03 measures gradient norms without it)
         if not (isinstance(self.clip, (int, float)) and not isinstance(self.clip, bool)
@@ -153,6 +162,7 @@ class TrainConfig:
         for name in ("fresh", "progress"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False; got {getattr(self, name)!r}")
+        resolve_device(self.device)     # a bad name, or "cuda" where there is none
         if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
             raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
                              f"got {self.checkpoint!r}")

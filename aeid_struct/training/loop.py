@@ -7,6 +7,11 @@ evaluation that picks the weights, and the finish (best weights, history, traini
 Choices the paper leaves open: 80/20 split (paper Sec. IV); Adam with a short warm-up and a
 cosine decay over an epoch or wall-time budget; gradient-norm clipping, and batches whose loss
 or gradient is not finite are skipped and counted; float32.
+
+Launched by ``torchrun``, the same loop runs data-parallel (``training.distributed``): every
+process draws the same global batches and noise, computes the loss on its share of each batch
+through ``DistributedDataParallel``, and sums the held-out loss with the others; rank 0 alone
+writes. Not launched by ``torchrun``, nothing of that runs.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import torch
 from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.identification import Identifier
 from aeid_struct.structures import Structure
-from aeid_struct.training import checkpoints
+from aeid_struct.training import checkpoints, distributed
 from aeid_struct.training.calibration import training_range
 from aeid_struct.training.config import TrainConfig, config_dict
 from aeid_struct.training.objective import add_noise, batch_loss
@@ -55,6 +60,8 @@ class _Run:
     ckpt: Path | None
     fingerprint: str
     label: str
+    ctx: distributed.Context    # the process's place in a data-parallel run (or one process)
+    model: torch.nn.Module      # the encoder, in DistributedDataParallel when distributed
 
 
 def train(structure: Structure, family, config: TrainConfig, *,
@@ -99,6 +106,17 @@ def train(structure: Structure, family, config: TrainConfig, *,
         A wrong argument, or ``config.checkpoint`` names a file that cannot be resumed
         (unreadable, truncated, not a checkpoint, or written for another structure, family
         settings or encoder); the message names the path and how to start over.
+    RuntimeError
+        Under ``torchrun``: another process failed (a collective failed); the message names
+        this process and how to resume from the checkpoint.
+
+    Notes
+    -----
+    Launched by ``torchrun`` (one node or several), the run is data-parallel: ``config.batch``
+    is the global batch, split over the processes; the result depends on the global batch and
+    the seed, not on the number of processes (up to float32 summation order), and
+    ``ident.meta["train"]`` records ``world_size``, ``backend`` and ``device``. Every process
+    returns the identifier; rank 0 alone writes the checkpoint and prints progress.
 
     Warns
     -----
@@ -108,12 +126,16 @@ def train(structure: Structure, family, config: TrainConfig, *,
         ``ident.meta["train"]["warnings"]``).
     """
     _check_arguments(structure, family, config)
-    if config.threads is None:
-        return _train(structure, family, config, encoder, inverse, meta, on_epoch)
+    ctx = distributed.setup(config.device)
     threads = torch.get_num_threads()
-    torch.set_num_threads(config.threads)
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
     try:
-        return _train(structure, family, config, encoder, inverse, meta, on_epoch)
+        return _train(structure, family, config, encoder, inverse, meta, on_epoch, ctx)
+    except Exception as err:
+        if ctx.distributed and distributed.collective_error(err):
+            raise distributed.failure(err, ctx, config.checkpoint) from err
+        raise
     finally:
         torch.set_num_threads(threads)     # the setting is the run's, not the process's
 
@@ -141,39 +163,52 @@ def _check_arguments(structure, family, config) -> None:
             f"{getattr(family, 'records', 1)}: they must agree")
 
 
+def _check_shares(config: TrainConfig, world_size: int) -> None:
+    """Every process gets at least one record of every global batch (DDP needs each process's
+    backward), the last, shorter batch of an epoch included."""
+    n_train = config.count - int(config.count * config.holdout)
+    sizes = {min(config.batch, n_train), n_train % config.batch or config.batch}
+    if min(sizes) < world_size:
+        raise ValueError(
+            f"batch={config.batch} with {n_train} training records gives a batch of "
+            f"{min(sizes)} record(s), fewer than the {world_size} processes: every process needs "
+            f"a share of every batch; choose batch and count so that each batch has >= "
+            f"{world_size} records")
+
+
 def _train(structure: Structure, family, config: TrainConfig, encoder, inverse, meta,
-           on_epoch) -> Identifier:
+           on_epoch, ctx: distributed.Context) -> Identifier:
     """``train()`` after its checks, on the run's torch threads: the stages in order."""
+    _check_shares(config, ctx.world_size)
     torch.manual_seed(config.seed)
     data = record_tensors(structure, family, config)
-    run = _model(structure, family, config, data, encoder, inverse, meta)
+    run = _model(structure, family, config, data, encoder, inverse, meta, ctx)
     tty = sys.stderr.isatty()
     start = time.perf_counter() - run.state["elapsed"]
     run.ident.encoder.train()
     while run.state["epoch"] < config.epochs:
-        if (config.seconds is not None and time.perf_counter() - start >= config.seconds
+        if (config.seconds is not None and ctx.clock(start) >= config.seconds
                 and run.state["epoch"] >= config.min_epochs):
             break
         train_loss, lr, norms, skipped = _epoch(run, start)
-        _record(run, train_loss, _holdout_loss(run), lr, norms, skipped,
-                time.perf_counter() - start)
+        _record(run, train_loss, _holdout_loss(run), lr, norms, skipped, ctx.clock(start))
         hist = run.state["history"]
-        if config.progress:
+        if config.progress and ctx.writer:
             sys.stderr.write(("\r" if tty else "") + progress_line(
                 run.state["epoch"], config, hist["train_loss"][-1], hist["holdout_loss"][-1],
                 lr, run.state["elapsed"], run.label) + ("\033[K" if tty else "\n"))
             sys.stderr.flush()
         if on_epoch is not None:
             on_epoch(run.state["epoch"], hist)
-    if config.progress and tty:
+    if config.progress and tty and ctx.writer:
         sys.stderr.write("\n")
     return _finish(run)
 
 
 def _model(structure: Structure, family, config: TrainConfig, data: RecordTensors, encoder,
-           inverse, meta) -> _Run:
-    """Stage 2: the encoder and identifier, Adam, the run's random streams and state, resumed
-    from the checkpoint when there is one."""
+           inverse, meta, ctx: distributed.Context) -> _Run:
+    """Stage 2: the encoder and identifier (on the run's device), Adam, the run's random streams
+    and state, resumed from the checkpoint when there is one (every process reads it)."""
     R = structure.records
     base = encoder or EncoderConfig(steps=config.steps, outputs=structure.p)
     enc_config = dataclasses.replace(
@@ -191,6 +226,7 @@ def _model(structure: Structure, family, config: TrainConfig, data: RecordTensor
         feature_scale=np.where(log_spread > 0, log_spread, 1.0),
         inverse=inverse, meta=meta,
     )
+    ident.encoder.to(ctx.device)             # in place: the parameters stay the same objects
     opt = torch.optim.Adam(list(ident.encoder.parameters()), lr=config.lr)
     # Every random stream of the run, all checkpointed: the shuffling and training noise, the
     # held-out noise (fresh each epoch), and torch's global generator (nothing draws from it
@@ -202,72 +238,100 @@ def _model(structure: Structure, family, config: TrainConfig, data: RecordTensor
     ckpt = Path(config.checkpoint) if config.checkpoint else None
     fingerprint = checkpoints.fingerprint(structure, config, enc_config)
     if ckpt is not None:
-        checkpoints.remove_leftover(ckpt)
+        if ctx.writer:
+            checkpoints.remove_leftover(ckpt)
+        ctx.barrier()                        # no process reads while rank 0 tidies up
         if ckpt.exists():
             state = checkpoints.resume(ckpt, fingerprint, ident, opt, generators)
     return _Run(structure=structure, family=family, config=config, data=data, ident=ident,
                 enc_config=enc_config, opt=opt, generators=generators, state=state, ckpt=ckpt,
-                fingerprint=fingerprint, label=str((meta or {}).get("name", "")))
+                fingerprint=fingerprint, label=str((meta or {}).get("name", "")), ctx=ctx,
+                model=ctx.wrap(ident.encoder))
 
 
 def _epoch(run: _Run, start: float) -> tuple[float, float, list[float], int]:
     """Stage 3: one epoch of gradient steps (fresh records first when asked).
 
     Returns the mean training loss, the last learning rate, the gradient norms before clipping
-    and the number of skipped (non-finite) batches.
+    and the number of skipped (non-finite) batches. Data-parallel, every process draws the
+    epoch's permutation and each batch's noise whole (its streams stay in step with the
+    others') and trains on its share; its loss is weighted by ``n_rank W / n`` so that the
+    gradients DDP averages are those of the global batch's mean.
     """
-    config, data, epoch = run.config, run.data, run.state["epoch"]
-    if config.fresh and epoch > 0:
-        refresh(data, run.structure, run.family, config, epoch)
+    config, data, epoch, ctx = run.config, run.data, run.state["epoch"], run.ctx
     generator = run.generators["generator"]
     train_t = torch.as_tensor(data.train)
     steps_per_epoch = math.ceil(len(train_t) / config.batch)
+    if config.fresh and epoch > 0 and not ctx.distributed:
+        refresh(data, run.structure, run.family, config, epoch)
     perm = train_t[torch.randperm(len(train_t), generator=generator)]
+    if config.fresh and epoch > 0 and ctx.distributed:      # the rows this process trains on
+        refresh(data, run.structure, run.family, config, epoch, np.concatenate(
+            [part[ctx.share(len(part))].numpy() for part in perm.split(config.batch)]))
     params = [p for group in run.opt.param_groups for p in group["params"]]
     lo, hi = config.noise_range
     running, skipped, norms, lr = 0.0, 0, [], config.lr
-    for j in range(steps_per_epoch):
-        progress = _progress(config, epoch + j / steps_per_epoch, start)
-        lr = learning_rate(config.lr, min(progress, 1.0))
-        for group in run.opt.param_groups:
-            group["lr"] = lr
-        idx = perm[j * config.batch: (j + 1) * config.batch]
-        y_, u_, yinf_, z_ = data.batch(idx, [add_noise(y[idx], data.scale[idx, r], lo, hi,
-                                                       generator)
-                                             for r, y in enumerate(data.y)])
-        loss = batch_loss(run.ident, y_, u_, yinf_, config.stationary_weight, z_,
-                          config.supervised * max(0.0, 1.0 - progress))
-        run.opt.zero_grad(set_to_none=True)
-        value = float(loss.detach())
-        if not math.isfinite(value):
-            skipped += 1
-            continue
-        loss.backward()
-        norm = float(torch.nn.utils.clip_grad_norm_(params, config.clip))
-        if not math.isfinite(norm):
-            skipped += 1
-            continue
-        norms.append(norm)
-        run.opt.step()
-        running += value
+    encoder, run.ident.encoder = run.ident.encoder, run.model     # DDP's forward, when wrapped
+    try:
+        for j in range(steps_per_epoch):
+            progress = _progress(config, epoch + j / steps_per_epoch, start, ctx)
+            lr = learning_rate(config.lr, min(progress, 1.0))
+            for group in run.opt.param_groups:
+                group["lr"] = lr
+            idx = perm[j * config.batch: (j + 1) * config.batch]
+            mine = ctx.share(len(idx))
+            ys = [add_noise(y[idx], data.scale[idx, r], lo, hi, generator)[mine]
+                  for r, y in enumerate(data.y)]
+            y_, u_, yinf_, z_ = _on(ctx.device, data.batch(idx[mine], ys))
+            loss = batch_loss(run.ident, y_, u_, yinf_, config.stationary_weight, z_,
+                              config.supervised * max(0.0, 1.0 - progress))
+            run.opt.zero_grad(set_to_none=True)
+            value = float(loss.detach())
+            if ctx.distributed:                  # the global batch's mean, on every process
+                share = mine.stop - mine.start
+                value = ctx.sum([value * share])[0] / len(idx)
+                loss = loss * (share * ctx.world_size / len(idx))
+            if not math.isfinite(value):
+                skipped += 1
+                continue
+            loss.backward()
+            norm = float(torch.nn.utils.clip_grad_norm_(params, config.clip))
+            if not math.isfinite(norm):
+                skipped += 1
+                continue
+            norms.append(norm)
+            run.opt.step()
+            running += value
+    finally:
+        run.ident.encoder = encoder
     return running / max(steps_per_epoch - skipped, 1), lr, norms, skipped
 
 
-def _progress(config: TrainConfig, done: float, start: float) -> float:
+def _on(device: torch.device, tensors):
+    """``tensors`` (tensors, lists of them, None) on ``device`` (themselves on the CPU)."""
+    if isinstance(tensors, (list, tuple)):
+        return type(tensors)(_on(device, t) for t in tensors)
+    return None if tensors is None else tensors.to(device)
+
+
+def _progress(config: TrainConfig, done: float, start: float,
+              ctx: distributed.Context) -> float:
     """The fraction of the budget spent after ``done`` epochs: of the epochs, or of the wall
-    time -- but a run the floor keeps going is only as far as its epochs towards
-    ``min_epochs``, so the schedule stretches to the floor instead of idling at its end."""
+    time (rank 0's clock) -- but a run the floor keeps going is only as far as its epochs
+    towards ``min_epochs``, so the schedule stretches to the floor instead of idling at its
+    end."""
     progress = done / config.epochs
     if config.seconds is not None:
-        progress = max(progress, min((time.perf_counter() - start) / config.seconds,
+        progress = max(progress, min(ctx.clock(start) / config.seconds,
                                      done / config.min_epochs))
     return progress
 
 
 def _holdout_loss(run: _Run) -> float:
     """Stage 4: Eq. 14 on the held-out records, with fresh noise at the middle of the training
-    range each epoch (the held-out generator's draws)."""
-    data, ident = run.data, run.ident
+    range each epoch (the held-out generator's draws); data-parallel, each process evaluates
+    its share of every chunk and the sums are added up across the processes."""
+    data, ident, ctx = run.data, run.ident, run.ctx
     lo, hi = run.config.noise_range
     held_t = torch.as_tensor(data.held)
     ident.encoder.eval()
@@ -281,11 +345,14 @@ def _holdout_loss(run: _Run) -> float:
                 ys = [y + (level * data.scale[idx, r])[:, None] * torch.randn(
                     y.shape, generator=run.generators["held_generator"])
                     for r, y in enumerate(ys)]
-            y_, u_, yinf_, _ = data.batch(idx, ys)
+            mine = ctx.share(len(idx))
+            if mine.stop == mine.start:
+                continue
+            y_, u_, yinf_, _ = _on(ctx.device, data.batch(idx[mine], [y[mine] for y in ys]))
             total += float(batch_loss(ident, y_, u_, yinf_, run.config.stationary_weight)) \
-                * len(idx)
+                * (mine.stop - mine.start)
     ident.encoder.train()
-    return total / len(held_t)
+    return ctx.sum([total])[0] / len(held_t)
 
 
 def _record(run: _Run, train_loss: float, held: float, lr: float, norms: list[float],
@@ -302,12 +369,16 @@ def _record(run: _Run, train_loss: float, held: float, lr: float, norms: list[fl
     hist["skipped"].append(skipped)
     if held < state["best"] and math.isfinite(held):
         state["best"] = held
-        state["best_state"] = {k: v.detach().clone()
+        # on the CPU whatever the device, so that a checkpoint resumes on any device
+        state["best_state"] = {k: v.detach().to("cpu", copy=True)
                                for k, v in run.ident.encoder.state_dict().items()}
     state["epoch"] += 1
     state["elapsed"] = elapsed
     if run.ckpt is not None:
-        checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators, state)
+        if run.ctx.writer:
+            checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators,
+                             state)
+        run.ctx.barrier()                    # on_epoch may rely on the checkpoint being there
 
 
 def _finish(run: _Run) -> Identifier:
@@ -315,8 +386,9 @@ def _finish(run: _Run) -> Identifier:
     and (one record) the training range."""
     config, state, ident = run.config, run.state, run.ident
     notes = undertrained(config, state["history"], state["best"])
-    for note in notes:
+    for note in notes if run.ctx.writer else ():
         warnings.warn(f"{run.label or 'training'}: {note}", UndertrainedWarning, stacklevel=4)
+    ident.encoder.to("cpu")                  # identification runs on the CPU
     if state["best_state"] is not None:
         ident.encoder.load_state_dict(state["best_state"])
     ident.encoder.eval()
@@ -325,6 +397,8 @@ def _finish(run: _Run) -> Identifier:
         "epochs": state["epoch"], "seconds": round(state["elapsed"], 2),
         "best_holdout_loss": state["best"], "config": config_dict(config),
         "encoder": run.enc_config.to_dict(), "warnings": notes,
+        "world_size": run.ctx.world_size, "backend": run.ctx.backend,
+        "device": str(run.ctx.device),
     }
     if run.structure.records == 1:
         ident.meta["training_range"] = training_range(ident, run.data.rec, run.data.held,

@@ -13,6 +13,7 @@ from aeid_struct.simulation import stationary_value
 from aeid_struct.structures import Physical, Structure
 from aeid_struct.training.config import TrainConfig
 from aeid_struct.training.datasets import Records, holdout_split, records
+from aeid_struct.training.distributed import row_records
 from aeid_struct.training.objective import output_free, raw_statistics, theta
 
 
@@ -139,7 +140,7 @@ def record_tensors(structure: Structure, family, config: TrainConfig) -> RecordT
 
 
 def refresh(data: RecordTensors, structure: Structure, family, config: TrainConfig,
-            epoch: int) -> None:
+            epoch: int, rows: np.ndarray | None = None) -> None:
     """New training records for ``epoch`` (``TrainConfig.fresh``) in ``data``'s training rows,
     and their targets; the held-out rows stay.
 
@@ -152,20 +153,29 @@ def refresh(data: RecordTensors, structure: Structure, family, config: TrainConf
     config : TrainConfig
     epoch : int
         Seeds the draw (``seed + 7919 epoch``), so that a resumed run draws the same records.
+    rows : int array, optional
+        Only these training rows, each from a stream of its own (``distributed.row_records``):
+        a process of a data-parallel run draws the rows it trains on. None: every training row,
+        from one stream, as one process draws them.
     """
-    new = redraw(family, config, epoch, data.train, data.u, data.y, data.yinf, data.scale)
+    if rows is None:
+        rows = data.train
+        new = redraw(family, config, epoch, rows, data.u, data.y, data.yinf, data.scale)
+    else:
+        new = redraw(family, config, epoch, rows, data.u, data.y, data.yinf, data.scale,
+                     rec=row_records(family, config, epoch, rows))
     if data.z is not None:
-        rows = torch.as_tensor(data.train)
+        index = torch.as_tensor(rows)
         new_u = new.u if structure.records > 1 else (new.u,)
         u_new = np.stack([np.max(np.abs(u), axis=1) for u in new_u], 1)
-        data.z[rows] = data.targets(structure, new.systems,
-                                    data.scale[rows].double().numpy() / u_new)
+        data.z[index] = data.targets(structure, new.systems,
+                                     data.scale[index].double().numpy() / u_new)
 
 
 def redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_all,
-           yinf_all, scale_all) -> Records:
+           yinf_all, scale_all, rec: Records | None = None) -> Records:
     """Replace the rows ``rows`` of the record tensors in place by records drawn with a seed
-    of their own (``seed + 7919 epoch``).
+    of their own (``seed + 7919 epoch``), or by ``rec``.
 
     Parameters
     ----------
@@ -177,15 +187,18 @@ def redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_a
         Inputs and clean outputs.
     yinf_all, scale_all : (count, R) tensors
         Stationary values (Eq. 4) and ``max|y|``.
+    rec : Records, optional
+        The ``M`` new records, drawn already (None: drawn here).
 
     Returns
     -------
     Records
         The new records (``M`` of them).
     """
-    rec = records(family, len(rows), steps=config.steps, dt=config.dt,
-                  excitation_kind=config.excitation, seed=config.seed + 7919 * epoch,
-                  warmup=config.warmup)
+    if rec is None:
+        rec = records(family, len(rows), steps=config.steps, dt=config.dt,
+                      excitation_kind=config.excitation, seed=config.seed + 7919 * epoch,
+                      warmup=config.warmup)
     multi = isinstance(rec.u, tuple)
     ys, us = (rec.y_clean, rec.u) if multi else ((rec.y_clean,), (rec.u,))
     index = torch.as_tensor(rows)

@@ -1,0 +1,146 @@
+r"""MATLAB's ``compare``: a model's NRMSE fit on a record with the initial state (and the output
+offset) fitted, and the figure of measured vs simulated output.
+
+For a model ``(A, b, c, d)`` and a record with input delay ``D`` (docs/architecture.md, "Any
+system, any record"), ``x_0`` (the state at sample ``D``) and ``y_offset`` minimise
+``||y[D:] - yhat||`` (:func:`~aeid_struct.simulation.fit_initial`, exact FOH, Eq. 10-13), and
+
+    fit = 100 (1 - ||y[D:] - yhat|| / ||y[D:] - mean(y[D:])||)   [%].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeid_struct.generic.one_call import measured
+from aeid_struct.simulation import fit_initial
+
+__all__ = ["Comparison", "compare"]
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A model's output on a record next to the measured one (:func:`compare`).
+
+    Attributes
+    ----------
+    fit : float
+        NRMSE fit in % on the fitted samples (NaN for a constant record).
+    y_hat : (steps,) array
+        The model's output (NaN on the first ``delay`` samples).
+    x0 : (n,) array
+        The fitted state at sample ``delay``.
+    y_offset : float
+        The fitted output offset.
+    y : (steps,) array
+        The measured output.
+    t : (steps,) array
+        Sample times ``t0 + k dt``.
+    delay : int
+        Input delay in samples.
+    """
+
+    fit: float
+    y_hat: np.ndarray
+    x0: np.ndarray
+    y_offset: float
+    y: np.ndarray
+    t: np.ndarray
+    delay: int
+
+    def figure(self, path=None, *, y_label: str = "y", time_unit: str = "s",
+               title: str | None = None):
+        """Measured and simulated output over time, the fit in the legend.
+
+        Parameters
+        ----------
+        path : str or path-like, optional
+            Where to save the figure as PNG.
+        y_label : str
+            The output's name and unit, e.g. ``"temperature [K]"``.
+        time_unit : str
+            The unit of ``t`` (the record's ``dt``).
+        title : str, optional
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+        """
+        from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only for figures)
+
+        fig = Figure(figsize=(7.0, 3.2), layout="constrained")
+        ax = fig.subplots()
+        ax.plot(self.t, self.y, color="0.6", lw=1.0, label="measured")
+        ax.plot(self.t, self.y_hat, color="C0", lw=1.2, label=f"model (fit {self.fit:.2f} %)")
+        ax.set_xlabel(f"time [{time_unit}]")
+        ax.set_ylabel(y_label)
+        ax.legend(loc="best")
+        if title:
+            ax.set_title(title)
+        if path is not None:
+            fig.savefig(path, format="png", dpi=120)
+        return fig
+
+
+def _model(model):
+    """``A, b, c, d`` and the delay (or None) of an Estimate, a python-control StateSpace or a
+    tuple ``(A, b, c, d)``."""
+    if isinstance(model, (tuple, list)) and len(model) == 4:
+        A, b, c, d = model
+        delay = None
+    elif all(hasattr(model, k) for k in ("A", "B", "C", "D")):       # control.StateSpace
+        A, b, c, d = model.A, model.B, model.C, model.D
+        delay = None
+    elif all(hasattr(model, k) for k in ("A", "b", "c", "d")):        # Estimate
+        A, b, c, d = model.A, model.b, model.c, model.d
+        delay = getattr(model, "delay", None)
+    else:
+        raise ValueError(f"estimate_or_model must be an Estimate, a control.StateSpace or a "
+                         f"tuple (A, b, c, d); got {type(model).__name__}")
+    A = np.asarray(A, dtype=np.float64)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] < 1:
+        raise ValueError(f"A must be a square (n, n) matrix of one model; got shape {A.shape}")
+    n = A.shape[0]
+    b, c = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (b, c))
+    d = np.asarray(d, dtype=np.float64).reshape(-1)
+    if b.shape != (n,) or c.shape != (n,) or d.shape != (1,):
+        raise ValueError(f"b, c must have n = {n} entries and d one (a SISO model); got "
+                         f"{b.shape[0]}, {c.shape[0]} and {d.shape[0]}")
+    if not all(np.isfinite(v).all() for v in (A, b, c, d)):
+        raise ValueError("the model (A, b, c, d) must be finite")
+    return A, b, c, float(d[0]), delay
+
+
+def compare(estimate_or_model, record, *, delay=None) -> Comparison:
+    """NRMSE fit of a model on a record with ``x_0`` and the output offset fitted.
+
+    Parameters
+    ----------
+    estimate_or_model : Estimate, control.StateSpace or (A, b, c, d)
+        A continuous-time SISO model in the record's time unit.
+    record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
+        As for :func:`~aeid_struct.generic.one_call.measured`.
+    delay : int, optional
+        Input delay in samples; default: the estimate's, else the record's, else 0.
+
+    Returns
+    -------
+    Comparison
+
+    Raises
+    ------
+    ValueError
+        For a bad model, record or delay.
+    """
+    A, b, c, d, model_delay = _model(estimate_or_model)
+    data = measured(record, delay)
+    D = data.delay if delay is not None or model_delay is None else model_delay
+    D = 0 if D is None else int(D)
+    if not 0 <= D <= data.steps - 2:
+        raise ValueError(f"delay must be in [0, {data.steps - 2}] for this record; got {D}")
+    p = fit_initial(A, b, c, d, data.y, data.u, data.dt, delay=D, offset=True)
+    t = data.t0 + data.dt * np.arange(data.steps)
+    return Comparison(fit=float(p.fit), y_hat=p.y_hat, x0=p.x0, y_offset=p.y_offset,
+                      y=data.y, t=t, delay=D)

@@ -1,0 +1,97 @@
+r"""The input delay of a record, in samples: a classical ARX scan, then a re-scan by projection.
+
+*ARX scan* (:func:`arx_delay`, like MATLAB's ``delayest``): for each ``D = 0 .. max_delay`` the
+ARX model of order ``n`` with ``n + 1`` input terms (the FOH discretisation of a strictly proper
+``n``-th order system has ``n + 1`` numerator terms, Eq. 10-12) and a constant,
+
+    y_k = -a_1 y_{k-1} - ... - a_n y_{k-n} + b_0 u_{k-D} + ... + b_n u_{k-D-n} + e,
+
+is fitted by least squares on the same samples ``k >= max_delay + n`` for every ``D``; the
+delay with the least residual sum of squares is the estimate. A delay one sample too short
+misses the term ``u_{k-D-n}``, one too long the term ``u_{k-D}``, so the true ``D`` has the
+least residual on noise-free data. All ``D`` share one Gram matrix of the lagged signals; each
+``D`` is a small sub-block solve.
+
+*Re-scan* (:func:`rescan`): equation error is biased by noise, so ``D`` is re-scanned over
+``D_arx - width .. D_arx + width`` by the model of a record (output error with ``c, d, x_0``
+and the offset projected, :func:`~aeid_struct.generic.windows.select`): the rule is the least
+mean squared residual per FITTED sample (a longer delay fits ``steps - D`` samples, so the
+mean, not the sum, compares them); ties go to the smaller delay. ``identify`` does this jointly
+with the choice of the candidate denominator (every candidate at every delay of the range, one
+batched evaluation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aeid_struct.generic.windows import select
+
+__all__ = ["arx_delay", "rescan"]
+
+
+def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
+    """The input delay with the least ARX equation error (see the module docstring).
+
+    Parameters
+    ----------
+    y, u : (steps,) arrays
+        ``steps > max_delay + 3 order + 2`` (enough rows for every regression).
+    order : int, >= 1
+    max_delay : int, >= 0
+
+    Returns
+    -------
+    int
+        In ``[0, max_delay]``.
+    """
+    if max_delay == 0:
+        return 0
+    n, N = order, y.shape[0]
+    k0 = max_delay + n
+    rows = np.arange(k0, N)
+    cols = [y[rows - i] for i in range(1, n + 1)]                 # y lags 1..n
+    cols += [u[rows - j] for j in range(max_delay + n + 1)]       # u lags 0..max_delay + n
+    cols.append(np.ones(rows.shape[0]))
+    Z = np.stack(cols, axis=1)
+    scale = np.abs(Z).max(axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    Z = Z / scale
+    target = y[rows]
+    G, g = Z.T @ Z, Z.T @ target
+    idx = np.array([list(range(n)) + list(range(n + D, n + D + n + 1)) + [Z.shape[1] - 1]
+                    for D in range(max_delay + 1)])
+    Gs = G[idx[:, :, None], idx[:, None, :]]
+    Gs += 1e-12 * np.trace(Gs, axis1=1, axis2=2)[:, None, None] * np.eye(idx.shape[1])
+    z = np.linalg.solve(Gs, g[idx][..., None])[..., 0]
+    # residuals explicitly (not y^T y - g^T z, which cancels on a near-exact fit)
+    res = target[None, :] - np.einsum("ndp,dp->dn", Z[:, idx], z)
+    rss = np.sum(res ** 2, axis=1)
+    return int(np.argmin(rss))
+
+
+def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay: int, *,
+           width: int = 1, feedthrough: bool = True, offset: bool = True) -> tuple[int, float]:
+    """The delay in ``around - width .. around + width`` (within ``[0, max_delay]``) with the
+    least output error per fitted sample for the denominator ``den`` (normalised time).
+
+    Parameters
+    ----------
+    den : (n + 1,) array
+        Monic, highest power first.
+    y, u : (steps,) arrays
+    around : int
+        The ARX estimate.
+    max_delay : int
+    width : int, >= 0
+    feedthrough, offset : bool
+
+    Returns
+    -------
+    delay : int
+    cost : float
+        Its mean squared residual.
+    """
+    delays = range(max(0, around - width), min(max_delay, around + width) + 1)
+    chosen = select(den[None], y, u, delays, feedthrough=feedthrough, offset=offset)
+    return chosen.delay, float(chosen.costs[0, list(delays).index(chosen.delay)])

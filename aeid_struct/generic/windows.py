@@ -1,0 +1,437 @@
+r"""Candidate denominators from a record of any length, and the whole-record choice among them.
+
+A generic identifier reads windows of a fixed length ``window`` (samples) and sees poles in a
+band of ``|p| dt`` (rad/sample; docs/architecture.md, "Any system, any record"). A record of any
+length ``steps >= window`` is read at several time scales: block averaging by ``m = 1, 2, 4,
+...`` (while ``steps // m >= window``) turns a pole ``p`` per sample into ``m p`` per decimated
+sample, so a scale ``m`` window shows the network the band ``|p| dt`` in ``[lo / m, hi / m]``
+of the original record (slow systems in long records are seen). At each scale at most
+``most`` windows are cut evenly (overlapping when the record is short). All windows of all
+scales go through one batched ``identifier.denominators`` call, and each denominator found at
+scale ``m`` (poles in decimated time) is rescaled to the original sample time (poles ``/ m``):
+
+    a(s) = s^n + a_{n-1} s^{n-1} + ... + a_0   ->   a_k / m^{n-k}.
+
+*Aggregation.* Every candidate is evaluated on the WHOLE record by the model of a record
+(:func:`~aeid_struct.simulation.project`: ``c, d, x_0`` and the output offset projected for the
+candidate's poles) and the one with the least mean squared output error is kept. This is the
+criterion the estimate is judged by, it needs no matching of poles across windows (real vs
+complex pairs, ordering), and a window with poor excitation or out of the network's band yields
+a candidate that simply loses; averaging poles (a median) lets such windows pull the estimate.
+:func:`scores` evaluates all candidates at once: the same regressors as
+:func:`~aeid_struct.simulation.project` (CCF forced states, input, the first state's free
+response, ones), solved by column-scaled normal equations with one step of iterative refinement
+(the ranking needs the cost, not ``lstsq``'s last digits, and this is one batched product for
+all candidates).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from aeid_struct.simulation import Projection
+
+__all__ = ["MOST_WINDOWS", "Selection", "Windows", "candidates", "ccf", "cut", "decimate",
+           "rescale", "scales", "scores", "select", "solution"]
+
+#: At most this many windows per time scale.
+MOST_WINDOWS = 8
+
+
+def scales(steps: int, window: int) -> list[int]:
+    """Decimation factors ``1, 2, 4, ...`` that leave at least ``window`` samples.
+
+    Parameters
+    ----------
+    steps, window : int, steps >= window >= 1
+
+    Returns
+    -------
+    list of int
+    """
+    out, m = [], 1
+    while steps // m >= window:
+        out.append(m)
+        m *= 2
+    return out
+
+
+def decimate(x: np.ndarray, m: int) -> np.ndarray:
+    """Block averages of ``m`` samples (the tail that does not fill a block is dropped).
+
+    Parameters
+    ----------
+    x : (steps,) array
+    m : int, >= 1
+
+    Returns
+    -------
+    (steps // m,) array
+    """
+    if m == 1:
+        return x
+    L = x.shape[0] // m
+    return x[: L * m].reshape(L, m).mean(axis=1)
+
+
+def cut(length: int, window: int, most: int = MOST_WINDOWS) -> np.ndarray:
+    """First samples of ``K = min(most, ceil(length / window))`` windows spread evenly over
+    ``[0, length - window]`` (overlapping when ``K window > length``).
+
+    Parameters
+    ----------
+    length, window : int, length >= window
+    most : int, >= 1
+
+    Returns
+    -------
+    (K,) int array
+    """
+    K = min(most, math.ceil(length / window))
+    return np.unique(np.linspace(0, length - window, K).round().astype(int))
+
+
+class Windows:
+    """The windows of a record at every time scale, stacked for one identifier call.
+
+    Parameters
+    ----------
+    y, u : (steps,) arrays
+    window : int, <= steps
+    most : int
+        Windows per scale, at most.
+
+    Attributes
+    ----------
+    y, u : (K, window) arrays
+    scale : (K,) int array
+        The decimation factor of each window.
+    """
+
+    def __init__(self, y: np.ndarray, u: np.ndarray, window: int,
+                 most: int = MOST_WINDOWS) -> None:
+        ys, us, ms = [], [], []
+        for m in scales(y.shape[0], window):
+            yd, ud = decimate(y, m), decimate(u, m)
+            for s in cut(yd.shape[0], window, most):
+                ys.append(yd[s : s + window])
+                us.append(ud[s : s + window])
+                ms.append(m)
+        self.y, self.u = np.stack(ys), np.stack(us)
+        self.scale = np.asarray(ms)
+
+
+def rescale(dens: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Denominators found in decimated time (one sample = ``scale`` samples) in the original
+    sample time: poles divided by ``scale``, ``a_k -> a_k / scale^(n-k)``.
+
+    Parameters
+    ----------
+    dens : (K, n + 1) array
+        Monic, highest power first.
+    scale : (K,) array
+
+    Returns
+    -------
+    (K, n + 1) array
+    """
+    n = dens.shape[1] - 1
+    return dens / np.asarray(scale, float)[:, None] ** np.arange(n + 1)
+
+
+def candidates(identifier, y: np.ndarray, u: np.ndarray,
+               most: int = MOST_WINDOWS) -> np.ndarray:
+    """The identifier's denominators of all windows at all scales, in normalised time of the
+    record (one batched ``denominators`` call); unusable (non-finite) rows are dropped.
+
+    Parameters
+    ----------
+    identifier : object
+        ``config.window`` (samples) and ``denominators(Y (K, window), U) -> (K, n + 1)``.
+    y, u : (steps,) arrays, steps >= window
+    most : int
+
+    Returns
+    -------
+    (K', n + 1) array
+        Monic denominators, highest power first; possibly none.
+    """
+    w = Windows(y, u, int(identifier.config.window), most)
+    dens = np.asarray(identifier.denominators(w.y, w.u), dtype=np.float64)
+    dens = rescale(dens, w.scale)
+    return dens[np.isfinite(dens).all(axis=1)]
+
+
+def ccf(den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bottom-row controllable canonical form (Eq. 5) of monic denominators.
+
+    Parameters
+    ----------
+    den : (K, n + 1) or (n + 1,) array
+
+    Returns
+    -------
+    A : (K, n, n) or (n, n) array
+    b : (K, n) or (n,) array
+    """
+    den = np.asarray(den, dtype=np.float64)
+    one = den.ndim == 1
+    den = np.atleast_2d(den)
+    K, n = den.shape[0], den.shape[1] - 1
+    A = np.zeros((K, n, n))
+    A[:, np.arange(n - 1), np.arange(1, n)] = 1.0
+    A[:, n - 1, :] = -den[:, :0:-1]
+    b = np.zeros((K, n))
+    b[:, -1] = 1.0
+    return (A[0], b[0]) if one else (A, b)
+
+
+def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: bool):
+    """The regressors of :func:`~aeid_struct.simulation.project` for each candidate (dt = 1),
+    one per row: ``M (K, p, N)``, with ``Phi (K, n, n)`` and ``gamma2 (K, n)``."""
+    A, b = ccf(dens)
+    K, n = b.shape
+    N = uu.shape[0]
+    E = np.zeros((K, n + 2, n + 2))
+    E[:, :n, :n], E[:, :n, n], E[:, n, n + 1] = A, b, 1.0
+    X = scipy.linalg.expm(E)
+    Phi, gamma1, gamma2 = X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
+    Bd = gamma1 - gamma2 + np.einsum("kij,kj->ki", Phi, gamma2)
+    # discrete denominator from the poles (exp of the continuous ones), as np.poly would
+    z = np.exp(np.linalg.eigvals(A))
+    a = np.zeros((K, n + 1), dtype=complex)
+    a[:, 0] = 1.0
+    for j in range(n):
+        a[:, 1 : j + 2] = a[:, 1 : j + 2] - z[:, j : j + 1] * a[:, : j + 1]
+    a = a.real
+    markov = np.empty((K, n, n))
+    markov[:, 0] = Bd
+    for m in range(1, n):
+        markov[:, m] = np.einsum("kij,kj->ki", Phi, markov[:, m - 1])
+    num = np.zeros((K, n + 1, n))
+    for k in range(1, n + 1):
+        num[:, k] = sum(a[:, i, None] * markov[:, k - 1 - i] for i in range(k))
+    # one regressor per row of M (K, p, N): each column of the least-squares problem is
+    # contiguous, and nothing is concatenated (memory traffic dominates at these sizes)
+    M = np.empty((K, 2 * n + int(feedthrough) + int(offset), N))
+    # forced states X = W num + u gamma2^T (W: the filtered input and its n shifts)
+    W = np.zeros((K, n + 1, N))
+    for i in range(K):
+        W[i, 0] = scipy.signal.lfilter([1.0], a[i], uu)
+    for k in range(1, n + 1):
+        W[:, k, k:] = W[:, 0, : N - k]
+    M[:, :n] = num.transpose(0, 2, 1) @ W
+    M[:, :n] += gamma2[:, :, None] * uu
+    col = n
+    if feedthrough:
+        M[:, n] = uu
+        col += 1
+    # free response of the first state, (Phi^T)^k e_1, by doubling (one batched product a level)
+    F = M[:, col : col + n]
+    F[:, :, 0] = 0.0
+    F[:, 0, 0] = 1.0
+    P, k = Phi.transpose(0, 2, 1), 1
+    while k < N:
+        m = min(k, N - k)
+        F[:, :, k : k + m] = P @ F[:, :, :m]
+        k += m
+        if k < N:
+            P = P @ P
+    if offset:
+        M[:, -1] = 1.0
+    return M, Phi, gamma2
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The best (candidate, delay) pair of :func:`select`.
+
+    Attributes
+    ----------
+    index : int
+        The candidate's row.
+    delay : int
+    costs : (K, L) array
+        Mean squared residual per fitted sample of every candidate at every delay (``inf``
+        where the response is not finite).
+    projection : Projection
+        The winner's ``c, d, x_0, y_offset``, output and fit.
+    """
+
+    index: int
+    delay: int
+    costs: np.ndarray
+    projection: Projection
+
+
+def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
+           feedthrough: bool = True, offset: bool = True,
+           shortlist: int | None = None, around: int | None = None) -> Selection:
+    """Every candidate denominator at every delay, evaluated on the whole record with ``c, d,
+    x_0`` and the offset projected (normalised time, dt = 1), and the best pair by the mean
+    squared residual per fitted sample.
+
+    The regressors of :func:`~aeid_struct.simulation.project` are causal in the input, so those
+    of delay ``D`` are the first ``steps - D`` rows of those of the smallest delay: one set of
+    regressors per candidate serves every delay, and each (candidate, delay) is one small
+    normal-equation solve (column-scaled, one refinement step; the ranking needs the cost, not
+    ``lstsq``'s last digits).
+
+    Parameters
+    ----------
+    dens : (K, n + 1) array
+        Monic denominators, highest power first.
+    y, u : (steps,) arrays
+    delays : sequence of int
+        Each in ``[0, steps - 2]``.
+    feedthrough, offset : bool
+        As for :func:`~aeid_struct.simulation.project`.
+    shortlist : int, optional
+        Evaluate every candidate at the delay ``around`` only, and the ``shortlist`` best of
+        them at every delay (their other costs stay ``inf``); default: every pair.
+    around : int, optional
+        One of ``delays`` (default: the middle one).
+
+    Returns
+    -------
+    Selection
+
+    Raises
+    ------
+    ValueError
+        When no candidate has a finite response.
+    """
+    delays = sorted({int(D) for D in delays})
+    D0 = delays[0]
+    N = y.shape[0] - D0
+    with np.errstate(all="ignore"):
+        M, Phi, gamma2 = _regressors(dens, u[:N], feedthrough, offset)
+        good = np.flatnonzero(np.isfinite(M).all(axis=(1, 2)))
+    costs = np.full((dens.shape[0], len(delays)), np.inf)
+    if good.size == 0:
+        raise ValueError(f"no candidate denominator has a finite response on this record "
+                         f"({y.shape[0]} samples)")
+    M = M[good]
+    G_all = M @ M.transpose(0, 2, 1)
+    if shortlist is not None and len(delays) > 1 and good.size > shortlist:
+        # the candidates at one delay, then the best few at every delay
+        mid = len(delays) // 2 if around is None else delays.index(int(around))
+        first = _solve_delays(M, G_all, y, [delays[mid]], D0)[0][:, 0]
+        costs[good, mid] = first
+        top = np.argsort(first)[:shortlist]
+        good, M, G_all = good[top], M[top], G_all[top]
+    cost, Z, fitted, rows = _solve_delays(M, G_all, y, delays, D0)
+    costs[good] = cost
+    costs = np.where(np.isfinite(costs), costs, np.inf)
+    k, j = np.unravel_index(np.argmin(costs), costs.shape)
+    i = int(np.flatnonzero(good == k)[0])
+    return Selection(int(k), delays[j], costs, _projection(
+        Z[i, j], fitted[i, : rows[j], j], M[i], Phi[k], gamma2[k], y, u, delays[j],
+        feedthrough, offset))
+
+
+def _solve_delays(M: np.ndarray, G_all: np.ndarray, y: np.ndarray, delays: list, D0: int):
+    """Costs ``(K, L)``, solutions ``Z (K, L, p)``, outputs ``(K, N, L)`` and fitted rows
+    ``(L,)`` of regressors ``M (K, p, N)`` (of delay ``D0``) at each delay.
+
+    Column scaling from the Gram matrix's diagonal (slow and fast modes' columns differ by
+    orders of magnitude); a tiny ridge keeps a rank-deficient problem solvable (a step input:
+    its column equals the offset's). Every delay at once: its target ``y[D:]`` zero-padded to
+    ``N`` rows (the padded rows add nothing to the normal equations), its Gram matrix that of
+    the first ``N - (D - D0)`` rows."""
+    N = M.shape[2]
+    scale = np.sqrt(np.einsum("kii->ki", G_all))
+    scale = np.where(scale > 0, scale, 1.0)
+    outer = scale[:, :, None] * scale[:, None, :]
+    ridge = 1e-13 * M.shape[1] * np.eye(M.shape[1])
+    L = len(delays)
+    rows = N - (np.asarray(delays) - D0)
+    T = np.zeros((N, L))
+    for j, D in enumerate(delays):
+        T[: rows[j], j] = y[D:]
+    mask = np.arange(N)[:, None] < rows[None, :]                          # (N, L)
+    G = np.repeat(G_all[:, None], L, axis=1)                              # (K, L, p, p)
+    for j in range(L):
+        tail = M[:, :, rows[j]:]
+        if tail.shape[2]:
+            G[:, j] -= tail @ tail.transpose(0, 2, 1)
+    G = G / outer[:, None] + ridge
+    Mt = M.transpose(0, 2, 1)                                             # (K, N, p)
+    zs = np.linalg.solve(G, ((M @ T) / scale[:, :, None]).transpose(0, 2, 1)[..., None])
+    fitted = (Mt @ (zs[..., 0] / scale[:, None, :]).transpose(0, 2, 1)) * mask  # (K, N, L)
+    zs += np.linalg.solve(G, ((M @ (T - fitted)) / scale[:, :, None]).transpose(0, 2, 1)
+                          [..., None])
+    Z = zs[..., 0] / scale[:, None, :]                                    # (K, L, p)
+    fitted = (Mt @ Z.transpose(0, 2, 1)) * mask
+    return np.sum((T - fitted) ** 2, axis=1) / rows, Z, fitted, rows
+
+
+def _projection(z, fitted, M, Phi, gamma2, y, u, delay, feedthrough, offset) -> Projection:
+    """The :class:`~aeid_struct.simulation.Projection` of one solved candidate."""
+    n = Phi.shape[0]
+    c = z[:n]
+    f = n + int(feedthrough)
+    theta = z[f : f + n]
+    # delta from c^T Phi^k delta = F theta on the first rows, as project does
+    rows = min(fitted.shape[0], 4 * n)
+    O = np.empty((rows, n))
+    O[0] = c
+    for k in range(1, rows):
+        O[k] = O[k - 1] @ Phi
+    delta = np.linalg.lstsq(O, theta @ M[f : f + n, :rows], rcond=None)[0]
+    used = y[delay:]
+    y_hat = np.full(y.shape, np.nan)
+    y_hat[delay:] = fitted
+    res = used - fitted
+    fit = (100.0 * (1.0 - np.linalg.norm(res) / np.linalg.norm(used - used.mean()))
+           if np.ptp(used) > 0 else np.nan)
+    return Projection(c=c, d=float(z[n]) if feedthrough else 0.0, x0=delta + gamma2 * u[0],
+                      y_offset=float(z[-1]) if offset else 0.0, y_hat=y_hat, fit=fit,
+                      cost=float(np.mean(res ** 2)), delay=delay)
+
+
+def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
+           feedthrough: bool = True, offset: bool = True) -> np.ndarray:
+    """Mean squared output error on the whole record of each candidate denominator at one
+    delay (:func:`select`'s costs).
+
+    Parameters
+    ----------
+    dens : (K, n + 1) array
+    y, u : (steps,) arrays
+    delay : int, 0 <= delay < steps - 1
+    feedthrough, offset : bool
+
+    Returns
+    -------
+    (K,) array
+        ``inf`` where the candidate's response is not finite.
+    """
+    try:
+        return select(dens, y, u, [delay], feedthrough=feedthrough, offset=offset).costs[:, 0]
+    except ValueError:
+        return np.full(dens.shape[0], np.inf)
+
+
+def solution(den: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
+             feedthrough: bool = True, offset: bool = True) -> Projection:
+    """:func:`~aeid_struct.simulation.project` of the CCF of one denominator (dt = 1) by the
+    solver of :func:`select`: the same model, a cheaper solve.
+
+    Parameters
+    ----------
+    den : (n + 1,) array
+    y, u : (steps,) arrays
+    delay : int
+    feedthrough, offset : bool
+
+    Returns
+    -------
+    Projection
+    """
+    return select(den[None], y, u, [delay], feedthrough=feedthrough, offset=offset).projection

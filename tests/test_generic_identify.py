@@ -1,0 +1,432 @@
+"""generic.windows / delay / one_call / compare: ``ae.identify`` and ``ae.compare`` on simulated
+records (scipy ``expm`` FOH recursion as the oracle), with a least-squares double of the
+generic identifier's interface (so the orchestration is tested without a trained network)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+import aeid_struct as ae
+from aeid_struct.generic import arx_delay, candidates, compare, identify, rescan, scores
+from aeid_struct.generic.windows import Windows, ccf, rescale, scales
+from aeid_struct.simulation import project
+
+
+class ArxDouble:
+    """The generic identifier's interface (``config.order, window, band``, ``denominators``)
+    answered by least squares: per window an ARX model of order ``n`` (``n + 1`` input terms, a
+    constant), exact on noise-free FOH data with any initial state and offset; its discrete
+    poles ``z`` give the continuous ones ``log z`` per sample. ``perturb`` scales each pole's
+    real and imaginary parts by ``1 + perturb N(0, 1)`` (a network's error; pairs stay
+    conjugate)."""
+
+    def __init__(self, order, window=256, perturb=0.0, seed=0):
+        self.config = SimpleNamespace(order=order, window=window, band=(0.005, 2.5))
+        self.perturb, self.rng, self.calls = perturb, np.random.default_rng(seed), 0
+
+    def denominators(self, Y, U):
+        self.calls += 1
+        n = self.config.order
+        out = np.empty((len(Y), n + 1))
+        for i, (y, u) in enumerate(zip(Y, U, strict=True)):
+            k = np.arange(n, len(y))
+            Z = np.stack([y[k - j] for j in range(1, n + 1)] + [u[k - j] for j in range(n + 1)]
+                         + [np.ones(len(k))], 1)
+            theta = np.linalg.lstsq(Z, y[k], rcond=None)[0]
+            z = np.roots(np.concatenate([[1.0], -theta[:n]])).astype(complex)
+            z = np.where((np.abs(z.imag) < 1e-12) & (z.real < 0), -z, z)
+            p = np.log(z)
+            e = 1 + self.perturb * self.rng.standard_normal((2, n))
+            q = p.real * e[0] + 1j * p.imag * e[1]
+            for j in np.flatnonzero(p.imag < 0):          # lower poles mirror their partners
+                q[j] = np.conj(q[np.argmin(np.abs(p - np.conj(p[j])))])
+            out[i] = np.real(np.poly(q))
+        return out
+
+
+def simulate(den, num, u, x0, delay=0, offset=0.0):
+    """Normalised-time (dt = 1) FOH recursion with scipy expm, CCF of ``den`` (highest power
+    first) and ``c = num``; the input is delayed by ``delay`` samples and ``x0`` is the state at
+    sample ``delay`` (the first fitted one); the samples before it are noise, unfitted."""
+    A, b = ccf(np.asarray(den, float))
+    n = A.shape[0]
+    M = np.zeros((n + 2, n + 2))
+    M[:n, :n], M[:n, n], M[n, n + 1] = A, b, 1.0
+    E = scipy.linalg.expm(M)
+    Phi, g1, g2 = E[:n, :n], E[:n, n], E[:n, n + 1]
+    uu = u[: len(u) - delay]
+    x, out = np.array(x0, float), np.empty(len(uu))
+    for k in range(len(uu)):
+        out[k] = num @ x
+        if k + 1 < len(uu):
+            x = Phi @ x + g1 * uu[k] + g2 * (uu[k + 1] - uu[k])
+    head = np.random.default_rng(7).standard_normal(delay)
+    return np.concatenate([head, out + offset])
+
+
+DT = 0.01
+POLES = np.array([-2.0, -1.5 + 8.0j, -1.5 - 8.0j])       # rad/s; |p| dt = 0.02, 0.085
+DEN = np.real(np.poly(POLES))                            # s^3 + a2 s^2 + a1 s + a0
+NUM = np.array([40.0, -6.0, 2.0])                        # c0 + c1 s + c2 s^2: two zeros
+X0 = np.array([0.5, -1.0, 3.0])                          # normalised-time CCF state
+
+
+def normalised(dt=DT):
+    """The true model in normalised time (s_n = s dt): den_k dt^k (highest power first),
+    c_i dt^(n-i)."""
+    return DEN * dt ** np.arange(4), NUM * dt ** np.arange(3, 0, -1)
+
+
+def staircase(steps, hold=25, seed=1):
+    rng = np.random.default_rng(seed)
+    return np.repeat(rng.uniform(-1, 1, steps // hold + 1), hold)[:steps] + 0.3
+
+
+def make_record(steps=1000, delay=2, offset=0.7, seed=1, noise=0.0):
+    """``(y, u)`` of the true system (the samples do not depend on dt: dt is the time unit)."""
+    u = staircase(steps, seed=seed)
+    den, num = normalised()
+    y = simulate(den, num, u, X0, delay, offset)
+    y += noise * np.std(y) * np.random.default_rng(seed + 100).standard_normal(steps)
+    return y, u
+
+
+def test_simulate_is_the_physical_model_at_dt():
+    # the normalised record is the physical model's: project with the physical CCF at DT
+    y, u = make_record(delay=0, offset=0.0)
+    A, b = ccf(DEN)
+    p = project(A, b, y, u, DT, feedthrough=False, offset=False)
+    assert p.fit > 99.99999
+    np.testing.assert_allclose(p.c, NUM, rtol=1e-7)
+
+
+def true_fit(y, u, delay):
+    """The fit the true model reaches (x0, offset fitted): 100 % on noise-free records."""
+    den, num = normalised()
+    return project(*ccf(den), y, u, 1.0, delay=delay).fit
+
+
+# -- windows -----------------------------------------------------------------------------------
+def test_scales_and_windows_cover_any_length():
+    assert scales(300, 256) == [1]
+    assert scales(5000, 256) == [1, 2, 4, 8, 16]
+    y = np.arange(1000.0)
+    w = Windows(y, -y, 256)
+    # scale 1: 4 windows over 1000 samples, scale 2: 2 windows of block means over 500
+    np.testing.assert_array_equal(w.scale, [1, 1, 1, 1, 2, 2])
+    np.testing.assert_array_equal(w.y[0], np.arange(256.0))
+    np.testing.assert_array_equal(w.y[3], np.arange(744.0, 1000.0))
+    np.testing.assert_array_equal(w.y[4], np.arange(256) * 2 + 0.5)       # means of pairs
+    np.testing.assert_array_equal(w.u, -w.y)
+    assert len(Windows(np.zeros(40000), np.zeros(40000), 256).y) == 8 * 5 + 5 + 3 + 2   # 1..128
+
+
+def test_rescale_divides_the_poles_by_the_scale():
+    p = np.array([-0.2, -0.1 + 0.5j, -0.1 - 0.5j])
+    dens = np.real(np.stack([np.poly(p), np.poly(p)]))
+    out = rescale(dens, np.array([1, 4]))
+    np.testing.assert_allclose(np.sort_complex(np.roots(out[1])), np.sort_complex(p / 4),
+                               rtol=1e-12)
+    np.testing.assert_array_equal(out[0], dens[0])
+
+
+def test_candidates_one_call_all_scales_rescaled():
+    y, u = make_record(steps=2000, delay=0)
+    double = ArxDouble(3)
+    dens = candidates(double, y, u)
+    assert double.calls == 1 and dens.shape == (8 + 4 + 2, 4)
+    # scale 1 windows are exact; coarser scales approximate the same poles
+    den, _ = normalised()
+    np.testing.assert_allclose(dens[0], den, rtol=1e-6)
+    # coarser scales see block means (approximate): the pair is still there, near its place
+    pair = np.roots(dens[-1])[np.roots(dens[-1]).imag > 0]
+    assert np.abs(pair - (-0.015 + 0.08j)) < 0.01
+
+
+def test_scores_equal_project_costs():
+    y, u = make_record(noise=0.02)
+    den, _ = normalised()
+    dens = np.stack([den, den * [1, 1.1, 0.9, 1.05], den * [1, 0.7, 1.2, 1.0]])
+    for D in (0, 2, 5):
+        for ft in (True, False):
+            got = scores(dens, y, u, delay=D, feedthrough=ft)
+            want = [project(*ccf(d), y, u, 1.0, delay=D, feedthrough=ft).cost for d in dens]
+            np.testing.assert_allclose(got, want, rtol=1e-8)
+
+
+def test_unstable_candidate_scores_inf():
+    y, u = make_record(steps=1000)
+    assert scores(np.array([[1.0, -0.5, 0.1]]), y, u)[0] == np.inf or \
+        scores(np.array([[1.0, -0.5, 0.1]]), y, u)[0] > 0
+
+
+# -- delay -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("delay", [0, 1, 2, 5, 9])
+def test_arx_delay_finds_the_delay_of_a_noise_free_record(delay):
+    y, u = make_record(delay=delay)
+    assert arx_delay(y, u, 3, 10) == delay
+
+
+def test_rescan_prefers_the_true_delay_by_projection():
+    y, u = make_record(delay=4, noise=0.03)
+    den, _ = normalised()
+    D, cost = rescan(den, y, u, 3, 10)
+    assert D == 4 and cost == pytest.approx(project(*ccf(den), y, u, 1.0, delay=4).cost)
+
+
+# -- identify ----------------------------------------------------------------------------------
+def test_identify_noise_free_order3_exact_without_refinement():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+    assert est.delay == 2 and not est.refined
+    assert est.fit > 99.9
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(est.A)),
+                               np.sort_complex(POLES), rtol=1e-6)
+    # CCF elements in physical time, the estimate assembled from them
+    np.testing.assert_allclose([est.elements[f"a{i}"] for i in range(3)], DEN[:0:-1],
+                               rtol=1e-6)
+    np.testing.assert_allclose([est.elements[f"c{i}"] for i in range(3)], NUM, rtol=1e-6)
+    np.testing.assert_allclose(est.c, NUM, rtol=1e-6)
+    assert est.offset == pytest.approx(0.7, abs=1e-6)
+    assert abs(est.d) < 1e-6
+    # x0 in the physical CCF: the normalised state X0 through x_phys = T x_n
+    sim = compare(est, (y, u, DT))
+    assert sim.fit > 99.9
+    np.testing.assert_allclose(sim.x0, est.x0, rtol=1e-5, atol=1e-8)
+
+
+@pytest.mark.parametrize("dt", [0.001, 1.0, 50.0])
+def test_identify_any_dt_is_the_same_normalised_model(dt):
+    y, u = make_record()
+    ref = identify((y, u, 1.0), 3, refine=False, identifier=ArxDouble(3))
+    est = identify((y, u, dt), 3, refine=False, identifier=ArxDouble(3))
+    # poles scale by 1/dt, CCF coefficients by dt^-(n-i), the output and fit not at all
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(est.A) * dt),
+                               np.sort_complex(np.linalg.eigvals(ref.A)), rtol=1e-10)
+    for i in range(3):
+        assert est.elements[f"a{i}"] * dt ** (3 - i) == pytest.approx(ref.elements[f"a{i}"],
+                                                                       rel=1e-10)
+        assert est.elements[f"c{i}"] * dt ** (3 - i) == pytest.approx(ref.elements[f"c{i}"],
+                                                                       rel=1e-10, abs=1e-12)
+    np.testing.assert_allclose(est.y_hat, ref.y_hat, rtol=1e-10, atol=1e-12)
+    assert est.delay == ref.delay == 2 and est.fit == pytest.approx(ref.fit, abs=1e-9)
+
+
+@pytest.mark.parametrize("steps", [300, 1000, 5000])
+def test_identify_any_length_from_the_window_on(steps):
+    y, u = make_record(steps=steps)
+    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+    assert est.delay == 2 and est.fit > 99.9
+
+
+def test_identify_a_record_shorter_than_the_window_is_refused():
+    y, u = make_record(steps=200)
+    with pytest.raises(ValueError, match=r"the record has 200 samples; .* at least 256"):
+        identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+
+
+def test_identify_perturbed_double_keeps_the_best_candidate():
+    # a 10 %-perturbed identifier: whole-record projection keeps the best of the windows'
+    # candidates and their coefficient-wise median, well above the median candidate's fit
+    y, u = make_record()
+    est = identify((y, u, DT), 3, refine=False, delay=2,
+                   identifier=ArxDouble(3, perturb=0.1, seed=3))
+    dens = candidates(ArxDouble(3, perturb=0.1, seed=3), y[2:], u[:-2])
+    fits = [project(*ccf(d), y, u, 1.0, delay=2).fit for d in dens]
+    median = project(*ccf(np.median(dens, axis=0)), y, u, 1.0, delay=2).fit
+    assert est.fit == pytest.approx(max(fits + [median]), abs=1e-6)
+    assert est.fit > np.median(fits) + 1 and est.info["candidates"] == len(dens) + 1
+
+
+def test_identify_known_delay_is_used_as_given():
+    y, u = make_record(delay=2)
+    est = identify((y, u, DT), 3, refine=False, delay=5, identifier=ArxDouble(3))
+    assert est.delay == 5 and est.fit < true_fit(y, u, 2)
+
+
+def test_order_none_selects_three_on_a_clear_order3_record():
+    y, u = make_record()
+    doubles = {n: ArxDouble(n) for n in (1, 2, 3, 4)}
+    est = identify((y, u, DT), refine=False, identifier=doubles)
+    assert est.A.shape == (3, 3)
+    fits = est.info["order_fits"]
+    assert fits[3] > fits[2] + 0.5 and fits[4] > fits[3] - 0.5   # 4 fits too: 3 is smaller
+
+
+def test_identify_mcf_structure_is_the_same_model():
+    y, u = make_record()
+    ccf_est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+    est = identify((y, u, DT), 3, structure="mcf", refine=False, identifier=ArxDouble(3))
+    assert isinstance(est.structure, ae.MCF) and est.structure.real == 1
+    assert est.elements["lambda0"] == pytest.approx(-2.0, rel=1e-6)
+    # the same output: the state is transformed with the realisation
+    np.testing.assert_allclose(compare(est, (y, u, DT)).y_hat, ccf_est.y_hat, rtol=1e-6,
+                               atol=1e-6)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"order": 0}, r"order must be None \(selected\) or an integer >= 1; got 0"),
+    ({"order": 3, "structure": "ssf"}, r"structure must be 'ccf', 'mcf' or a Structure"),
+    ({"order": 2, "structure": ae.CCF(3)}, r"order must match the structure's order 3"),
+    ({"order": 3, "max_delay": -1}, r"max_delay must be an integer >= 0; got -1"),
+    ({"order": 3, "delay": 1.5}, r"delay must be None \(unknown\) or an integer"),
+    ({"order": 2}, r"identifier must be a generic identifier of order 2"),
+])
+def test_identify_bad_arguments_name_themselves(kwargs, match):
+    y, u = make_record(steps=300)
+    with pytest.raises(ValueError, match=match):
+        identify((y, u, DT), refine=False, identifier=ArxDouble(3), **kwargs)
+
+
+def test_identify_bad_records_name_the_argument():
+    y, u = make_record(steps=300)
+    with pytest.raises(ValueError, match=r"u must have as many samples as y \(300\); got 299"):
+        identify((y, u[:-1], DT), 3, identifier=ArxDouble(3))
+    with pytest.raises(ValueError, match=r"dt must be a positive finite number; got -1"):
+        identify((y, u, -1), 3, identifier=ArxDouble(3))
+    bad = y.copy()
+    bad[7] = np.nan
+    with pytest.raises(ValueError, match=r"y must be finite; got nan at sample 7"):
+        identify((bad, u, DT), 3, identifier=ArxDouble(3))
+
+
+def test_identify_takes_a_record_object():
+    y, u = make_record()
+    rec = ae.Record(y, u, DT, delay=2, t0=5.0)
+    est = identify(rec, 3, refine=False, identifier=ArxDouble(3))
+    assert est.delay == 2 and est.fit > 99.9 and est.dt == DT
+    np.testing.assert_allclose(compare(est, rec).t, 5.0 + DT * np.arange(1000))
+    duck = SimpleNamespace(y=y, u=u, dt=DT)            # any object with y, u, dt
+    assert identify(duck, 3, refine=False, identifier=ArxDouble(3)).fit == est.fit
+
+
+# -- compare -----------------------------------------------------------------------------------
+def test_compare_fit_is_the_closed_form_nrmse_with_x0_fitted():
+    y, u = make_record(delay=0, noise=0.05)
+    n = 3
+    A, b = ccf(DEN)
+    cmp = compare((A, b, NUM, 0.0), (y, u, DT))
+    # closed form: the true forced response from rest, then least squares over the free
+    # responses of unit states (scipy expm recursion) and a constant
+    M = np.zeros((n + 2, n + 2))
+    M[:n, :n], M[:n, n], M[n, n + 1] = A * DT, b * DT, 1.0
+    E = scipy.linalg.expm(M)
+    Phi, g1, g2 = E[:n, :n], E[:n, n], E[:n, n + 1]
+    N = len(y)
+    forced, x = np.empty(N), np.zeros(n)
+    free = np.empty((N, n))
+    P = np.eye(n)
+    for k in range(N):
+        forced[k] = NUM @ x
+        free[k] = NUM @ P
+        if k + 1 < N:
+            x = Phi @ x + g1 * u[k] + g2 * (u[k + 1] - u[k])
+            P = Phi @ P
+    Z = np.concatenate([free, np.ones((N, 1))], 1)
+    z = np.linalg.lstsq(Z, y - forced, rcond=None)[0]
+    res = y - forced - Z @ z
+    fit = 100 * (1 - np.linalg.norm(res) / np.linalg.norm(y - y.mean()))
+    assert cmp.fit == pytest.approx(fit, abs=1e-8)
+    assert cmp.y_offset == pytest.approx(z[-1], rel=1e-6)
+    np.testing.assert_allclose(cmp.t, np.arange(N) * DT)
+
+
+def test_compare_uses_the_estimate_delay_and_takes_control_models():
+    import control
+
+    y, u = make_record(delay=3)
+    A, b = ccf(DEN)
+    sys = control.ss(A, b[:, None], NUM[None, :], [[0.0]])
+    assert compare(sys, (y, u, DT), delay=3).fit > 99.9999
+    assert compare(sys, (y, u, DT)).fit < 99.0                      # delay 0 by default
+    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+    assert compare(est, (y, u, DT)).delay == 3
+    with pytest.raises(ValueError, match=r"estimate_or_model must be an Estimate"):
+        compare("model", (y, u, DT))
+    with pytest.raises(ValueError, match=r"b, c must have n = 3 entries"):
+        compare((A, b, NUM[:2], 0.0), (y, u, DT))
+
+
+def test_compare_figure_is_written_as_png(tmp_path):
+    y, u = make_record()
+    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+    path = tmp_path / "compare.png"
+    fig = compare(est, (y, u, DT)).figure(path, y_label="y [V]")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "time [s]" and ax.get_ylabel() == "y [V]"
+    assert "fit 99.9" in ax.get_legend().get_texts()[1].get_text() or \
+        "fit 100.00" in ax.get_legend().get_texts()[1].get_text()
+
+
+def test_top_level_names():
+    assert ae.identify is identify and ae.compare is compare
+
+
+# -- refinement ----------------------------------------------------------------------------------
+def transfer(est, s):
+    """G(s) = c (sI - A)^-1 b + d of an estimate, at complex frequencies ``s``."""
+    n = est.A.shape[0]
+    return np.array([est.c @ np.linalg.solve(x * np.eye(n) - est.A, est.b) + est.d for x in s])
+
+
+S = 1j * np.array([0.1, 1.0, 3.0, 8.0, 20.0, 100.0])
+G_TRUE = np.polyval(NUM[::-1], S) / np.polyval(DEN, S)
+
+
+def test_identify_refined_from_a_perturbed_identifier_is_the_true_system():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert est.refined and est.delay == 2 and est.info["converged"]
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+    assert est.offset == pytest.approx(0.7, abs=1e-6) and est.fit > 99.9999
+    # the refined model's x0 reproduces the record (compare fits x0 itself: same fit)
+    assert compare(est, (y, u, DT)).fit == pytest.approx(est.fit, abs=1e-6)
+
+
+def test_identify_refined_in_mcf_and_with_a_fixed_element():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, structure="mcf", identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert est.refined and isinstance(est.structure, ae.MCF)
+    assert (est.elements["lambda0"], est.elements["delta0"], est.elements["omega0"]) == \
+        pytest.approx((-2.0, -1.5, 8.0), rel=1e-8)
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+    # a0 fixed at its true value in the user's time unit (refined in physical time)
+    fixed = ae.CCF(3, feedthrough=True).fixed(a0=float(DEN[3]))
+    est = identify((y, u, DT), 3, structure=fixed, identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert est.refined and est.elements["a0"] == DEN[3]
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+
+
+def test_identify_refine_false_keeps_the_encoder_model():
+    y, u = make_record()
+    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert not est.refined and "iterations" not in est.info
+    assert np.max(np.abs(transfer(est, S) / G_TRUE - 1)) > 1e-3
+
+
+def test_order_none_with_refinement_selects_and_refines():
+    # perturbed identifiers of every order: each order refined on 70 % and validated on 30 %
+    y, u = make_record()
+    doubles = {n: ArxDouble(n, perturb=0.1, seed=n) for n in (1, 2, 3, 4)}
+    est = identify((y, u, DT), identifier=doubles)
+    assert est.A.shape == (3, 3) and est.refined
+    fits = est.info["order_fits"]
+    assert fits[3] > 99.99 and fits[2] < fits[3] - 0.5
+    np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
+
+
+def test_select_shortlist_scores_all_at_the_arx_delay_and_the_best_at_all():
+    from aeid_struct.generic.windows import select
+
+    y, u = make_record(delay=0, noise=0.01)
+    den, _ = normalised()
+    dens = np.stack([den * [1, 1.2, 0.8, 1.1], den, den * [1, 0.9, 1.1, 1.0]])
+    full = select(dens, y, u, [0, 1])
+    short = select(dens, y, u, [0, 1], shortlist=1, around=0)
+    assert short.index == full.index == 1 and short.delay == full.delay == 0
+    np.testing.assert_allclose(short.costs[:, 0], full.costs[:, 0], rtol=1e-10)
+    assert np.isinf(short.costs[[0, 2], 1]).all() and np.isfinite(short.costs[1, 1])
+    assert short.projection.fit == pytest.approx(project(*ccf(den), y, u, 1.0).fit, abs=1e-8)
