@@ -15,6 +15,7 @@ from aeid_struct.cli.demo import run_demo
 from aeid_struct.cli.errors import EXIT_INPUT, EXIT_OUTSIDE, InputError
 from aeid_struct.cli.identify import run_identify, shipped_names
 from aeid_struct.cli.records_io import RECORD_LAYOUTS
+from aeid_struct.cli.train_generic import run_train_generic
 
 #: The training excitations, for --help only (TrainConfig checks the name; a test keeps this
 #: equal to training.EXCITATIONS, which the parser cannot import without torch).
@@ -95,6 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo(sub)
     _add_leg(sub)
     _add_train(sub)
+    _add_train_generic(sub)
     _add_track(sub, names)
     _add_identify(sub, names)
     _add_bench(sub)
@@ -204,6 +206,44 @@ def _add_train(sub) -> None:
     tr.add_argument("--out", required=True, help="identifier file to write (.aeid)")
     tr.add_argument("--quiet", action="store_true", help="no progress lines")
     tr.set_defaults(func=run_train)
+
+
+def _add_train_generic(sub) -> None:
+    tg = sub.add_parser(
+        "train-generic", help="train a generic identifier of one order (any system, any dt)",
+        description="Train a generic identifier of order N on fresh records of the generic "
+                    "family in normalised time (dt = 1) by variable projection, and write it as "
+                    "an .aeid file with a JSON file of the run. It checkpoints to OUT.ckpt every "
+                    "epoch.")
+    tg.add_argument("--order", type=_number(int, 0), required=True,
+                    help="the model order N, 1..4")
+    tg.add_argument("--minutes", type=_POSITIVE, default=None,
+                    help="wall-clock training budget [min] (default: none, --epochs decides)")
+    tg.add_argument("--epochs", type=_POSITIVE_INT, default=100,
+                    help="at most this many epochs (default 100)")
+    tg.add_argument("--count", type=_POSITIVE_INT, default=4096,
+                    help="fresh training windows per epoch (default 4096)")
+    tg.add_argument("--holdout", type=_POSITIVE_INT, default=512,
+                    help="held-out windows that pick the best weights (default 512)")
+    tg.add_argument("--window", type=_POSITIVE_INT, default=256,
+                    help="samples per window the encoder reads (default 256)")
+    tg.add_argument("--batch", type=_POSITIVE_INT, default=128,
+                    help="windows per gradient step (default 128)")
+    tg.add_argument("--lr", type=_POSITIVE, default=3e-3,
+                    help="peak Adam learning rate (default 3e-3)")
+    tg.add_argument("--loss", default="log",
+                    help="per-window loss: log (log of 1 - R^2, default) or nmse (1 - R^2)")
+    tg.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
+                    help="seed of the weights and the records (default 0)")
+    tg.add_argument("--threads", type=_POSITIVE_INT, default=None,
+                    help="torch threads for the run (default: torch's setting)")
+    tg.add_argument("--out", default=None,
+                    help="identifier file to write (default generic-N.aeid); the run's JSON "
+                         "goes next to it (.json)")
+    tg.add_argument("--resume", action="store_true",
+                    help="continue the run checkpointed in OUT.ckpt")
+    tg.add_argument("--quiet", action="store_true", help="no progress lines")
+    tg.set_defaults(func=run_train_generic)
 
 
 def _add_track(sub, names: str) -> None:

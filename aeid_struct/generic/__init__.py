@@ -4,19 +4,36 @@ normalised time (dt = 1), applied to records of any length and sample time.
 Layer: above ``identification`` (its :func:`identify` returns an ``Estimate``) and
 ``refinement``, below ``training``.
 
-Modules: ``windows`` (candidates from windows at several time scales, the whole-record choice),
-``delay`` (the input delay: ARX scan, projection re-scan), ``one_call`` (:func:`identify`),
-``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
+Modules: ``poles`` (raw network outputs -> stable factors -> denominator), ``model``
+(``GenericConfig``, ``GenericIdentifier``: a window -> its poles; the shipped names), ``files``
+(the ``.aeid`` format ``aeid-struct/generic/1``), ``windows`` (candidates from windows at several
+time scales, the whole-record choice), ``delay`` (the input delay: ARX scan, projection re-scan),
+``one_call`` (:func:`identify`), ``comparison`` (:func:`compare`, MATLAB's ``compare`` with the
+initial state fitted).
 """
 
 from aeid_struct.generic.comparison import Comparison as Comparison
 from aeid_struct.generic.comparison import compare as compare
 from aeid_struct.generic.delay import arx_delay as arx_delay
 from aeid_struct.generic.delay import rescan as rescan
+from aeid_struct.generic.files import FORMAT as FORMAT
+from aeid_struct.generic.files import read_generic as read_generic
+from aeid_struct.generic.files import save_generic as save_generic
+from aeid_struct.generic.model import GENERIC as GENERIC
+from aeid_struct.generic.model import ORDERS as ORDERS
+from aeid_struct.generic.model import GenericConfig as GenericConfig
+from aeid_struct.generic.model import GenericIdentifier as GenericIdentifier
+from aeid_struct.generic.model import load_generic as load_generic
+from aeid_struct.generic.model import normalise_windows as normalise_windows
+from aeid_struct.generic.model import spectra as spectra
 from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.generic.one_call import Measured as Measured
 from aeid_struct.generic.one_call import identify as identify
 from aeid_struct.generic.one_call import measured as measured
+from aeid_struct.generic.poles import denominator as denominator
+from aeid_struct.generic.poles import factors as factors
+from aeid_struct.generic.poles import poles_of as poles_of
+from aeid_struct.generic.poles import raw_of as raw_of
 from aeid_struct.generic.windows import Windows as Windows
 from aeid_struct.generic.windows import candidates as candidates
 from aeid_struct.generic.windows import scores as scores
@@ -24,15 +41,29 @@ from aeid_struct.generic.windows import solution as solution
 
 __all__ = [
     "Comparison",
+    "FORMAT",
+    "GENERIC",
+    "GenericConfig",
+    "GenericIdentifier",
     "Measured",
+    "ORDERS",
     "ORDER_TOLERANCE",
     "Windows",
     "arx_delay",
     "candidates",
     "compare",
+    "denominator",
+    "factors",
     "identify",
+    "load_generic",
     "measured",
+    "normalise_windows",
+    "poles_of",
+    "raw_of",
+    "read_generic",
     "rescan",
+    "save_generic",
     "scores",
     "solution",
+    "spectra",
 ]

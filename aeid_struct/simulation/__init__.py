@@ -11,7 +11,8 @@ Modules: ``foh`` (:func:`simulate`, :func:`states`, :func:`discretise`), ``kerne
 kernels), ``initial`` (:func:`initial_state`), ``normalise`` (Eq. 4, 14, 15), ``overflow`` (the
 +inf rule), ``checks`` (argument handling), ``casadi_foh`` (:func:`casadi_simulate`,
 :func:`expm`), ``projection`` (:func:`project`, :func:`fit_initial`: the linear part of a
-record's model by least squares).
+record's model by least squares), ``projection_torch`` (:func:`project_batch`: the same, batched
+and differentiable, for training).
 """
 
 from aeid_struct.simulation.casadi_foh import THETA13 as THETA13
@@ -42,6 +43,9 @@ from aeid_struct.simulation.projection import fit_initial as fit_initial
 from aeid_struct.simulation.projection import forced_states as forced_states
 from aeid_struct.simulation.projection import free_basis as free_basis
 from aeid_struct.simulation.projection import project as project
+from aeid_struct.simulation.projection_torch import BatchProjection as BatchProjection
+from aeid_struct.simulation.projection_torch import initial_states_batch as initial_states_batch
+from aeid_struct.simulation.projection_torch import project_batch as project_batch
 from aeid_struct.simulation.scaling import denormalise as denormalise
 from aeid_struct.simulation.scaling import loss as loss
 from aeid_struct.simulation.scaling import loss_batch as loss_batch
@@ -86,6 +90,10 @@ __all__ = [
     "forced_states",
     "free_basis",
     "project",
+    # the same projection batched and differentiable in torch (unchecked)
+    "BatchProjection",
+    "initial_states_batch",
+    "project_batch",
     # CasADi, for the refinement NLP
     "THETA13",
     "augmented",

@@ -6,7 +6,8 @@ their records in normalised time, for the generic identifiers), ``excitation`` (
 ``datasets`` (simulated records and the per-record time grid), ``config`` (``TrainConfig``),
 ``objective`` (Eq. 14 on Eq. 15-normalised records), ``tensors`` (the run's records as
 tensors), ``loop`` (``train``), ``distributed`` (data-parallel runs under ``torchrun``, the
-device), ``checkpoints``, ``calibration`` (the training range and flag
+device), ``generic`` (``train_generic``: generic identifiers by variable projection),
+``checkpoints``, ``calibration`` (the training range and flag
 thresholds) and ``progress`` (the budget, the progress line, the warning).
 """
 
@@ -24,6 +25,8 @@ from aeid_struct.training.excitation import generic_excitation as generic_excita
 from aeid_struct.training.families import LegFamily as LegFamily
 from aeid_struct.training.families import PoleFamily as PoleFamily
 from aeid_struct.training.families import Systems as Systems
+from aeid_struct.training.generic import GenericTrainConfig as GenericTrainConfig
+from aeid_struct.training.generic import train_generic as train_generic
 from aeid_struct.training.generic_family import GenericFamily as GenericFamily
 from aeid_struct.training.generic_family import GenericRecords as GenericRecords
 from aeid_struct.training.generic_family import GenericSystems as GenericSystems
@@ -37,6 +40,7 @@ __all__ = [
     "GenericFamily",
     "GenericRecords",
     "GenericSystems",
+    "GenericTrainConfig",
     "LegFamily",
     "PoleFamily",
     "Records",
@@ -50,4 +54,5 @@ __all__ = [
     "UndertrainedWarning",
     "recalibrate",
     "train",
+    "train_generic",
 ]

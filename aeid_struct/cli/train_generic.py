@@ -1,0 +1,71 @@
+"""``aeid-struct train-generic``: train a generic identifier of one order on the generic family and
+write it as an ``.aeid`` file, with a JSON file of the run (its recipe and history).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from aeid_struct.cli.errors import InputError
+
+
+def run_train_generic(args: argparse.Namespace) -> int:
+    """The ``train-generic`` subcommand.
+
+    The run checkpoints to ``OUT.ckpt`` every epoch; ``--resume`` continues from it (without it an
+    existing checkpoint is an error, so that a finished or foreign run is not silently extended).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of ``aeid-struct train-generic``.
+
+    Returns
+    -------
+    int
+        0.
+
+    Raises
+    ------
+    InputError
+        A wrong setting, output path or checkpoint.
+    """
+    out = Path(args.out or f"generic-{args.order}.aeid")
+    if out.is_dir():
+        raise InputError(f"train-generic: --out {str(out)!r} is a folder; expected the "
+                         "identifier file to write (e.g. generic-2.aeid)")
+    ckpt = out.with_name(out.name + ".ckpt")
+    if ckpt.exists() and not args.resume:
+        raise InputError(f"train-generic: checkpoint {str(ckpt)!r} exists; pass --resume to "
+                         "continue that run, or delete it to start over")
+    from aeid_struct.generic import GenericConfig
+    from aeid_struct.training import GenericTrainConfig, train_generic
+
+    try:
+        config = GenericConfig(order=args.order, window=args.window)
+        train = GenericTrainConfig(
+            epochs=args.epochs, seconds=None if args.minutes is None else 60.0 * args.minutes,
+            count=args.count, holdout=args.holdout, batch=args.batch, lr=args.lr,
+            seed=args.seed, loss=args.loss, checkpoint=str(ckpt), progress=not args.quiet,
+            threads=args.threads)
+    except ValueError as err:
+        raise InputError(f"train-generic: {err}") from None
+    meta = {"name": out.stem, "command": "aeid-struct " + " ".join(args.argv)}
+    try:
+        ident = train_generic(config, train, meta=meta)
+    except ValueError as err:
+        raise InputError(f"train-generic: {err}") from None
+    try:
+        path = ident.save(out)
+        report = out.with_suffix(".json")
+        report.write_text(json.dumps({"file": str(path), "meta": ident.meta}, indent=1))
+    except (OSError, ValueError) as err:
+        raise InputError(f"train-generic: --out {str(out)!r}: cannot write the identifier "
+                         f"({getattr(err, 'strerror', None) or err})") from None
+    info = ident.meta["train"]
+    print(f"trained {ident!r}: {info['epochs']} epochs in {info['seconds']:.1f} s, best "
+          f"held-out loss {info['best_holdout_loss']:.3f} (median fit "
+          f"{info['holdout_fit_median']:.1f} %); wrote {path} and {report}")
+    return 0

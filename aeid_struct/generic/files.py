@@ -1,0 +1,147 @@
+"""Generic identifier files: safetensors tensors plus a JSON header, data only.
+
+The header is ``{"format": FORMAT, "config": GenericConfig fields, "meta": {...}}``; the tensors are
+the encoder's weights (``encoder.<name>``). Loading parses JSON and raw tensors only (no pickle, no
+CasADi Function), and checks every header entry, every weight's name, shape and values before
+anything is built from them (docs/architecture.md, "Model files").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+
+from aeid_struct.encoder import Encoder
+from aeid_struct.generic.model import GenericConfig, GenericIdentifier
+from aeid_struct.identification import writable_file
+
+__all__ = ["FORMAT", "read_generic", "save_generic"]
+
+#: The format written and read.
+FORMAT = "aeid-struct/generic/1"
+_HEADER = ("format", "config", "meta")
+
+
+def save_generic(ident: GenericIdentifier, path) -> Path:
+    """Write ``ident`` to ``path`` (safetensors: weights + JSON header).
+
+    Parameters
+    ----------
+    ident : GenericIdentifier
+    path : str or PathLike
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    ValueError
+        ``path`` cannot be written (a directory, below a file), or ``ident.meta`` is not JSON.
+    """
+    from safetensors.torch import save_file
+
+    if not isinstance(ident, GenericIdentifier):
+        raise ValueError(f"ident must be a GenericIdentifier; got {type(ident).__name__}")
+    path = writable_file(path)
+    head = {"format": FORMAT, "config": ident.config.to_dict(), "meta": ident.meta}
+    try:
+        text = json.dumps(head)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"ident.meta must be JSON-ready data: {err}") from None
+    tensors = {f"encoder.{k}": v.detach().contiguous()
+               for k, v in ident.encoder.state_dict().items()}
+    save_file(tensors, str(path), metadata={"aeid": text})
+    return path
+
+
+def _config(head, source: str) -> GenericConfig:
+    """The header's checked entries -> the configuration (one ValueError naming ``source``)."""
+    if not isinstance(head, dict) or head.get("format") != FORMAT:
+        got = head.get("format") if isinstance(head, dict) else head
+        raise ValueError(f"{source} is not a generic identifier file: its header format is "
+                         f"{got!r}, not {FORMAT!r}")
+    if set(head) != set(_HEADER):
+        raise ValueError(f"{source}: the header must have exactly the entries {list(_HEADER)}; "
+                         f"got {sorted(head)}")
+    if not isinstance(head["meta"], dict):
+        raise ValueError(f"{source}: header entry 'meta' must be a dict; got "
+                         f"{type(head['meta']).__name__}")
+    config = head["config"]
+    if not isinstance(config, dict):
+        raise ValueError(f"{source}: header entry 'config' must be a dict; got "
+                         f"{type(config).__name__}")
+    fields = set(GenericConfig.__dataclass_fields__)
+    if set(config) != fields:
+        raise ValueError(f"{source}: header entry 'config' must have exactly the entries "
+                         f"{sorted(fields)}; got {sorted(config)}")
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
+    try:
+        return GenericConfig(**values)
+    except ValueError as err:
+        raise ValueError(f"{source}: header entry 'config' is not valid: {err}") from None
+
+
+def _encoder(config: GenericConfig, tensors: dict, source: str) -> Encoder:
+    """The encoder of ``config`` with the file's weights, every one checked first."""
+    enc = config.encoder_config()
+    with torch.device("meta"):      # shapes without allocating what a header may describe
+        expected = {f"encoder.{k}": tuple(v.shape) for k, v in Encoder(enc).state_dict().items()}
+    missing = sorted(set(expected) - set(tensors))
+    unknown = sorted(set(tensors) - set(expected))
+    if missing or unknown:
+        raise ValueError(f"{source}: the weights do not match the header's 'config' (missing "
+                         f"{missing}, unknown {unknown})")
+    for key, shape in expected.items():
+        t = tensors[key]
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{source}: weight {key!r} has shape {tuple(t.shape)}; the header's "
+                             f"'config' needs {shape}")
+        if t.dtype != torch.float32 or not bool(torch.isfinite(t).all()):
+            raise ValueError(f"{source}: weight {key!r} must hold finite float32 numbers; got "
+                             f"dtype {t.dtype}")
+    encoder = Encoder(enc)
+    encoder.load_state_dict({k[len("encoder."):]: v for k, v in tensors.items()})
+    encoder.eval()
+    return encoder
+
+
+def read_generic(path) -> GenericIdentifier:
+    """Read a generic identifier file written by :func:`save_generic`.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        An existing file.
+
+    Returns
+    -------
+    GenericIdentifier
+
+    Raises
+    ------
+    ValueError
+        Naming ``path`` and what is wrong: not a file, not safetensors, a header that is not
+        this format's, a weight of the wrong name, shape, dtype or value.
+    """
+    from safetensors import safe_open
+
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ValueError(f"path must be an existing generic identifier file (str or Path); "
+                         f"got {path!r}")
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"path must be an existing generic identifier file; got {str(path)!r}")
+    source = f"generic identifier file {str(path)!r}"
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            head = json.loads((f.metadata() or {}).get("aeid", "null"))
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except Exception as err:  # safetensors and json raise their own error types
+        raise ValueError(f"{source} cannot be read as safetensors with a JSON header: "
+                         f"{err}") from None
+    config = _config(head, source)
+    return GenericIdentifier(config, _encoder(config, tensors, source), meta=head["meta"])

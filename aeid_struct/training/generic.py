@@ -1,0 +1,411 @@
+r"""Training of a generic identifier (:class:`~aeid_struct.generic.GenericIdentifier`) by variable
+projection: the encoder gives the poles, least squares the rest, the residual is the loss.
+
+Per window (normalised as at identification, :func:`~aeid_struct.generic.normalise_windows`) the
+encoder's denominator fixes ``(A, b)`` (CCF, paper Eq. 5) and
+:func:`~aeid_struct.simulation.project_batch` fits ``c``, ``d``, the initial state and the output
+offset exactly; the loss is the unexplained share of the window's output variance,
+``e = ||y - y_hat||^2 / ||y - mean y||^2`` (``1 - R^2``), as ``log(e + eps)`` (``loss="log"``, the
+default: windows whose best fit is 99.9 % and windows whose best fit is 60 % weigh alike, so the
+easy majority does not drown the hard ones) or as ``e`` itself (``loss="nmse"``). Fresh records
+from the family every epoch (the exact simulator makes them cheap, and a fixed set is overfitted);
+a fixed held-out set picks the weights. Adam with the warm-up and cosine decay of
+:func:`~aeid_struct.training.progress.learning_rate` over an epoch or wall-time budget, gradient
+clipping, non-finite batches skipped and counted, a checkpoint every epoch (a killed run resumes
+bit-identically: every epoch's records come from a generator seeded by ``(seed, epoch)``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from aeid_struct.generic import GenericConfig, GenericIdentifier, normalise_windows
+from aeid_struct.simulation import project_batch
+from aeid_struct.training import checkpoints
+from aeid_struct.training.checks import real
+from aeid_struct.training.generic_family import GenericFamily
+from aeid_struct.training.progress import (
+    UndertrainedWarning,
+    learning_rate,
+    progress_line,
+    undertrained,
+)
+
+__all__ = ["GenericTrainConfig", "train_generic", "window_loss"]
+
+LOSSES = ("log", "nmse")
+#: Floor of ``e`` inside the log loss: a fit of 99.99 % counts as perfect.
+_EPS = 1e-8
+
+
+def _positive_int(name: str, v) -> int:
+    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+        raise ValueError(f"{name} must be a positive integer; got {v!r}")
+    return v
+
+
+@dataclass(frozen=True, kw_only=True)
+class GenericTrainConfig:
+    """How to train a generic identifier; validates itself.
+
+    Attributes
+    ----------
+    epochs : int
+        At most this many epochs.
+    seconds : float or None
+        At most this much wall time (None: no limit); not before ``min_epochs``.
+    min_epochs : int
+        The fewest epochs a wall-time budget may give, in ``[1, epochs]``.
+    target_loss : float or None
+        The best held-out loss expected (a run above it warns); None: no expectation.
+    count : int
+        Fresh training windows per epoch.
+    holdout : int
+        Held-out windows (fixed for the run).
+    batch : int
+        Windows per gradient step.
+    lr : float
+        Peak learning rate of Adam.
+    clip : float
+        Gradient-norm limit (``math.inf``: none).
+    loss : {"log", "nmse"}
+        ``log(1 - R^2 + eps)`` or ``1 - R^2`` per window, averaged.
+    seed : int
+        Seeds the weights and every epoch's records.
+    checkpoint : str, os.PathLike or None
+        File to checkpoint to and resume from.
+    progress : bool
+        Print a progress line per epoch (stderr).
+    threads : int or None
+        Torch threads for the run, restored after it (None: torch's setting).
+    """
+
+    epochs: int = 100
+    seconds: float | None = None
+    min_epochs: int = 1
+    target_loss: float | None = None
+    count: int = 4096
+    holdout: int = 512
+    batch: int = 128
+    lr: float = 3e-3
+    clip: float = 1.0
+    loss: str = "log"
+    seed: int = 0
+    checkpoint: str | None = None
+    progress: bool = True
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("epochs", "count", "holdout", "batch"):
+            _positive_int(name, getattr(self, name))
+        if self.seconds is not None:
+            real("seconds", self.seconds, "positive or None", lambda v: v > 0)
+        if (not isinstance(self.min_epochs, int) or isinstance(self.min_epochs, bool)
+                or not 1 <= self.min_epochs <= self.epochs):
+            raise ValueError(f"min_epochs must be an integer in [1, epochs={self.epochs}]; "
+                             f"got {self.min_epochs!r}")
+        if self.target_loss is not None:
+            real("target_loss", self.target_loss, "a finite number or None", lambda v: True)
+        real("lr", self.lr, "positive and finite", lambda v: v > 0)
+        if not (isinstance(self.clip, (int, float)) and not isinstance(self.clip, bool)
+                and self.clip > 0):
+            raise ValueError(f"clip must be positive (inf: no clipping); got {self.clip!r}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss must be one of {LOSSES}; got {self.loss!r}")
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer; got {self.seed!r}")
+        if not isinstance(self.progress, bool):
+            raise ValueError(f"progress must be True or False; got {self.progress!r}")
+        if self.threads is not None:
+            _positive_int("threads", self.threads)
+        if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
+            raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
+                             f"got {self.checkpoint!r}")
+
+    def to_dict(self) -> dict:
+        """The settings as JSON-ready data.
+
+        Returns
+        -------
+        dict
+        """
+        d = dataclasses.asdict(self)
+        d["checkpoint"] = None if self.checkpoint is None else str(self.checkpoint)
+        return d
+
+
+def window_loss(ident: GenericIdentifier, y: torch.Tensor, u: torch.Tensor):
+    """The unexplained output variance ``e = 1 - R^2`` of each window under the encoder's poles
+    with the rest of the model projected (differentiable).
+
+    Parameters
+    ----------
+    ident : GenericIdentifier
+    y, u : (batch, window) float64 tensors
+        Normalised windows (:func:`~aeid_struct.generic.normalise_windows`).
+
+    Returns
+    -------
+    e : (batch,) float64 tensor
+        All NaN where the encoder gives non-finite poles (weights gone non-finite): the batch
+        is skipped.
+    """
+    w, zeta = ident.factors_batch(y, u)
+    if not bool(torch.isfinite(w).all() and torch.isfinite(zeta).all()):
+        return torch.full_like(y[:, 0], math.nan)
+    A, b = ident.companion(w, zeta)
+    r = project_batch(A, b, y, u).residual
+    centred = y - y.mean(dim=1, keepdim=True)
+    return (r ** 2).sum(dim=1) / (centred ** 2).sum(dim=1)
+
+
+def _reduce(e: torch.Tensor, kind: str) -> torch.Tensor:
+    return torch.log(e + _EPS).mean() if kind == "log" else e.mean()
+
+
+def _windows(family, count: int, steps: int, rng: np.random.Generator):
+    """``count`` normalised windows of the family as float64 tensors (constant ones dropped)."""
+    rec = family.records(count, steps, rng)
+    y, u, ok = normalise_windows(torch.as_tensor(np.asarray(rec.y, dtype=np.float64)),
+                                 torch.as_tensor(np.asarray(rec.u, dtype=np.float64)))
+    return y[ok], u[ok]
+
+
+def _family_dict(family) -> dict:
+    """The family's settings as JSON data (the recipe, the checkpoint's fingerprint)."""
+    fields = (dataclasses.asdict(family) if dataclasses.is_dataclass(family)
+              else {k: repr(v) for k, v in sorted(vars(family).items())})
+    return json.loads(json.dumps({"type": type(family).__name__, **fields}, default=str))
+
+
+@dataclass
+class _Run:
+    config: GenericConfig
+    train: GenericTrainConfig
+    family: object
+    ident: GenericIdentifier
+    opt: torch.optim.Adam
+    generators: dict
+    state: dict
+    held: tuple
+    ckpt: Path | None
+    fingerprint: str
+    label: str
+
+
+def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=None,
+                  on_epoch: Callable[[int, dict], None] | None = None,
+                  meta: dict | None = None) -> GenericIdentifier:
+    """Train a generic identifier of ``config.order`` on records of ``family``.
+
+    Parameters
+    ----------
+    config : GenericConfig
+        The identifier's order, window, band and encoder.
+    train : GenericTrainConfig
+        The budget and the optimiser.
+    family : object, optional
+        Gives ``records(count, steps, rng)`` with ``y`` and ``u`` of shape ``(count, steps)``
+        (normalised time) and has ``order == config.order``;
+        ``GenericFamily(order=config.order, band=config.band)`` when None.
+    on_epoch : callable (epochs done, history) -> None, optional
+        Called after each epoch, once its checkpoint is written (an exception propagates; the
+        run resumes from the checkpoint).
+    meta : dict, optional
+        Provenance stored with the identifier (JSON-ready); its ``name`` labels the progress.
+
+    Returns
+    -------
+    GenericIdentifier
+        The weights with the lowest held-out loss; ``meta["history"]`` per epoch (the keys of
+        :func:`~aeid_struct.training.train`'s history and ``holdout_fit``, the median held-out
+        fit in %), ``meta["train"]`` the recipe: every setting, the family, epochs, seconds,
+        the best held-out loss and fit.
+
+    Raises
+    ------
+    ValueError
+        A wrong argument, or a checkpoint that cannot be resumed (naming its path).
+
+    Warns
+    -----
+    UndertrainedWarning
+        The budget fit fewer than ``min_epochs`` epochs, or the best held-out loss is above
+        ``target_loss``.
+    """
+    if not isinstance(config, GenericConfig):
+        raise ValueError(f"config must be a GenericConfig; got {type(config).__name__}")
+    if not isinstance(train, GenericTrainConfig):
+        raise ValueError(f"train must be a GenericTrainConfig; got {type(train).__name__}")
+    if family is None:
+        family = GenericFamily(order=config.order, band=config.band)
+    if not callable(getattr(family, "records", None)) or getattr(family, "order", None) \
+            != config.order:
+        raise ValueError(f"family must have records(count, steps, rng) and order "
+                         f"{config.order}; got {type(family).__name__} of order "
+                         f"{getattr(family, 'order', None)!r}")
+    threads = torch.get_num_threads()
+    if train.threads is not None:
+        torch.set_num_threads(train.threads)
+    try:
+        return _train(config, train, family, on_epoch, dict(meta or {}))
+    finally:
+        torch.set_num_threads(threads)     # the setting is the run's, not the process's
+
+
+def _setup(config, train, family, meta) -> _Run:
+    """The identifier, Adam, the held-out windows and the state (resumed where there is one)."""
+    torch.manual_seed(train.seed)
+    ident = GenericIdentifier(config, meta=meta)
+    opt = torch.optim.Adam(list(ident.encoder.parameters()), lr=train.lr)
+    generators = {"generator": torch.Generator().manual_seed(train.seed + 2)}
+    held = _windows(family, train.holdout, config.window, np.random.default_rng([train.seed, 0]))
+    recipe = {k: v for k, v in train.to_dict().items()
+              if k not in ("epochs", "seconds", "min_epochs", "target_loss", "checkpoint",
+                           "progress", "threads")}
+    fingerprint = json.dumps({"config": config.to_dict(), "train": recipe,
+                              "family": _family_dict(family)}, sort_keys=True)
+    state = {"epoch": 0, "elapsed": 0.0, "best": math.inf, "best_state": None,
+             "history": {key: [] for key in (*checkpoints.HISTORY, "holdout_fit")}}
+    ckpt = Path(train.checkpoint) if train.checkpoint else None
+    if ckpt is not None:
+        checkpoints.remove_leftover(ckpt)
+        if ckpt.exists():
+            state = checkpoints.resume(ckpt, fingerprint, ident, opt, generators)
+            state["history"].setdefault("holdout_fit", [math.nan] * state["epoch"])
+    return _Run(config=config, train=train, family=family, ident=ident, opt=opt,
+                generators=generators, state=state, held=held, ckpt=ckpt,
+                fingerprint=fingerprint, label=str(meta.get("name", "")))
+
+
+def _train(config, train, family, on_epoch, meta) -> GenericIdentifier:
+    run = _setup(config, train, family, meta)
+    tty = sys.stderr.isatty()
+    start = time.perf_counter() - run.state["elapsed"]
+    while run.state["epoch"] < train.epochs:
+        if (train.seconds is not None and time.perf_counter() - start >= train.seconds
+                and run.state["epoch"] >= train.min_epochs):
+            break
+        loss, lr, norms, skipped = _epoch(run, start)
+        held, fit = _holdout(run)
+        _record(run, loss, held, fit, lr, norms, skipped, time.perf_counter() - start)
+        hist = run.state["history"]
+        if train.progress:
+            line = progress_line(run.state["epoch"], train, loss, held, lr, run.state["elapsed"],
+                                 run.label) + f" | held-out fit {fit:.1f} %"
+            sys.stderr.write(("\r" if tty else "") + line + ("\033[K" if tty else "\n"))
+            sys.stderr.flush()
+        if on_epoch is not None:
+            on_epoch(run.state["epoch"], hist)
+    if train.progress and tty:
+        sys.stderr.write("\n")
+    return _finish(run)
+
+
+def _progress(train: GenericTrainConfig, done: float, start: float) -> float:
+    """The share of the budget spent after ``done`` epochs (epochs, or wall time stretched to
+    the epoch floor), as :func:`~aeid_struct.training.train` counts it."""
+    progress = done / train.epochs
+    if train.seconds is not None:
+        progress = max(progress, min((time.perf_counter() - start) / train.seconds,
+                                     done / train.min_epochs))
+    return progress
+
+
+def _epoch(run: _Run, start: float):
+    """One epoch on fresh windows: mean loss, last learning rate, gradient norms, skipped."""
+    train, epoch = run.train, run.state["epoch"]
+    y, u = _windows(run.family, train.count, run.config.window,
+                    np.random.default_rng([train.seed, epoch + 1]))
+    steps = max(1, math.ceil(len(y) / train.batch))
+    params = list(run.ident.encoder.parameters())
+    run.ident.encoder.train()
+    running, done, skipped, norms, lr = 0.0, 0, 0, [], train.lr
+    for j in range(steps):
+        lr = learning_rate(train.lr, min(_progress(train, epoch + j / steps, start), 1.0))
+        for group in run.opt.param_groups:
+            group["lr"] = lr
+        sl = slice(j * train.batch, (j + 1) * train.batch)
+        loss = _reduce(window_loss(run.ident, y[sl], u[sl]), train.loss)
+        run.opt.zero_grad(set_to_none=True)
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            skipped += 1
+            continue
+        loss.backward()
+        norm = float(torch.nn.utils.clip_grad_norm_(params, train.clip))
+        if not math.isfinite(norm):
+            skipped += 1
+            continue
+        norms.append(norm)
+        run.opt.step()
+        running += value
+        done += 1
+    return running / max(done, 1), lr, norms, skipped
+
+
+def _holdout(run: _Run) -> tuple[float, float]:
+    """The held-out loss and median fit (%, ``100 (1 - sqrt(e))``)."""
+    y, u = run.held
+    run.ident.encoder.eval()
+    with torch.no_grad():
+        e = torch.cat([window_loss(run.ident, y[i: i + 512], u[i: i + 512])
+                       for i in range(0, len(y), 512)])
+    run.ident.encoder.train()
+    fit = 100.0 * (1.0 - torch.sqrt(e.clamp_min(0.0)))
+    return float(_reduce(e, run.train.loss)), float(torch.nanmedian(fit))
+
+
+def _record(run: _Run, loss, held, fit, lr, norms, skipped, elapsed) -> None:
+    """After an epoch: the history, the best weights so far, the checkpoint."""
+    state = run.state
+    hist = state["history"]
+    for key, value in (("train_loss", loss), ("holdout_loss", held), ("lr", lr),
+                       ("seconds", elapsed),
+                       ("grad_norm_median", float(np.median(norms)) if norms else math.nan),
+                       ("grad_norm_max", max(norms) if norms else math.nan),
+                       ("skipped", skipped), ("holdout_fit", fit)):
+        hist[key].append(value)
+    if held < state["best"] and math.isfinite(held):
+        state["best"] = held
+        state["best_state"] = {k: v.detach().clone()
+                               for k, v in run.ident.encoder.state_dict().items()}
+    state["epoch"] += 1
+    state["elapsed"] = elapsed
+    if run.ckpt is not None:
+        checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators, state)
+
+
+def _finish(run: _Run) -> GenericIdentifier:
+    """Warn if under-trained, load the best weights, record the history and the recipe."""
+    state, ident, train = run.state, run.ident, run.train
+    notes = undertrained(train, state["history"], state["best"])
+    for note in notes:
+        warnings.warn(f"{run.label or 'training'}: {note}", UndertrainedWarning, stacklevel=3)
+    if state["best_state"] is not None:
+        ident.encoder.load_state_dict(state["best_state"])
+    ident.encoder.eval()
+    hist = state["history"]
+    best = int(np.argmin(hist["holdout_loss"])) if hist["holdout_loss"] else 0
+    ident.meta["history"] = hist
+    ident.meta["train"] = {
+        "config": ident.config.to_dict(), "settings": train.to_dict(),
+        "family": _family_dict(run.family), "seed": train.seed, "epochs": state["epoch"],
+        "seconds": round(state["elapsed"], 2), "best_epoch": best + 1,
+        "best_holdout_loss": state["best"],
+        "holdout_fit_median": hist["holdout_fit"][best] if hist["holdout_fit"] else math.nan,
+        "windows_per_epoch": train.count, "warnings": notes,
+    }
+    return ident
