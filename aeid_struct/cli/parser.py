@@ -237,6 +237,10 @@ def _add_train_generic(sub) -> None:
                     help="seed of the weights and the records (default 0)")
     tg.add_argument("--threads", type=_POSITIVE_INT, default=None,
                     help="torch threads for the run (default: torch's setting)")
+    tg.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu",
+                    help="where the encoder and the projection run: cpu (default), cuda, or auto "
+                         "(a GPU when torch finds one). Launched by torchrun, the run is "
+                         "data-parallel (--batch is the global batch) and rank 0 writes --out")
     tg.add_argument("--out", default=None,
                     help="identifier file to write (default generic-N.aeid); the run's JSON "
                          "goes next to it (.json)")

@@ -16,6 +16,8 @@ def run_train_generic(args: argparse.Namespace) -> int:
 
     The run checkpoints to ``OUT.ckpt`` every epoch; ``--resume`` continues from it (without it an
     existing checkpoint is an error, so that a finished or foreign run is not silently extended).
+    Launched by ``torchrun`` the run is data-parallel (``--batch`` is the global batch) and rank 0
+    alone writes the files and reports.
 
     Parameters
     ----------
@@ -41,7 +43,7 @@ def run_train_generic(args: argparse.Namespace) -> int:
         raise InputError(f"train-generic: checkpoint {str(ckpt)!r} exists; pass --resume to "
                          "continue that run, or delete it to start over")
     from aeid_struct.generic import GenericConfig
-    from aeid_struct.training import GenericTrainConfig, train_generic
+    from aeid_struct.training import GenericTrainConfig, process_rank, train_generic
 
     try:
         config = GenericConfig(order=args.order, window=args.window)
@@ -49,7 +51,7 @@ def run_train_generic(args: argparse.Namespace) -> int:
             epochs=args.epochs, seconds=None if args.minutes is None else 60.0 * args.minutes,
             count=args.count, holdout=args.holdout, batch=args.batch, lr=args.lr,
             seed=args.seed, loss=args.loss, checkpoint=str(ckpt), progress=not args.quiet,
-            threads=args.threads)
+            threads=args.threads, device=args.device)
     except ValueError as err:
         raise InputError(f"train-generic: {err}") from None
     meta = {"name": out.stem, "command": "aeid-struct " + " ".join(args.argv)}
@@ -57,6 +59,8 @@ def run_train_generic(args: argparse.Namespace) -> int:
         ident = train_generic(config, train, meta=meta)
     except ValueError as err:
         raise InputError(f"train-generic: {err}") from None
+    if process_rank() != 0:
+        return 0                   # under torchrun, rank 0 writes the identifier and reports
     try:
         path = ident.save(out)
         report = out.with_suffix(".json")

@@ -11,7 +11,8 @@ gradients, and a process's loss is weighted by ``n_rank W / n`` so that the aver
 global batch's mean whatever the shares. Sums across processes (the held-out loss, the training
 loss) go through ``Context.sum``; only rank 0 (``Context.writer``) writes. Fresh records are
 drawn per record from a stream of their own (``row_records``), so each process simulates only
-the records it trains on and the result does not depend on the number of processes. Not
+the records it trains on and the result does not depend on the number of processes; the generic
+identifiers' windows (``train_generic``) come in blocks of ``BLOCK`` (``block_windows``). Not
 launched by ``torchrun``, ``setup`` returns a one-process ``Context`` and nothing of this runs.
 """
 
@@ -25,6 +26,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 
+from aeid_struct.generic import normalise_windows
 from aeid_struct.simulation import simulate
 from aeid_struct.training.datasets import Records
 from aeid_struct.training.excitation import excitation
@@ -34,6 +36,9 @@ from aeid_struct.training.families import Systems
 DEVICES = ("cpu", "cuda", "auto")
 #: The variables ``torchrun`` sets for every process it starts.
 LAUNCH_VARIABLES = ("RANK", "WORLD_SIZE", "LOCAL_RANK")
+#: Fresh generic windows per random stream (``block_windows``): a process simulates whole
+#: blocks, so a global batch whose shares are multiples of ``BLOCK`` wastes no simulation.
+BLOCK = 64
 
 
 def resolve_device(device: str, local_rank: int = 0) -> torch.device:
@@ -339,3 +344,46 @@ def row_records(family, config, epoch: int, rows) -> Records:
         return Records(u[0], y[0], y[0], systems, grid[0][1], np.zeros(len(systems)))
     return Records(tuple(u), tuple(y), tuple(y), systems, tuple(g[1] for g in grid),
                    np.zeros(len(systems)))
+
+
+def block_windows(family, seed: int, count: int, window: int, epoch: int, rows):
+    """Rows of an epoch's fresh windows (``train_generic``): the epoch's ``count`` windows are
+    blocks of ``BLOCK``, block ``k`` drawn (and simulated in one batch) by ``family.records`` from
+    a generator seeded by ``(seed, epoch + 1, k)``; only the blocks that ``rows`` fall in are
+    simulated, so a window is the same whichever process draws it, with whichever others.
+
+    Parameters
+    ----------
+    family : object
+        Gives ``records(count, steps, rng)`` with ``y`` and ``u`` of shape ``(count, steps)``.
+    seed : int
+        ``GenericTrainConfig.seed``.
+    count : int
+        Windows per epoch (``GenericTrainConfig.count``).
+    window : int
+        Samples per window.
+    epoch : int
+    rows : (M,) int array
+        Row indices in ``[0, count)``.
+
+    Returns
+    -------
+    y, u : (M, window) float64 tensors
+        Normalised (:func:`~aeid_struct.generic.normalise_windows`), in the order of ``rows``;
+        a window that could not be normalised (constant) is a ramp in both.
+    ok : (M,) bool tensor
+        The windows that could be normalised (the others weigh nothing in the loss).
+    """
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+    y = torch.linspace(-1.0, 1.0, window, dtype=torch.float64).repeat(len(rows), 1)
+    u, ok = y.clone(), torch.zeros(len(rows), dtype=torch.bool)
+    for block in np.unique(rows // BLOCK).tolist():
+        size = min(BLOCK, count - block * BLOCK)
+        rec = family.records(size, window, np.random.default_rng([seed, epoch + 1, block]))
+        yb, ub, okb = normalise_windows(torch.as_tensor(np.asarray(rec.y, dtype=np.float64)),
+                                        torch.as_tensor(np.asarray(rec.u, dtype=np.float64)))
+        at = np.flatnonzero(rows // BLOCK == block)
+        keep = torch.as_tensor(at)[okb[rows[at] - block * BLOCK]]
+        pick = torch.as_tensor(rows[keep.numpy()] - block * BLOCK)
+        y[keep], u[keep], ok[keep] = yb[pick], ub[pick], True
+    return y, u, ok

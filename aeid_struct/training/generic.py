@@ -12,7 +12,14 @@ from the family every epoch (the exact simulator makes them cheap, and a fixed s
 a fixed held-out set picks the weights. Adam with the warm-up and cosine decay of
 :func:`~aeid_struct.training.progress.learning_rate` over an epoch or wall-time budget, gradient
 clipping, non-finite batches skipped and counted, a checkpoint every epoch (a killed run resumes
-bit-identically: every epoch's records come from a generator seeded by ``(seed, epoch)``).
+bit-identically: every epoch's windows come in blocks of ``distributed.BLOCK``, each from a
+generator seeded by ``(seed, epoch + 1, block)``: ``distributed.block_windows``).
+
+Launched by ``torchrun``, the run is data-parallel (``training.distributed``, as ``train()``):
+``batch`` is the global batch, each process simulates only the blocks that its share of every
+batch falls in and computes the loss on that share through ``DistributedDataParallel``; the
+held-out set is the same on every process, each evaluates its share and the per-window losses are
+gathered, so the loss and the median fit are the single process's. Rank 0 alone writes.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ import torch
 
 from aeid_struct.generic import GenericConfig, GenericIdentifier, normalise_windows
 from aeid_struct.simulation import project_batch
-from aeid_struct.training import checkpoints
+from aeid_struct.training import checkpoints, distributed
 from aeid_struct.training.checks import real
 from aeid_struct.training.generic_family import GenericFamily
 from aeid_struct.training.progress import (
@@ -90,6 +97,9 @@ class GenericTrainConfig:
         Print a progress line per epoch (stderr).
     threads : int or None
         Torch threads for the run, restored after it (None: torch's setting).
+    device : {"cpu", "cuda", "auto"}
+        Where the encoder and the projection run, as ``TrainConfig.device`` (``"cuda"``
+        without a GPU is refused); the windows are simulated on the CPU either way.
     """
 
     epochs: int = 100
@@ -106,6 +116,7 @@ class GenericTrainConfig:
     checkpoint: str | None = None
     progress: bool = True
     threads: int | None = None
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         for name in ("epochs", "count", "holdout", "batch"):
@@ -133,6 +144,7 @@ class GenericTrainConfig:
         if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
             raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
                              f"got {self.checkpoint!r}")
+        distributed.resolve_device(self.device)   # a bad name, or "cuda" where there is none
 
     def to_dict(self) -> dict:
         """The settings as JSON-ready data.
@@ -190,6 +202,17 @@ def _family_dict(family) -> dict:
     return json.loads(json.dumps({"type": type(family).__name__, **fields}, default=str))
 
 
+def _check_shares(train: GenericTrainConfig, world_size: int) -> None:
+    """Every process gets at least one window of every global batch (DDP needs each process's
+    backward), the last, shorter batch of an epoch included."""
+    smallest = min(train.batch, train.count, train.count % train.batch or train.batch)
+    if smallest < world_size:
+        raise ValueError(f"batch={train.batch} with count={train.count} gives a batch of "
+                         f"{smallest} window(s), fewer than the {world_size} processes: every "
+                         f"process needs a share of every batch; choose batch and count so that "
+                         f"each batch has >= {world_size} windows")
+
+
 @dataclass
 class _Run:
     config: GenericConfig
@@ -203,6 +226,8 @@ class _Run:
     ckpt: Path | None
     fingerprint: str
     label: str
+    ctx: distributed.Context    # the process's place in a data-parallel run (or one process)
+    model: torch.nn.Module      # the encoder, in DistributedDataParallel when distributed
 
 
 def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=None,
@@ -238,6 +263,17 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
     ------
     ValueError
         A wrong argument, or a checkpoint that cannot be resumed (naming its path).
+    RuntimeError
+        Under ``torchrun``: another process failed (a collective failed); the message names
+        this process and how to resume from the checkpoint.
+
+    Notes
+    -----
+    Launched by ``torchrun`` (one node or several), the run is data-parallel as
+    :func:`~aeid_struct.training.train`'s: ``train.batch`` is the global batch, the result
+    depends on it and on the seed, not on the number of processes (up to float32 summation
+    order), ``meta["train"]`` records ``world_size``, ``backend`` and ``device``, every process
+    returns the identifier and rank 0 alone writes the checkpoint and prints progress.
 
     Warns
     -----
@@ -259,117 +295,161 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
     threads = torch.get_num_threads()
     if train.threads is not None:
         torch.set_num_threads(train.threads)
+    ctx = distributed.setup(train.device)
     try:
-        return _train(config, train, family, on_epoch, dict(meta or {}))
+        return _train(config, train, family, on_epoch, dict(meta or {}), ctx)
+    except Exception as err:
+        if ctx.distributed and distributed.collective_error(err):
+            raise distributed.failure(err, ctx, train.checkpoint) from err
+        raise
     finally:
         torch.set_num_threads(threads)     # the setting is the run's, not the process's
 
 
-def _setup(config, train, family, meta) -> _Run:
-    """The identifier, Adam, the held-out windows and the state (resumed where there is one)."""
+def _setup(config, train, family, meta, ctx: distributed.Context) -> _Run:
+    """The identifier (on the run's device), Adam, the held-out windows (the same on every
+    process) and the state, resumed where there is a checkpoint (every process reads it)."""
     torch.manual_seed(train.seed)
     ident = GenericIdentifier(config, meta=meta)
+    ident.encoder.to(ctx.device)             # in place: the parameters stay the same objects
     opt = torch.optim.Adam(list(ident.encoder.parameters()), lr=train.lr)
     generators = {"generator": torch.Generator().manual_seed(train.seed + 2)}
     held = _windows(family, train.holdout, config.window, np.random.default_rng([train.seed, 0]))
     recipe = {k: v for k, v in train.to_dict().items()
               if k not in ("epochs", "seconds", "min_epochs", "target_loss", "checkpoint",
-                           "progress", "threads")}
+                           "progress", "threads", "device")}
     fingerprint = json.dumps({"config": config.to_dict(), "train": recipe,
                               "family": _family_dict(family)}, sort_keys=True)
     state = {"epoch": 0, "elapsed": 0.0, "best": math.inf, "best_state": None,
              "history": {key: [] for key in (*checkpoints.HISTORY, "holdout_fit")}}
     ckpt = Path(train.checkpoint) if train.checkpoint else None
     if ckpt is not None:
-        checkpoints.remove_leftover(ckpt)
+        if ctx.writer:
+            checkpoints.remove_leftover(ckpt)
+        ctx.barrier()                        # no process reads while rank 0 tidies up
         if ckpt.exists():
             state = checkpoints.resume(ckpt, fingerprint, ident, opt, generators)
             state["history"].setdefault("holdout_fit", [math.nan] * state["epoch"])
     return _Run(config=config, train=train, family=family, ident=ident, opt=opt,
-                generators=generators, state=state, held=held, ckpt=ckpt,
-                fingerprint=fingerprint, label=str(meta.get("name", "")))
+                generators=generators, state=state, held=tuple(t.to(ctx.device) for t in held),
+                ckpt=ckpt, fingerprint=fingerprint, label=str(meta.get("name", "")), ctx=ctx,
+                model=ctx.wrap(ident.encoder))
 
 
-def _train(config, train, family, on_epoch, meta) -> GenericIdentifier:
-    run = _setup(config, train, family, meta)
+def _train(config, train, family, on_epoch, meta, ctx) -> GenericIdentifier:
+    _check_shares(train, ctx.world_size)
+    run = _setup(config, train, family, meta, ctx)
     tty = sys.stderr.isatty()
     start = time.perf_counter() - run.state["elapsed"]
     while run.state["epoch"] < train.epochs:
-        if (train.seconds is not None and time.perf_counter() - start >= train.seconds
+        if (train.seconds is not None and ctx.clock(start) >= train.seconds
                 and run.state["epoch"] >= train.min_epochs):
             break
         loss, lr, norms, skipped = _epoch(run, start)
         held, fit = _holdout(run)
-        _record(run, loss, held, fit, lr, norms, skipped, time.perf_counter() - start)
+        _record(run, loss, held, fit, lr, norms, skipped, ctx.clock(start))
         hist = run.state["history"]
-        if train.progress:
+        if train.progress and ctx.writer:
             line = progress_line(run.state["epoch"], train, loss, held, lr, run.state["elapsed"],
                                  run.label) + f" | held-out fit {fit:.1f} %"
             sys.stderr.write(("\r" if tty else "") + line + ("\033[K" if tty else "\n"))
             sys.stderr.flush()
         if on_epoch is not None:
             on_epoch(run.state["epoch"], hist)
-    if train.progress and tty:
+    if train.progress and tty and ctx.writer:
         sys.stderr.write("\n")
     return _finish(run)
 
 
-def _progress(train: GenericTrainConfig, done: float, start: float) -> float:
-    """The share of the budget spent after ``done`` epochs (epochs, or wall time stretched to
-    the epoch floor), as :func:`~aeid_struct.training.train` counts it."""
+def _progress(train: GenericTrainConfig, done: float, start: float,
+              ctx: distributed.Context) -> float:
+    """The share of the budget spent after ``done`` epochs (epochs, or wall time by rank 0's
+    clock stretched to the epoch floor), as :func:`~aeid_struct.training.train` counts it."""
     progress = done / train.epochs
     if train.seconds is not None:
-        progress = max(progress, min((time.perf_counter() - start) / train.seconds,
+        progress = max(progress, min(ctx.clock(start) / train.seconds,
                                      done / train.min_epochs))
     return progress
 
 
+def _my_windows(run: _Run):
+    """This process's share of every global batch of the epoch's fresh windows, on the run's
+    device: ``y``, ``u``, ``ok`` (``distributed.block_windows``) and each batch's slice."""
+    train, ctx = run.train, run.ctx
+    rows, slices = [], []
+    for lo in range(0, train.count, train.batch):
+        batch = np.arange(lo, min(lo + train.batch, train.count))[ctx.share(
+            min(train.batch, train.count - lo))]
+        slices.append(slice(sum(len(r) for r in rows), sum(len(r) for r in rows) + len(batch)))
+        rows.append(batch)
+    y, u, ok = distributed.block_windows(run.family, train.seed, train.count, run.config.window,
+                                         run.state["epoch"], np.concatenate(rows))
+    return y.to(ctx.device), u.to(ctx.device), ok.to(ctx.device), slices
+
+
 def _epoch(run: _Run, start: float):
-    """One epoch on fresh windows: mean loss, last learning rate, gradient norms, skipped."""
-    train, epoch = run.train, run.state["epoch"]
-    y, u = _windows(run.family, train.count, run.config.window,
-                    np.random.default_rng([train.seed, epoch + 1]))
-    steps = max(1, math.ceil(len(y) / train.batch))
+    """One epoch on fresh windows: mean loss, last learning rate, gradient norms, skipped.
+
+    A process's loss is the sum of its share's window terms divided by the global batch's
+    windows and multiplied by the processes (DDP averages the gradients): the global batch's
+    mean, whatever the shares; constant windows weigh nothing.
+    """
+    train, epoch, ctx = run.train, run.state["epoch"], run.ctx
+    y, u, ok, slices = _my_windows(run)
     params = list(run.ident.encoder.parameters())
-    run.ident.encoder.train()
     running, done, skipped, norms, lr = 0.0, 0, 0, [], train.lr
-    for j in range(steps):
-        lr = learning_rate(train.lr, min(_progress(train, epoch + j / steps, start), 1.0))
-        for group in run.opt.param_groups:
-            group["lr"] = lr
-        sl = slice(j * train.batch, (j + 1) * train.batch)
-        loss = _reduce(window_loss(run.ident, y[sl], u[sl]), train.loss)
-        run.opt.zero_grad(set_to_none=True)
-        value = float(loss.detach())
-        if not math.isfinite(value):
-            skipped += 1
-            continue
-        loss.backward()
-        norm = float(torch.nn.utils.clip_grad_norm_(params, train.clip))
-        if not math.isfinite(norm):
-            skipped += 1
-            continue
-        norms.append(norm)
-        run.opt.step()
-        running += value
-        done += 1
+    encoder, run.ident.encoder = run.ident.encoder, run.model     # DDP's forward, when wrapped
+    run.ident.encoder.train()
+    try:
+        for j, sl in enumerate(slices):
+            lr = learning_rate(train.lr, min(_progress(train, epoch + j / len(slices), start,
+                                                       ctx), 1.0))
+            for group in run.opt.param_groups:
+                group["lr"] = lr
+            e = window_loss(run.ident, y[sl], u[sl])
+            terms = torch.log(e + _EPS) if train.loss == "log" else e
+            local = torch.where(ok[sl], terms, torch.zeros_like(terms)).sum()
+            total, n = ctx.sum([float(local.detach()), int(ok[sl].sum())])
+            run.opt.zero_grad(set_to_none=True)
+            value = total / n if n else math.nan
+            if not math.isfinite(value):
+                skipped += 1
+                continue
+            (local * (ctx.world_size / n)).backward()
+            norm = float(torch.nn.utils.clip_grad_norm_(params, train.clip))
+            if not math.isfinite(norm):
+                skipped += 1
+                continue
+            norms.append(norm)
+            run.opt.step()
+            running += value
+            done += 1
+    finally:
+        run.ident.encoder = encoder
     return running / max(done, 1), lr, norms, skipped
 
 
 def _holdout(run: _Run) -> tuple[float, float]:
-    """The held-out loss and median fit (%, ``100 (1 - sqrt(e))``)."""
+    """The held-out loss and median fit (%, ``100 (1 - sqrt(e))``); data-parallel, each process
+    evaluates its share and the per-window ``e`` are gathered (summed into zeros)."""
     y, u = run.held
+    ctx, mine = run.ctx, run.ctx.share(len(run.held[0]))
+    y, u = y[mine], u[mine]
     run.ident.encoder.eval()
     with torch.no_grad():
         e = torch.cat([window_loss(run.ident, y[i: i + 512], u[i: i + 512])
-                       for i in range(0, len(y), 512)])
+                       for i in range(0, len(y), 512)]).cpu()
     run.ident.encoder.train()
+    if ctx.distributed:
+        whole = torch.zeros(len(run.held[0]), dtype=torch.float64)
+        whole[mine] = e
+        e = torch.tensor(ctx.sum(whole.tolist()), dtype=torch.float64)
     fit = 100.0 * (1.0 - torch.sqrt(e.clamp_min(0.0)))
     return float(_reduce(e, run.train.loss)), float(torch.nanmedian(fit))
 
 
 def _record(run: _Run, loss, held, fit, lr, norms, skipped, elapsed) -> None:
-    """After an epoch: the history, the best weights so far, the checkpoint."""
+    """After an epoch: the history, the best weights so far, the checkpoint (rank 0 writes)."""
     state = run.state
     hist = state["history"]
     for key, value in (("train_loss", loss), ("holdout_loss", held), ("lr", lr),
@@ -380,20 +460,25 @@ def _record(run: _Run, loss, held, fit, lr, norms, skipped, elapsed) -> None:
         hist[key].append(value)
     if held < state["best"] and math.isfinite(held):
         state["best"] = held
-        state["best_state"] = {k: v.detach().clone()
+        # on the CPU whatever the device, so that a checkpoint resumes on any device
+        state["best_state"] = {k: v.detach().to("cpu", copy=True)
                                for k, v in run.ident.encoder.state_dict().items()}
     state["epoch"] += 1
     state["elapsed"] = elapsed
     if run.ckpt is not None:
-        checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators, state)
+        if run.ctx.writer:
+            checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators, state)
+        run.ctx.barrier()                    # on_epoch may rely on the checkpoint being there
 
 
 def _finish(run: _Run) -> GenericIdentifier:
-    """Warn if under-trained, load the best weights, record the history and the recipe."""
-    state, ident, train = run.state, run.ident, run.train
+    """Warn if under-trained (rank 0), load the best weights on the CPU, record the history and
+    the recipe."""
+    state, ident, train, ctx = run.state, run.ident, run.train, run.ctx
     notes = undertrained(train, state["history"], state["best"])
-    for note in notes:
+    for note in notes if ctx.writer else ():
         warnings.warn(f"{run.label or 'training'}: {note}", UndertrainedWarning, stacklevel=3)
+    ident.encoder.to("cpu")                  # identification runs on the CPU
     if state["best_state"] is not None:
         ident.encoder.load_state_dict(state["best_state"])
     ident.encoder.eval()
@@ -407,5 +492,6 @@ def _finish(run: _Run) -> GenericIdentifier:
         "best_holdout_loss": state["best"],
         "holdout_fit_median": hist["holdout_fit"][best] if hist["holdout_fit"] else math.nan,
         "windows_per_epoch": train.count, "warnings": notes,
+        "world_size": ctx.world_size, "backend": ctx.backend, "device": str(ctx.device),
     }
     return ident
