@@ -95,6 +95,33 @@ def test_denominators_and_poles_agree_and_ignore_offset_and_scale():
                                rtol=1e-6)
 
 
+@pytest.mark.parametrize("order,activation,spectrum", [(1, "gelu", True), (2, "tanh", False),
+                                                       (3, "silu", True), (4, "relu", True)])
+def test_numpy_forward_equals_the_torch_forward_and_follows_weight_updates(order, activation,
+                                                                           spectrum):
+    # identification runs the encoder in numpy (generic.forward); training runs factors_batch
+    # in torch: the same function, up to float32 rounding of the encoder
+    torch.manual_seed(order)
+    ident = GenericIdentifier(small(order, activation=activation, spectrum=spectrum))
+    rng = np.random.default_rng(order)
+    y, u = rng.standard_normal((5, 64)), rng.standard_normal((5, 64))
+
+    def torch_denominators():
+        y_n, u_n, _ = normalise_windows(torch.tensor(y), torch.tensor(u))
+        with torch.no_grad():
+            a = denominator(*ident.factors_batch(y_n, u_n)).numpy()
+        return np.concatenate([np.ones((5, 1)), a[:, ::-1]], axis=1)
+
+    np.testing.assert_allclose(ident.denominators(y, u), torch_denominators(), rtol=1e-4)
+    before = ident.denominators(y, u)
+    with torch.no_grad():                # an optimiser's in-place update of the weights
+        for p in ident.encoder.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    after = ident.denominators(y, u)
+    assert np.max(np.abs(after - before) / np.abs(before)) > 1e-3
+    np.testing.assert_allclose(after, torch_denominators(), rtol=1e-4)
+
+
 def test_constant_windows_give_nan_rows():
     ident = GenericIdentifier(small(2))
     y, u = np.random.default_rng(2).standard_normal((3, 64)), np.ones((3, 64))

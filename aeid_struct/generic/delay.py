@@ -65,7 +65,10 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
     Gs += 1e-12 * np.trace(Gs, axis1=1, axis2=2)[:, None, None] * np.eye(idx.shape[1])
     z = np.linalg.solve(Gs, g[idx][..., None])[..., 0]
     # residuals explicitly (not y^T y - g^T z, which cancels on a near-exact fit)
-    res = target[None, :] - np.einsum("ndp,dp->dn", Z[:, idx], z)
+    # each delay's coefficients scattered into a row over all columns: one matmul, no gather
+    coef = np.zeros((idx.shape[0], Z.shape[1]))
+    np.put_along_axis(coef, idx, z, axis=1)
+    res = target[None, :] - coef @ Z.T
     rss = np.sum(res ** 2, axis=1)
     return int(np.argmin(rss))
 

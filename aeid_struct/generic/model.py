@@ -24,6 +24,12 @@ import numpy as np
 import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.generic.forward import (
+    NumpyEncoder,
+    denominator_numpy,
+    factors_numpy,
+    normalise_numpy,
+)
 from aeid_struct.generic.poles import denominator, factors, poles_of
 from aeid_struct.structures import CCF
 
@@ -285,7 +291,7 @@ class GenericIdentifier:
 
     # -- numpy: identification -----------------------------------------------------------------
     def _windows(self, y, u):
-        """Checked ``(K, window)`` windows as float64 tensors, normalised."""
+        """Checked ``(K, window)`` float64 windows, normalised (numpy)."""
         arrays = []
         for name, x in (("y", y), ("u", u)):
             x = np.ascontiguousarray(x, dtype=np.float64)     # torch refuses negative strides
@@ -296,18 +302,28 @@ class GenericIdentifier:
         if arrays[0].shape != arrays[1].shape:
             raise ValueError(f"y and u must have one shape (K, {self.config.window}); got "
                              f"{arrays[0].shape} and {arrays[1].shape}")
-        return normalise_windows(torch.from_numpy(arrays[0]), torch.from_numpy(arrays[1]))
+        return normalise_numpy(arrays[0], arrays[1])
+
+    def _numpy_encoder(self) -> NumpyEncoder:
+        """The encoder as numpy (:mod:`~aeid_struct.generic.forward`), rebuilt when a weight
+        changed since (training updates them in place, which bumps their version)."""
+        cached = getattr(self, "_numpy", None)
+        if cached is None or cached[0] is not self.encoder:
+            params = list(self.encoder.parameters())    # walking the modules costs ~0.1 ms
+            cached = [self.encoder, params, None, None]
+            self._numpy = cached
+        key = [(p.data_ptr(), p._version) for p in cached[1]]
+        if cached[2] != key:
+            cached[2:] = key, NumpyEncoder(self.encoder, self.config.spectrum)
+        return cached[3]
 
     def _factors(self, y, u):
+        """``w, zeta, ok`` of windows by the numpy forward pass (the same function as
+        :meth:`factors_batch`, without torch's per-operation overhead on a few windows)."""
         y_n, u_n, ok = self._windows(y, u)
-        was = self.encoder.training
-        self.encoder.eval()
-        try:
-            with torch.no_grad():
-                w, zeta = self.factors_batch(y_n, u_n)
-        finally:
-            self.encoder.train(was)
-        return w.numpy(), zeta.numpy(), ok.numpy()
+        with np.errstate(invalid="ignore"):
+            raw = self._numpy_encoder()(y_n, u_n)
+        return (*factors_numpy(raw, self.config.band, self.config.damping), ok)
 
     def denominators(self, y, u) -> np.ndarray:
         """Monic continuous-time denominators of windows, in normalised time (``dt = 1``).
@@ -332,7 +348,7 @@ class GenericIdentifier:
             Shapes that are not ``(K, window)``.
         """
         w, zeta, ok = self._factors(y, u)
-        a = denominator(torch.from_numpy(w), torch.from_numpy(zeta)).numpy()
+        a = denominator_numpy(w, zeta)
         out = np.concatenate([np.ones((a.shape[0], 1)), a[:, ::-1]], axis=1)
         out[~ok] = np.nan
         return out

@@ -59,6 +59,8 @@ ESTIMATION_SHARE = 0.7
 SHORTLIST = 2
 #: Orders tried by ``order=None`` (those of the shipped generic identifiers).
 ORDERS = (1, 2, 3, 4)
+#: ``refine_separable``'s ``cost_tol`` (default 1e-10): a fifth fewer iterations, same median fit.
+COST_TOL = 1e-8
 #: Refinement methods of :func:`identify`.
 METHODS = ("auto", "separable", "casadi")
 
@@ -472,7 +474,8 @@ def _refine_separable(structure: Structure, m: _Model, data: Measured, max_delay
 
     def run(den, D):
         nonlocal seconds, iterations
-        r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough)
+        r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough,
+                             cost_tol=COST_TOL)
         seconds, iterations = seconds + r.seconds, iterations + r.iterations
         y_hat = np.asarray(r.y_hat, dtype=np.float64)
         cost = float(np.mean((data.y[D:] - y_hat[D:]) ** 2))
