@@ -70,7 +70,8 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
     np.put_along_axis(coef, idx, z, axis=1)
     res = target[None, :] - coef @ Z.T
     rss = np.sum(res ** 2, axis=1)
-    return int(np.argmin(rss))
+    # the smallest delay within 2 / rows of the least residual (parsimony: generic.windows)
+    return int(np.flatnonzero(rss <= rss.min() * (1.0 + 2.0 / rows.shape[0]))[0])
 
 
 def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay: int, *,

@@ -39,13 +39,17 @@ from dataclasses import dataclass
 from importlib import import_module
 
 import numpy as np
-import torch
 
 from aeid_struct.generic.delay import arx_delay
-from aeid_struct.generic.windows import candidates, ccf, select
-from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.generic.polish import (
+    Model,
+    denominator_of,
+    refine_casadi,
+    refine_starts,
+)
+from aeid_struct.generic.windows import candidates, select
+from aeid_struct.identification import Estimate
 from aeid_struct.records import as_array, check_dt, require_finite, unit_step
-from aeid_struct.refinement import BUCKETS, refine_record, refine_separable
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
@@ -59,8 +63,6 @@ ESTIMATION_SHARE = 0.7
 SHORTLIST = 2
 #: Orders tried by ``order=None`` (those of the shipped generic identifiers).
 ORDERS = (1, 2, 3, 4)
-#: ``refine_separable``'s ``cost_tol`` (default 1e-10): a fifth fewer iterations, same median fit.
-COST_TOL = 1e-8
 #: Refinement methods of :func:`identify`.
 METHODS = ("auto", "separable", "casadi")
 
@@ -238,11 +240,11 @@ def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough
     fits = {}
     for n, ident in sorted(identifiers.items()):
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough)
-        model = _Model.of_ccf(fit.den, fit.projection)
+        model = Model.of_ccf(fit.den, fit.projection)
         if refine:
             ccf_n = CCF(n, feedthrough=feedthrough)
-            better, _ = (_refine(ccf_n, model, part, max_delay) if method == "casadi" else
-                         _refine_separable(ccf_n, model, part, max_delay))
+            better, _ = (refine_casadi(ccf_n, model, part, max_delay) if method == "casadi" else
+                         refine_starts(ccf_n, model, part, max_delay))
             model = better if better is not None and better.cost < model.cost else model
         if not holdout:
             fits[n] = model.fit
@@ -318,20 +320,20 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
     fit = _encoder_fit(identifiers[order], data.y, data.u, order, data.delay, int(max_delay),
                        feedthrough)
-    model = _Model.of_ccf(fit.den, fit.projection)
+    model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, _structure(structure, order, fit.den)
     refined = False
     info = {"candidates": fit.candidates, "order_fits": order_fits}
     if refine:
         better, about = None, {}
         if method != "casadi" and _separable(spec):
-            better, about = _refine_separable(structure, model, data, int(max_delay),
+            better, about = refine_starts(structure, model, data, int(max_delay),
                                               split=isinstance(spec, MCF))
             if better is not None and spec == "mcf":
                 # the refined poles decide the modal form's real poles and pairs
-                structure = _structure(spec, order, _den(better.A))
+                structure = _structure(spec, order, denominator_of(better.A))
         if better is None:
-            better, casadi_about = _refine(structure, model, data, int(max_delay))
+            better, casadi_about = refine_casadi(structure, model, data, int(max_delay))
             about |= casadi_about
         info |= about
         if better is not None and better.cost < model.cost:
@@ -344,11 +346,6 @@ def _separable(structure) -> bool:
     if structure is None or structure in ("ccf", "mcf"):
         return True
     return isinstance(structure, (CCF, MCF)) and not structure.fixed_values
-
-
-def _den(A: np.ndarray) -> np.ndarray:
-    """The monic denominator of a bottom-row CCF ``A``."""
-    return np.concatenate([[1.0], -A[-1, ::-1]])
 
 
 def _feedthrough(structure) -> bool:
@@ -366,134 +363,3 @@ def _structure(structure, order: int, den: np.ndarray) -> Structure:
         real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
         return MCF(real=real, pairs=(order - real) // 2, feedthrough=True)
     return CCF(order, feedthrough=True)
-
-
-@dataclass(frozen=True)
-class _Model:
-    """A model of a record in NORMALISED time (dt = 1): ``A, b, c, d`` in some realisation,
-    its state at sample ``delay``, offset, output and mean squared residual."""
-
-    A: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: float
-    x0: np.ndarray
-    y_offset: float
-    delay: int
-    y_hat: np.ndarray
-    fit: float
-    cost: float
-
-    @classmethod
-    def of_ccf(cls, den, p) -> _Model:
-        A, b = ccf(den)
-        return cls(A, b, p.c, p.d, p.x0, p.y_offset, p.delay, p.y_hat, p.fit, p.cost)
-
-    def estimate(self, structure: Structure, data: Measured, seconds: float, refined: bool,
-                 info: dict) -> Estimate:
-        """The Estimate in physical time: ``A / dt, b / dt``, the same ``c, d, x0``."""
-        dt = data.dt
-        A, b, c, d, x0, elements = _in_structure(structure, self, dt)
-        info = {**info, "delay": self.delay, "x0": x0, "y_offset": self.y_offset,
-                "fit": self.fit, "y_hat": self.y_hat, "cost": self.cost}
-        return Estimate(A=A, b=b, c=c, d=d, elements=elements, y=data.y, u=data.u, dt=dt,
-                        provenance=Provenance(structure=structure, initial="fitted"),
-                        seconds=seconds, refined=refined, info=info)
-
-
-def _in_structure(structure: Structure, m: _Model, dt: float):
-    """``A, b, c, d, x0, elements`` of the physical-time model ``(A_n / dt, b_n / dt, c, d)``
-    in ``structure``'s realisation (the state transformed with it: ``x = T x_n``, ``T = C_s
-    C_n^-1`` from the controllability matrices)."""
-    A, b = m.A / dt, m.b / dt
-    n = A.shape[0]
-    if isinstance(structure, CCF) and not structure.fixed_values and structure.feedthrough:
-        # m.A is a CCF in normalised time (the projection's, or refined in CCF): its
-        # coefficients in physical time are a_i / dt^(n-i), no torch needed
-        den = np.concatenate([[1.0], -m.A[-1, ::-1]]) / dt ** np.arange(n + 1)
-        As, bs = ccf(den)
-        T = _controllability(As, bs) @ np.linalg.inv(_controllability(A, b))
-        cs = np.linalg.solve(T.T, m.c)
-        values = np.concatenate([den[:0:-1], cs, [m.d]])
-        names = [f"a{i}" for i in range(n)] + [f"c{i}" for i in range(n)] + ["d"]
-        return As, bs, cs, m.d, T @ m.x0, dict(zip(names, values.tolist(), strict=True))
-    x = structure.elements_of(A, b, m.c, m.d, strict=False).to(torch.float64)
-    s = structure.assemble(x)
-    As, bs, cs = (t.numpy() for t in (s.A, s.b, s.c))
-    T = _controllability(As, bs) @ np.linalg.inv(_controllability(A, b))
-    elements = dict(zip(structure.element_names, x.tolist(), strict=True))
-    return As, bs, cs, float(s.d), T @ m.x0, elements
-
-
-def _controllability(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    cols = [b]
-    for _ in range(A.shape[0] - 1):
-        cols.append(A @ cols[-1])
-    return np.stack(cols, axis=1)
-
-
-def _refine(structure: Structure, m: _Model, data: Measured, max_delay: int):
-    """``(_Model, info)`` of ``refinement.refine_record`` from ``m``; the model is None where
-    the refinement did not run (a record longer than its largest bucket) or failed.
-
-    A structure with fixed elements (or one that is not canonical) holds its elements in the
-    user's time unit, so it is refined in physical time; the canonical forms are refined in
-    normalised time (better scaled: a_k ~ (|p| dt)^(n-k) instead of |p|^(n-k))."""
-    physical = bool(structure.fixed_values) or not isinstance(structure, (CCF, MCF))
-    dt = data.dt if physical else 1.0
-    scale = data.dt if physical else 1.0
-    start = structure.elements_of(m.A / scale, m.b / scale, m.c, m.d, strict=False)
-    D = m.delay
-    delays = (D,) if data.delay is not None else tuple(
-        k for k in (D - 1, D, D + 1) if 0 <= k <= max_delay)
-    if data.steps - min(delays) > BUCKETS[-1]:
-        return None, {"refinement": f"skipped: more than {BUCKETS[-1]} samples"}
-    r = refine_record(structure, start.to(torch.float64).numpy(), data.y, data.u, dt,
-                      delay=D, delays=delays, offset=True)
-    if not np.isfinite(r.cost):
-        return None, {"refinement": "failed: no finite cost"}
-    y_hat = np.asarray(r.y_hat, dtype=np.float64)
-    used = ~np.isnan(y_hat)
-    cost = float(np.mean((data.y[used] - y_hat[used]) ** 2))
-    A, b = np.asarray(r.A, float) * scale, np.asarray(r.b, float) * scale
-    model = _Model(A, b, np.asarray(r.c, float), float(r.d), np.asarray(r.x0, float),
-                   float(r.y_offset), int(r.delay), y_hat, float(r.fit), cost)
-    return model, {"iterations": r.iterations, "converged": r.converged,
-                   "refine_seconds": r.seconds}
-
-
-def _refine_separable(structure: Structure, m: _Model, data: Measured, max_delay: int, *,
-                      split: bool = False):
-    """``(_Model, info)`` of ``refinement.refine_separable`` from ``m`` (normalised time) at its
-    delay; ``D - 1`` and ``D + 1`` re-checked by projection with the refined poles, refined
-    again where one is better. None for an MCF whose optimum is not stable in its form (the
-    caller falls back to CasADi, which keeps ``Re < 0``): not stable, or (``split``: the
-    user's MCF) with other real poles and pairs than the structure's."""
-    feedthrough = "d" in structure.element_names and "d" not in structure.fixed_values
-    seconds, iterations = 0.0, 0
-
-    def run(den, D):
-        nonlocal seconds, iterations
-        r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough,
-                             cost_tol=COST_TOL)
-        seconds, iterations = seconds + r.seconds, iterations + r.iterations
-        y_hat = np.asarray(r.y_hat, dtype=np.float64)
-        cost = float(np.mean((data.y[D:] - y_hat[D:]) ** 2))
-        return _Model(r.A, r.b, r.c, r.d, r.x0, r.y_offset, D, y_hat, r.fit, cost), r.converged
-
-    best, converged = run(_den(m.A), m.delay)
-    if data.delay is None:
-        D = best.delay
-        delays = [k for k in (D - 1, D, D + 1) if 0 <= k <= max_delay]
-        chosen = select(_den(best.A)[None], data.y, data.u, delays, feedthrough=feedthrough)
-        if chosen.delay != D:
-            other, ok = run(_den(best.A), chosen.delay)
-            if other.cost < best.cost:
-                best, converged = other, ok
-    poles = np.linalg.eigvals(best.A)
-    real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
-    if isinstance(structure, MCF) and not (np.all(poles.real < 0) and (
-            not split or real == structure.real)):
-        return None, {"refinement": "separable optimum not a stable MCF: CasADi"}
-    return best, {"iterations": iterations, "converged": converged, "refine_seconds": seconds,
-                  "method": "separable"}
