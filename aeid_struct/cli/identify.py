@@ -129,7 +129,9 @@ def run_identify(args: argparse.Namespace) -> int:
     given = [f"--{k.replace('_', '-')}" for k in GENERIC_OPTIONS if getattr(args, k)
              not in (None, False)]
     if given:
-        raise InputError(f"identify: {', '.join(given)} apply to the generic identifiers: give "
+        raise InputError(f"identify: {', '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to the generic "
+                         f"identifiers: give "
                          f"--order N (or auto) and the record as the argument ('aeid-struct "
                          f"identify RECORD --order N --dt DT'); got the identifier "
                          f"{args.model!r}")

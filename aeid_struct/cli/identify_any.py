@@ -97,7 +97,9 @@ def _refuse_model_options(args: argparse.Namespace) -> None:
                                  ("--refine", args.refine != "no"),
                                  ("--allow-outside", args.allow_outside)) if on]
     if given:
-        raise InputError(f"identify: {', '.join(given)} apply to an identifier MODEL, not to "
+        raise InputError(f"identify: {', '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to an identifier "
+                         "MODEL, not to "
                          "--order (the generic identifiers read RECORD, the argument; "
                          "--no-refine skips their refinement)")
     if args.figure is not None and Path(args.figure).is_dir():

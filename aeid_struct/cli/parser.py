@@ -319,7 +319,7 @@ def _add_identify(sub, names: str, generic: str) -> None:
     idp.add_argument("model", metavar="RECORD|MODEL",
                      help="with --order: the record file (.csv or .npy, layouts below); "
                           f"otherwise an identifier file (.aeid) or a shipped name: {names}")
-    idp.add_argument("--order", type=_order, default=None,
+    idp.add_argument("--order", type=_order, default=None, metavar="{1,2,3,4,auto}",
                      help="identify RECORD with the generic identifiers: the model order 1-4, "
                           "or auto (each order identified on the first 70 %% of the record, the "
                           "smallest within 0.5 points of the best validation fit on the rest)")
@@ -329,9 +329,10 @@ def _add_identify(sub, names: str, generic: str) -> None:
     idp.add_argument("--no-refine", action="store_true",
                      help="with --order: the generic identifier's model alone, without the "
                           "output-error refinement over the whole record")
-    idp.add_argument("--delay", type=_number(int, 0, strict=False), default=None,
+    idp.add_argument("--delay", type=_number(int, 0, strict=False), default=None, metavar="D",
                      help="with --order: the known input delay [samples] (default: estimated)")
     idp.add_argument("--max-delay", type=_number(int, 0, strict=False), default=None,
+                     metavar="D",
                      help="with --order: the largest input delay considered when it is "
                           "estimated [samples] (default 10)")
     idp.add_argument("--structure", choices=("ccf", "mcf"), default=None,
