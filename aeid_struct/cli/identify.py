@@ -102,6 +102,28 @@ def load_identifier(model: str, option: str):
 
 
 
+def _check_model_use(args: argparse.Namespace) -> None:
+    """``identify MODEL --y FILE``: no option of the generic identifiers, and a --y file."""
+    given = [f"--{k.replace('_', '-')}" for k in GENERIC_OPTIONS if getattr(args, k)
+             not in (None, False)]
+    if given:
+        raise InputError(f"identify: {', '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to the generic "
+                         f"identifiers: give "
+                         f"--order N (or auto) and the record as the argument ('aeid-struct "
+                         f"identify RECORD --order N --dt DT'); got the identifier "
+                         f"{args.model!r}")
+    if args.y is None:
+        if Path(args.model).suffix.lower() in (".csv", ".npy", ".txt") and \
+                Path(args.model).is_file():
+            raise InputError(f"identify: {args.model!r} is a record file: identify it with the "
+                             "generic identifiers by --order N (or --order auto), or name an "
+                             "identifier and give the record by --y (see 'aeid-struct identify "
+                             "--help')")
+        raise InputError("identify: the following arguments are required: --y (see "
+                         "'aeid-struct identify --help')")
+
+
 def run_identify(args: argparse.Namespace) -> int:
     """The ``identify`` subcommand: read the records, identify, print the model and the
     self-check, write the JSON.
@@ -126,24 +148,7 @@ def run_identify(args: argparse.Namespace) -> int:
         from aeid_struct.cli.identify_any import run_identify_any
 
         return run_identify_any(args)
-    given = [f"--{k.replace('_', '-')}" for k in GENERIC_OPTIONS if getattr(args, k)
-             not in (None, False)]
-    if given:
-        raise InputError(f"identify: {', '.join(given)} "
-                         f"{'applies' if len(given) == 1 else 'apply'} to the generic "
-                         f"identifiers: give "
-                         f"--order N (or auto) and the record as the argument ('aeid-struct "
-                         f"identify RECORD --order N --dt DT'); got the identifier "
-                         f"{args.model!r}")
-    if args.y is None:
-        if Path(args.model).suffix.lower() in (".csv", ".npy", ".txt") and \
-                Path(args.model).is_file():
-            raise InputError(f"identify: {args.model!r} is a record file: identify it with the "
-                             "generic identifiers by --order N (or --order auto), or name an "
-                             "identifier and give the record by --y (see 'aeid-struct identify "
-                             "--help')")
-        raise InputError("identify: the following arguments are required: --y (see "
-                         "'aeid-struct identify --help')")
+    _check_model_use(args)
     ident = load_identifier(args.model, "model")
     R = ident.records
     steps = ident.steps if R > 1 else (ident.steps,)
