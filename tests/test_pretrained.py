@@ -1,4 +1,5 @@
-"""The shipped leg identifiers: record format, recovery of known legs, provenance, size."""
+"""The shipped identifiers: the leg identifiers (record format, recovery of known legs,
+provenance, size) and the routing of the two kinds of shipped file (leg, generic)."""
 
 from importlib.resources import files
 
@@ -159,3 +160,57 @@ def test_window_identifier_flags_on_both_sides_of_its_range():
     inside, beyond = rows
     assert inside["beyond"] == 0.0 and inside["flagged"] <= 0.10
     assert beyond["beyond"] == 0.3 and beyond["flagged"] >= 0.80
+
+
+# -- the two kinds of shipped file: leg identifiers and generic identifiers (issue 14) ----------
+def _header_format(path) -> str:
+    """The ``format`` entry of a shipped file's JSON header, read with safetensors alone (an
+    oracle independent of both loaders)."""
+    import json
+
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="pt") as fh:
+        return json.loads(fh.metadata()["aeid"])["format"]
+
+
+def test_shipped_files_are_named_by_their_kind():
+    root = files("aeid_struct.pretrained")
+    names = sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".aeid"))
+    # every shipped file is either a leg identifier or a generic one, and its name says which
+    assert names == sorted([*ae.identification.PRETRAINED, *ae.generic.GENERIC])
+    for name in names:
+        expected = (ae.generic.FORMAT if name in ae.generic.GENERIC
+                    else ae.identification.FORMAT)
+        assert _header_format(root / f"{name}.aeid") == expected, name
+
+
+@pytest.mark.parametrize("name", ["generic-1", "generic-2", "generic-3", "generic-4"])
+def test_generic_names_route_to_load_generic(name):
+    n = int(name[-1])
+    with pytest.raises(ValueError, match=rf"name '{name}' is a generic identifier \(any system, "
+                                         rf"any sample time\), not a leg identifier: use "
+                                         rf"aeid_struct.identify\(record, order={n}\), or "
+                                         rf"aeid_struct.generic.load_generic\('{name}'\) to load "
+                                         rf"it .*; load_pretrained reads the leg identifiers "
+                                         rf"\['leg-stable', "):
+        ae.load_pretrained(name)
+    ident = ae.generic.load_generic(name)
+    assert isinstance(ident, ae.generic.GenericIdentifier) and ident.config.order == n
+
+
+def test_leg_names_route_to_load_pretrained():
+    with pytest.raises(ValueError, match=r"name_or_path 'leg-stable' is a shipped leg "
+                                         r"identifier, not a generic one: load it with "
+                                         r"aeid_struct.load_pretrained\('leg-stable'\); generic "
+                                         r"identifiers: \['generic-1', "):
+        ae.generic.load_generic("leg-stable")
+    assert isinstance(ae.load_pretrained("leg-stable"), ae.Identifier)
+    # a name of neither kind: each loader lists its own names only
+    with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', .*"
+                                         r"'leg-unstable-noisy'\]; got 'generic'"):
+        ae.load_pretrained("generic")
+    with pytest.raises(ValueError, match=r"name_or_path must be one of \['generic-1', "
+                                         r"'generic-2', 'generic-3', 'generic-4'\] or an "
+                                         r"existing generic identifier file; got 'leg'"):
+        ae.generic.load_generic("leg")

@@ -7,6 +7,7 @@ and building the parser import neither torch nor CasADi.
 from aeid_struct.cli.errors import EXIT_INPUT as EXIT_INPUT
 from aeid_struct.cli.errors import EXIT_OUTSIDE as EXIT_OUTSIDE
 from aeid_struct.cli.errors import UsageExit as UsageExit
+from aeid_struct.cli.identify import generic_names as generic_names
 from aeid_struct.cli.identify import shipped_names as shipped_names
 from aeid_struct.cli.main import main as main
 from aeid_struct.cli.parser import build_parser as build_parser
@@ -18,6 +19,7 @@ __all__ = [
     "RECORD_LAYOUTS",
     "UsageExit",
     "build_parser",
+    "generic_names",
     "main",
     "shipped_names",
 ]

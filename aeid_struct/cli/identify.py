@@ -14,21 +14,46 @@ import numpy as np
 from aeid_struct.cli.errors import EXIT_OUTSIDE, InputError
 from aeid_struct.cli.records_io import on_grid, read_record
 
+#: How the shipped generic identifiers' names begin (``generic-1`` .. ``generic-4``): the file
+#: name tells a shipped file's kind (``identification.load_pretrained`` reads the others).
+GENERIC_PREFIX = "generic-"
 
-def shipped_names() -> list[str]:
-    """The shipped identifiers' names, listed without importing torch.
 
-    Returns
-    -------
-    list of str
-        The ``.aeid`` files of ``aeid_struct/pretrained`` (the folder
-        ``identification.load_pretrained`` reads), without the suffix, sorted.
-    """
+#: The options of ``identify RECORD --order N`` (the generic identifiers) alone.
+GENERIC_OPTIONS = ("dt", "no_refine", "delay", "max_delay", "structure", "figure")
+
+
+def _shipped() -> list[str]:
     from importlib.resources import files
 
     return sorted(p.name[: -len(".aeid")] for p in files("aeid_struct.pretrained").iterdir()
                   if p.name.endswith(".aeid"))
 
+
+def shipped_names() -> list[str]:
+    """The shipped leg identifiers' names, listed without importing torch.
+
+    Returns
+    -------
+    list of str
+        The ``.aeid`` files of ``aeid_struct/pretrained`` that ``identification.load_pretrained``
+        reads (all but the generic identifiers, :func:`generic_names`), without the suffix,
+        sorted.
+    """
+    return [n for n in _shipped() if not n.startswith(GENERIC_PREFIX)]
+
+
+def generic_names() -> list[str]:
+    """The shipped generic identifiers' names (``generic-1`` .. ``generic-4``, those this
+    installation has), listed without importing torch.
+
+    Returns
+    -------
+    list of str
+        The ``generic-*.aeid`` files of ``aeid_struct/pretrained`` (read by
+        ``generic.load_generic``; ``identify RECORD --order N`` uses them), sorted.
+    """
+    return [n for n in _shipped() if n.startswith(GENERIC_PREFIX)]
 
 
 def load_identifier(model: str, option: str):
@@ -62,6 +87,12 @@ def load_identifier(model: str, option: str):
     if path.is_dir():
         raise InputError(f"{option}: {model!r} is a folder; expected an identifier file (.aeid) "
                          f"or a shipped name: {names}")
+    if model.startswith(GENERIC_PREFIX):
+        order = model[len(GENERIC_PREFIX):]
+        raise InputError(f"{option} {model!r} is a generic identifier (any system, any sample "
+                         f"time), not an identifier of one record grid: identify a record with "
+                         f"it by 'aeid-struct identify RECORD --order "
+                         f"{order if order.isdigit() else 'N'} --dt DT'")
     if model in names.split(", "):
         from aeid_struct.identification import load_pretrained
 
@@ -69,6 +100,28 @@ def load_identifier(model: str, option: str):
     raise InputError(f"{option}: file not found: {model!r} (and it is not a shipped name: "
                      f"{names})")
 
+
+
+def _check_model_use(args: argparse.Namespace) -> None:
+    """``identify MODEL --y FILE``: no option of the generic identifiers, and a --y file."""
+    given = [f"--{k.replace('_', '-')}" for k in GENERIC_OPTIONS if getattr(args, k)
+             not in (None, False)]
+    if given:
+        raise InputError(f"identify: {', '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to the generic "
+                         f"identifiers: give "
+                         f"--order N (or auto) and the record as the argument ('aeid-struct "
+                         f"identify RECORD --order N --dt DT'); got the identifier "
+                         f"{args.model!r}")
+    if args.y is None:
+        if Path(args.model).suffix.lower() in (".csv", ".npy", ".txt") and \
+                Path(args.model).is_file():
+            raise InputError(f"identify: {args.model!r} is a record file: identify it with the "
+                             "generic identifiers by --order N (or --order auto), or name an "
+                             "identifier and give the record by --y (see 'aeid-struct identify "
+                             "--help')")
+        raise InputError("identify: the following arguments are required: --y (see "
+                         "'aeid-struct identify --help')")
 
 
 def run_identify(args: argparse.Namespace) -> int:
@@ -91,6 +144,11 @@ def run_identify(args: argparse.Namespace) -> int:
     InputError
         A wrong model, record file or record.
     """
+    if args.order is not None:
+        from aeid_struct.cli.identify_any import run_identify_any
+
+        return run_identify_any(args)
+    _check_model_use(args)
     ident = load_identifier(args.model, "model")
     R = ident.records
     steps = ident.steps if R > 1 else (ident.steps,)
@@ -131,7 +189,7 @@ def run_identify(args: argparse.Namespace) -> int:
             else f" (records {np.flatnonzero(est.info['refined_rows']).tolist()})"))
     flagged = _self_check(est)
     if args.json:
-        _write_json(args.json, _estimate_json(est, args.model, repr(ident)))
+        write_json(args.json, _estimate_json(est, args.model, repr(ident)))
         print(f"wrote {args.json}")
     if flagged:
         rng = est.training_range
@@ -187,7 +245,7 @@ def _percent(fit: np.ndarray) -> str:
 def _estimate_json(est, model: str, identifier: str) -> dict:
     rng = est.training_range
     refined_rows = est.info.get("refined_rows")
-    return _plain({
+    return plain({
         "model": model, "identifier": identifier, "dt": est.dt,
         "A": est.A, "b": est.b, "c": est.c, "d": np.asarray(est.d),
         "fit_percent": np.asarray(est.fit), "excess": est.excess, "outside": est.outside,
@@ -201,14 +259,25 @@ def _estimate_json(est, model: str, identifier: str) -> dict:
     })
 
 
-def _plain(value):
-    """``value`` as strict JSON: arrays as lists, non-finite numbers as null."""
+def plain(value):
+    """``value`` as strict JSON: arrays as lists, non-finite numbers as null.
+
+    Parameters
+    ----------
+    value : object
+        Dicts, lists, tuples, numpy arrays and scalars, str, None.
+
+    Returns
+    -------
+    object
+        The same data in JSON's types.
+    """
     if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
+        return {k: plain(v) for k, v in value.items()}
     if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
+        return plain(value.tolist())
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [plain(v) for v in value]
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):
@@ -218,7 +287,20 @@ def _plain(value):
     return value
 
 
-def _write_json(file: str, data: dict) -> None:
+def write_json(file: str, data: dict) -> None:
+    """Write ``data`` (strict JSON, :func:`plain`) to ``file``, creating its folder.
+
+    Parameters
+    ----------
+    file : str
+        The ``--json`` file.
+    data : dict
+
+    Raises
+    ------
+    InputError
+        The file cannot be written.
+    """
     path = Path(file)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

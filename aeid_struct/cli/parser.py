@@ -20,7 +20,7 @@ from aeid_struct.cli.commands import (
 )
 from aeid_struct.cli.demo import run_demo
 from aeid_struct.cli.errors import EXIT_INPUT, EXIT_OUTSIDE, InputError
-from aeid_struct.cli.identify import run_identify, shipped_names
+from aeid_struct.cli.identify import generic_names, run_identify, shipped_names
 from aeid_struct.cli.records_io import RECORD_LAYOUTS
 from aeid_struct.cli.train_generic import run_train_generic
 
@@ -105,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_train(sub)
     _add_train_generic(sub)
     _add_track(sub, names)
-    _add_identify(sub, names)
+    _add_identify(sub, names, ", ".join(generic_names()))
     _add_bench(sub)
     _add_bench_online(sub)
     _add_bench_generic(sub)
@@ -291,37 +291,87 @@ def _add_track(sub, names: str) -> None:
     trk.set_defaults(func=run_track)
 
 
-def _add_identify(sub, names: str) -> None:
+def _order(text: str):
+    """An argparse type: ``auto`` or an order 1..4 (the generic identifiers' orders)."""
+    if text == "auto":
+        return text
+    if text.strip().isdigit() and 1 <= int(text) <= 4:
+        return int(text)
+    raise argparse.ArgumentTypeError(f"expected an order 1, 2, 3, 4 or auto; got {text!r}")
+
+
+def _add_identify(sub, names: str, generic: str) -> None:
+    generic = generic or "none in this installation (aeid-struct train-generic trains them)"
     idp = sub.add_parser(
-        "identify", help="identify a system from a record file, with the identifier's "
+        "identify", help="identify a system from a record file: any SISO system with --order "
+                         "(the generic identifiers), or with a trained identifier and its "
                          "self-check (fit, excess, inside or outside its training range)",
-        description="Identify a system from a record file with a trained identifier and print "
-                    "the model, its physical parameters and the self-check: each record's fit "
-                    "(NRMSE %), its excess beyond the training range, and the verdict (inside "
-                    "or OUTSIDE the training range).",
-        epilog=RECORD_LAYOUTS + "\n\n"
+        usage="aeid-struct identify RECORD --order {1,2,3,4,auto} [--dt DT] [options]\n"
+              "       aeid-struct identify MODEL --y FILE [FILE ...] [options]",
+        description="Two uses. (1) Any SISO system, any sample time and record length: "
+                    "'aeid-struct identify RECORD --order N' identifies a continuous-time model "
+                    "of order N (or --order auto: the order selected by validation fit) with the "
+                    f"shipped generic identifiers ({generic}) and refines it over the whole "
+                    "record (output error with the initial state, an output offset and the input "
+                    "delay), like aeid_struct.identify(record, order=N); it prints the model "
+                    "(A, b, c, d and the transfer function), the delay, the initial state, the "
+                    "offset, the fit and the time. (2) With a trained identifier MODEL (a file, "
+                    f"or a shipped leg identifier: {names}) and --y: print the model, its "
+                    "physical parameters and the self-check: each record's fit (NRMSE %), its "
+                    "excess beyond the training range, and the verdict (inside or OUTSIDE the "
+                    "training range).",
+        epilog=RECORD_LAYOUTS + " With --order, RECORD is one record: a CSV with named columns "
+        "(t,u,y: dt from t; without t give --dt), or a (steps,) .npy or one-column CSV of y "
+        "with --u for its input (default a unit step) and --dt.\n\n"
         f"Exit status: 0 done; {EXIT_INPUT} a usage or input error; {EXIT_OUTSIDE} an estimate "
         "is flagged OUTSIDE the training range (a WARNING line on stderr; the estimate is still "
         "printed and written): the record is unlike the identifier's training records, e.g. "
         "sampled at another dt, and its parameters cannot be trusted. --allow-outside accepts "
         "it (status 0, the WARNING stays).")
-    idp.add_argument("model", help=f"an identifier file (.aeid) or a shipped name: {names}")
-    idp.add_argument("--y", required=True, nargs="+",
-                     help="output record file(s), .npy or .csv (layouts below); one file per "
-                          "record (subsystem) for a joint identifier")
+    idp.add_argument("model", metavar="RECORD|MODEL",
+                     help="with --order: the record file (.csv or .npy, layouts below); "
+                          f"otherwise an identifier file (.aeid) or a shipped name: {names}")
+    idp.add_argument("--order", type=_order, default=None, metavar="{1,2,3,4,auto}",
+                     help="identify RECORD with the generic identifiers: the model order 1-4, "
+                          "or auto (each order identified on the first 70 %% of the record, the "
+                          "smallest within 0.5 points of the best validation fit on the rest)")
+    idp.add_argument("--dt", type=_POSITIVE, default=None,
+                     help="with --order: the record's sample time [s] (default: from its t "
+                          "column)")
+    idp.add_argument("--no-refine", action="store_true",
+                     help="with --order: the generic identifier's model alone, without the "
+                          "output-error refinement over the whole record")
+    idp.add_argument("--delay", type=_number(int, 0, strict=False), default=None, metavar="D",
+                     help="with --order: the known input delay [samples] (default: estimated)")
+    idp.add_argument("--max-delay", type=_number(int, 0, strict=False), default=None,
+                     metavar="D",
+                     help="with --order: the largest input delay considered when it is "
+                          "estimated [samples] (default 10)")
+    idp.add_argument("--structure", choices=("ccf", "mcf"), default=None,
+                     help="with --order: ccf (controllable canonical form with feedthrough, "
+                          "default) or mcf (modal form, stable by construction)")
+    idp.add_argument("--figure", default=None,
+                     help="with --order: write the measured and the model's output (MATLAB's "
+                          "compare, initial state and offset fitted) as a PNG file")
+    idp.add_argument("--y", default=None, nargs="+",
+                     help="with MODEL: output record file(s), .npy or .csv (layouts below); one "
+                          "file per record (subsystem) for a joint identifier")
     idp.add_argument("--u", default=None, nargs="+",
                      help="input record file(s), like --y; default: the u column of the --y "
-                          "file, else a unit step")
+                          "file (with --order: of RECORD), else a unit step")
     idp.add_argument("--refine", choices=("no", "yes", "auto"), nargs="?", const="yes",
                      default="no",
-                     help="polish with the CasADi NLP: yes (also plain --refine), auto (only the "
-                          "estimates flagged outside the training range), no (default)")
+                     help="with MODEL: polish with the CasADi NLP: yes (also plain --refine), "
+                          "auto (only the estimates flagged outside the training range), no "
+                          "(default)")
     idp.add_argument("--allow-outside", action="store_true",
-                     help=f"exit 0 even when an estimate is flagged outside the training range "
-                          f"(default: exit {EXIT_OUTSIDE}); the WARNING is printed either way")
+                     help=f"with MODEL: exit 0 even when an estimate is flagged outside the "
+                          f"training range (default: exit {EXIT_OUTSIDE}); the WARNING is "
+                          "printed either way")
     idp.add_argument("--json", default=None,
-                     help="write the estimate as JSON, with fit_percent, excess, outside and the "
-                          "thresholds")
+                     help="write the estimate as JSON (with MODEL: with fit_percent, excess, "
+                          "outside and the thresholds; with --order: the model, delay, initial "
+                          "state, offset, fit and time)")
     idp.set_defaults(func=run_identify)
 
 

@@ -43,6 +43,8 @@ class RecordFile:
         The sample time of a named t column [s].
     columns : bool
         Whether the file was read from named columns (one record per file).
+    t0 : float or None
+        The time of the first sample, from a named t column [s].
     """
 
     path: str
@@ -50,6 +52,7 @@ class RecordFile:
     u: np.ndarray | None = None
     dt: float | None = None
     columns: bool = False
+    t0: float | None = None
 
 
 def _read_npy(path: Path, option: str) -> np.ndarray:
@@ -176,7 +179,7 @@ def read_record(file: str, option: str, channel: str) -> RecordFile:
     column = {n: table[:, k] for k, n in enumerate(names)}
     return RecordFile(file, column[channel], u=column.get("u") if channel == "y" else None,
                    dt=_sample_time(column["t"], file, option) if "t" in column else None,
-                   columns=True)
+                   columns=True, t0=float(column["t"][0]) if "t" in column else None)
 
 
 def _sample_time(t: np.ndarray, file: str, option: str) -> float | None:

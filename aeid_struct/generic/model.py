@@ -31,6 +31,7 @@ from aeid_struct.generic.forward import (
     normalise_numpy,
 )
 from aeid_struct.generic.poles import denominator, factors, poles_of
+from aeid_struct.identification import PRETRAINED
 from aeid_struct.structures import CCF
 
 __all__ = ["GENERIC", "GenericConfig", "GenericIdentifier", "load_generic", "normalise_windows",
@@ -439,5 +440,9 @@ def load_generic(name_or_path) -> GenericIdentifier:
         return read_generic(Path(str(shipped)))
     if isinstance(name_or_path, (str, os.PathLike)) and Path(name_or_path).is_file():
         return read_generic(name_or_path)
+    if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
+        raise ValueError(f"name_or_path {name_or_path!r} is a shipped leg identifier, not a "
+                         f"generic one: load it with aeid_struct.load_pretrained("
+                         f"{name_or_path!r}); generic identifiers: {list(GENERIC)}")
     raise ValueError(f"name_or_path must be one of {list(GENERIC)} or an existing generic "
                      f"identifier file; got {name_or_path!r}")

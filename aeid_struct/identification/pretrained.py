@@ -1,4 +1,12 @@
-"""The identifiers shipped in the package (``aeid_struct/pretrained/*.aeid``)."""
+"""The identifiers shipped in the package (``aeid_struct/pretrained/*.aeid``).
+
+The folder holds two kinds of file: the leg identifiers read here (format
+``aeid-struct/identifier/2``, one system family, one sample time, one record length), and the
+generic identifiers ``generic-1`` .. ``generic-4`` (format ``aeid-struct/generic/1``, any SISO
+system, any sample time and record length), read by ``aeid_struct.generic.load_generic`` and
+used by ``aeid_struct.identify(record, order=n)``. A shipped file's name tells its kind: the
+generic ones are named ``generic-<order>``.
+"""
 
 from __future__ import annotations
 
@@ -8,13 +16,31 @@ from aeid_struct.identification.identifier import Identifier
 
 __all__ = ["PRETRAINED", "load_pretrained"]
 
-#: The shipped identifiers' names.
+#: The shipped leg identifiers' names.
 PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-noisy", "leg-unstable-noisy",
               "leg-stable-window", "leg-stable-any", "leg-unstable-any")
+#: How the shipped generic identifiers' names begin (``generic-1`` .. ``generic-4``).
+_GENERIC_PREFIX = "generic-"
+
+
+def _shipped() -> dict[str, list[str]]:
+    """The ``.aeid`` files of ``aeid_struct/pretrained``, by kind.
+
+    Returns
+    -------
+    dict
+        ``{"leg": [...], "generic": [...]}``: the names (without ``.aeid``), sorted; ``"leg"``
+        are those :func:`load_pretrained` reads, ``"generic"`` those
+        ``aeid_struct.generic.load_generic`` reads (an installation may ship none of them).
+    """
+    names = sorted(p.name[: -len(".aeid")] for p in files("aeid_struct.pretrained").iterdir()
+                   if p.name.endswith(".aeid"))
+    return {"leg": [n for n in names if not n.startswith(_GENERIC_PREFIX)],
+            "generic": [n for n in names if n.startswith(_GENERIC_PREFIX)]}
 
 
 def load_pretrained(name: str) -> Identifier:
-    """An identifier shipped in the package.
+    """A leg identifier shipped in the package.
 
     ``"leg-stable"``, ``"leg-unstable"``, and their noise-trained variants
     ``"leg-stable-noisy"``, ``"leg-unstable-noisy"`` for measured (noisy) records;
@@ -24,6 +50,10 @@ def load_pretrained(name: str) -> Identifier:
     (records from rest) read any reasonably exciting input: steps of random height and timing,
     binary sequences, multisines, filtered noise (their encoder alone is a start for
     ``refine=True``; accuracy in ``pretrained/README.md``).
+
+    The generic identifiers shipped beside them (``generic-1`` .. ``generic-4``) are another
+    kind of file: ``aeid_struct.identify(record, order=n)`` uses them, and
+    ``aeid_struct.generic.load_generic(name)`` loads one.
 
     Parameters
     ----------
@@ -37,11 +67,19 @@ def load_pretrained(name: str) -> Identifier:
     Raises
     ------
     ValueError
-        For a name that is not shipped.
+        For a name that is not a shipped leg identifier; for a generic identifier's name, one
+        that says where to load it.
     """
-    root = files("aeid_struct.pretrained")
-    available = sorted(p.name[: -len(".aeid")] for p in root.iterdir()
-                       if p.name.endswith(".aeid"))
-    if name not in available:
-        raise ValueError(f"name must be one of {available}; got {name!r}")
-    return Identifier.load(root / f"{name}.aeid")
+    kinds = _shipped()
+    if isinstance(name, str) and name.startswith(_GENERIC_PREFIX):
+        order = name[len(_GENERIC_PREFIX):]
+        call = (f"aeid_struct.identify(record, order={order})" if order.isdigit()
+                else "aeid_struct.identify(record, order=n)")
+        raise ValueError(f"name {name!r} is a generic identifier (any system, any sample time), "
+                         f"not a leg identifier: use {call}, or "
+                         f"aeid_struct.generic.load_generic({name!r}) to load it "
+                         f"(shipped generic identifiers: {kinds['generic']}); load_pretrained "
+                         f"reads the leg identifiers {kinds['leg']}")
+    if name not in kinds["leg"]:
+        raise ValueError(f"name must be one of {kinds['leg']}; got {name!r}")
+    return Identifier.load(files("aeid_struct.pretrained") / f"{name}.aeid")

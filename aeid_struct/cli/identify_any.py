@@ -1,0 +1,199 @@
+"""``aeid-struct identify RECORD --order N``: any SISO system's record through the generic
+identifiers (``aeid_struct.identify``), the model printed and written as JSON, the compare
+figure written as PNG.
+
+The model of the record (docs/architecture.md, "Any system, any record"): the continuous-time
+``(A, b, c, d)`` in the record's time unit, the input delay ``D`` in samples, the state ``x0``
+at sample ``D`` and a constant output offset; the fit is the NRMSE fit in % on ``y[D:]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from aeid_struct.cli.errors import InputError
+from aeid_struct.cli.identify import plain, write_json
+from aeid_struct.cli.records_io import read_record
+
+#: ``--max-delay`` when it is not given (``aeid_struct.identify``'s default).
+MAX_DELAY = 10
+
+
+def transfer_function(A, b, c, d) -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator of ``G(s) = c^T (sI - A)^-1 b + d`` (descending powers of s).
+
+    ``det(sI - A + b c^T) = det(sI - A) (1 + c^T (sI - A)^-1 b)`` (the matrix determinant
+    lemma), so the numerator is ``det(sI - A + b c^T) + (d - 1) det(sI - A)``: two
+    characteristic polynomials, no inverse.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    b, c : (n,) arrays
+    d : float
+
+    Returns
+    -------
+    num, den : (n + 1,) arrays
+        ``den`` monic.
+    """
+    A = np.asarray(A, dtype=np.float64)
+    b, c = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (b, c))
+    den = np.poly(A)
+    num = np.poly(A - np.outer(b, c)) + (float(d) - 1.0) * den
+    return num, den
+
+
+def _record(args: argparse.Namespace):
+    """The ``aeid_struct.Record`` of RECORD (and ``--u``, ``--dt``), checked."""
+    from aeid_struct import Record
+
+    rec = read_record(args.model, "RECORD", "y")
+    if rec.values.ndim != 1:
+        raise InputError(f"RECORD file {args.model!r} holds {rec.values.shape[0]} rows of "
+                         f"{rec.values.shape[1]} values; expected one record: name its columns "
+                         "in a header row (e.g. 't,u,y'), or give y alone (one number per line, "
+                         "or a (steps,) .npy) and its input by --u")
+    u, source = rec.u, "the u column"
+    if args.u is not None:
+        if len(args.u) != 1:
+            raise InputError(f"--u: give one input file for RECORD; got {len(args.u)} files")
+        if rec.u is not None:
+            raise InputError(f"--u {args.u[0]!r} and the u column of RECORD {args.model!r}: "
+                             "give the input once")
+        u_file = read_record(args.u[0], "--u", "u")
+        if u_file.values.ndim != 1 or u_file.values.shape != rec.values.shape:
+            raise InputError(f"--u file {args.u[0]!r} holds {u_file.values.shape} values; "
+                             f"expected one input of {rec.values.shape[0]} samples like RECORD")
+        u, source = u_file.values, f"--u {args.u[0]}"
+    if u is None:
+        source = "a unit step (RECORD has no u column and no --u was given)"
+    if rec.dt is None and args.dt is None:
+        raise InputError(f"--dt: RECORD {args.model!r} has no t column; give its sample time "
+                         "by --dt DT (seconds)")
+    if rec.dt is not None and args.dt is not None and not math.isclose(rec.dt, args.dt,
+                                                                       rel_tol=1e-4):
+        raise InputError(f"--dt {args.dt:g} s disagrees with the t column of RECORD "
+                         f"{args.model!r} (sampled every {rec.dt:g} s); give one of them")
+    steps = rec.values.shape[0]
+    if args.delay is not None and args.delay > steps - 2:
+        raise InputError(f"--delay must be at most {steps - 2} samples for RECORD "
+                         f"{args.model!r} ({steps} samples); got {args.delay}")
+    try:
+        record = Record(rec.values, u, args.dt if rec.dt is None else rec.dt,
+                        t0=rec.t0 or 0.0, name=Path(args.model).name)
+    except ValueError as err:
+        raise InputError(f"RECORD {args.model!r}: {err}") from None
+    return record, source
+
+
+def _refuse_model_options(args: argparse.Namespace) -> None:
+    """The options of an identifier (MODEL) have no meaning for the generic identifiers."""
+    given = [opt for opt, on in (("--y", args.y is not None),
+                                 ("--refine", args.refine != "no"),
+                                 ("--allow-outside", args.allow_outside)) if on]
+    if given:
+        raise InputError(f"identify: {', '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to an identifier "
+                         "MODEL, not to "
+                         "--order (the generic identifiers read RECORD, the argument; "
+                         "--no-refine skips their refinement)")
+    if args.figure is not None and Path(args.figure).is_dir():
+        raise InputError(f"--figure {args.figure!r} is a folder; expected the PNG file to write")
+
+
+def run_identify_any(args: argparse.Namespace) -> int:
+    """``identify RECORD --order N``: identify, print the model, write the JSON and figure.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed arguments of ``aeid-struct identify`` with ``--order``.
+
+    Returns
+    -------
+    int
+        0.
+
+    Raises
+    ------
+    InputError
+        A wrong option, record file or record (one that the generic identifiers refuse, e.g.
+        shorter than their window).
+    """
+    _refuse_model_options(args)
+    record, source = _record(args)
+    import aeid_struct as ae
+
+    order = None if args.order == "auto" else int(args.order)
+    max_delay = MAX_DELAY if args.max_delay is None else int(args.max_delay)
+    try:
+        est = ae.identify(record, order=order, structure=args.structure, refine=not args.no_refine,
+                          delay=args.delay, max_delay=max_delay)
+    except ValueError as err:   # the record's content, its length, a missing generic file
+        raise InputError(f"identify {args.model} --order {args.order}: {err}") from None
+    figure = None
+    if args.figure is not None:
+        cmp = ae.compare(est, record)
+        try:
+            Path(args.figure).parent.mkdir(parents=True, exist_ok=True)
+            cmp.figure(args.figure, title=f"{record.name}: order {est.A.shape[0]}")
+        except OSError as err:
+            raise InputError(f"--figure {args.figure!r}: cannot write "
+                             f"({err.strerror or err})") from None
+        figure = {"path": args.figure, "fit_percent": cmp.fit}
+    summary = _summary(est, record, args, source, max_delay, figure)
+    _print(summary, est)
+    if args.json:
+        write_json(args.json, plain(summary))
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
+    """The estimate as the JSON and the printout carry it."""
+    num, den = transfer_function(est.A, est.b, est.c, est.d)
+    fits = est.info.get("order_fits")
+    return {
+        "record": args.model, "steps": record.steps, "dt": record.dt, "input": source,
+        "order": int(est.A.shape[0]),
+        "order_fits": None if fits is None else {str(n): f for n, f in sorted(fits.items())},
+        "identifier": f"generic-{est.A.shape[0]}", "structure": repr(est.structure),
+        "A": est.A, "b": est.b, "c": est.c, "d": float(est.d),
+        "elements": {k: float(v) for k, v in est.elements.items()},
+        "numerator": num, "denominator": den,
+        "delay_samples": est.delay, "delay_seconds": est.delay * record.dt,
+        "delay_estimated": args.delay is None, "max_delay": max_delay,
+        "x0": est.x0, "offset": est.offset, "fit_percent": float(est.fit),
+        "refined": bool(est.refined), "refine": not args.no_refine,
+        "seconds": float(est.seconds), "figure": figure,
+    }
+
+
+def _print(s: dict, est) -> None:
+    np.set_printoptions(precision=6, suppress=False)
+    chosen = "" if s["order_fits"] is None else " selected by validation fit (" + ", ".join(
+        f"order {n}: {f:.2f} %" for n, f in s["order_fits"].items()) + ")"
+    print(f"{s['record']}: {s['steps']} samples at dt = {s['dt']:g} s; input: {s['input']}")
+    print(f"{s['identifier']}: order {s['order']}{chosen}, structure {s['structure']}")
+    print("A =\n", est.A)
+    print("b =", est.b, " c =", est.c, " d =", est.d)
+    print("transfer function (descending powers of s):\n  num =", s["numerator"],
+          "\n  den =", s["denominator"])
+    print(f"delay: {s['delay_samples']} samples = {s['delay_seconds']:g} s ("
+          + (f"estimated, 0..{s['max_delay']} considered)" if s["delay_estimated"]
+             else "given)"))
+    print(f"initial state x0 (at sample {s['delay_samples']}) =", est.x0)
+    print(f"output offset = {s['offset']:.6g}")
+    print(f"fit: {s['fit_percent']:.2f} % (NRMSE on samples {s['delay_samples']}.."
+          f"{s['steps'] - 1}, initial state and offset fitted)")
+    print("refined over the whole record (output error)" if s["refined"] else
+          "not refined (--no-refine)" if not s["refine"] else
+          "not refined: the refinement did not lower the residual")
+    print(f"time: {1e3 * s['seconds']:.1f} ms")
+    if s["figure"] is not None:
+        print(f"wrote {s['figure']['path']} (compare: fit {s['figure']['fit_percent']:.2f} %)")

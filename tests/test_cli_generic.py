@@ -1,0 +1,220 @@
+"""``aeid-struct identify RECORD --order N``: any SISO record through the shipped generic
+identifiers, end to end (CSV and .npy files, printout, JSON, figure), and its one-line errors."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+import scipy.signal
+
+import aeid_struct as ae
+from aeid_struct.cli import generic_names, main, shipped_names
+from aeid_struct.cli.identify_any import transfer_function
+from aeid_struct.simulation import fit_initial
+
+# The simulated lab system: order 2 with a zero, lightly damped, sampled at DT, an output
+# offset, an input delay of DELAY samples, a random staircase input, 1 % noise.
+DT, STEPS, DELAY, OFFSET = 0.05, 800, 4, 1.5
+WN, ZETA = 3.0, 0.3
+A_TRUE = np.array([[0.0, 1.0], [-WN ** 2, -2 * ZETA * WN]])
+B_TRUE, C_TRUE, D_TRUE = np.array([0.0, 1.0]), np.array([2 * WN ** 2, 1.0]), 0.0
+
+
+def _record(seed=1, noise=0.01):
+    """``(t, u, y)`` of the lab system (time starts at 10 s: mid-experiment)."""
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(-1.0, 1.0, STEPS // 40), 40)
+    delayed = np.concatenate([np.zeros(DELAY), u[:-DELAY]])
+    y = ae.simulate(A_TRUE, B_TRUE, C_TRUE, D_TRUE, delayed, DT) + OFFSET
+    y = y + noise * np.std(y) * rng.standard_normal(STEPS)
+    return 10.0 + DT * np.arange(STEPS), u, y
+
+
+def _write_csv(path, header, columns):
+    rows = "\n".join(",".join(f"{v:.17g}" for v in row) for row in np.column_stack(columns))
+    path.write_text(header + "\n" + rows + "\n")
+    return str(path)
+
+
+def _refused(argv, capsys) -> str:
+    """Run ``argv``; it must end with status 2 and exactly one ``aeid-struct: error:`` line."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0] == f"aeid-struct: error: {exit_info.value}"
+    return lines[0]
+
+
+def test_the_help_lists_leg_and_generic_identifiers_apart(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["identify", "--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    # the generic identifiers are named where --order is explained, the leg ones where MODEL is
+    assert "generic identifiers (generic-1, generic-2, generic-3, generic-4)" in text
+    assert "shipped leg identifier: " + ", ".join(shipped_names()) in text
+    assert generic_names() == ["generic-1", "generic-2", "generic-3", "generic-4"]
+    assert not set(generic_names()) & set(shipped_names())
+    for option in ("--order", "--dt", "--no-refine", "--delay", "--max-delay", "--structure",
+                   "--figure", "--json"):
+        assert option in text
+
+
+def test_transfer_function_matches_scipy():
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 4):
+        A = rng.standard_normal((n, n))
+        b, c, d = rng.standard_normal(n), rng.standard_normal(n), float(rng.standard_normal())
+        num, den = transfer_function(A, b, c, d)
+        num_s, den_s = scipy.signal.ss2tf(A, b[:, None], c[None, :], [[d]])
+        np.testing.assert_allclose(den, den_s, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(num, num_s[0], rtol=1e-9, atol=1e-10)
+
+
+def test_identify_a_csv_record_end_to_end(tmp_path, capsys):
+    t, u, y = _record()
+    csv = _write_csv(tmp_path / "lab.csv", "t [s],u [V],y [K]", [t, u, y])
+    js, png = tmp_path / "out" / "estimate.json", tmp_path / "compare.png"
+    assert main(["identify", csv, "--order", "2", "--json", str(js), "--figure", str(png)]) == 0
+    out = capsys.readouterr().out
+    result = json.loads(js.read_text())
+    # the record as read: dt from the t column, the input from the u column
+    assert result["dt"] == pytest.approx(DT, rel=1e-12) and result["steps"] == STEPS
+    assert result["input"] == "the u column" and result["order"] == 2
+    assert result["delay_samples"] == DELAY and result["delay_estimated"] is True
+    assert result["delay_seconds"] == pytest.approx(DELAY * DT, rel=1e-12)
+    assert result["refined"] is True and result["fit_percent"] > 95.0
+    # against the truth: the poles within 2 %, the offset within 2 % of its value
+    poles = np.sort_complex(np.linalg.eigvals(np.array(result["A"])))
+    true_poles = np.sort_complex(np.linalg.eigvals(A_TRUE))
+    assert np.max(np.abs(poles - true_poles) / np.abs(true_poles)) < 0.02
+    assert result["offset"] == pytest.approx(OFFSET, rel=0.02)
+    # the true model's own fit on this noisy record (initial state and offset fitted): the
+    # estimate cannot be much worse than the truth
+    truth = fit_initial(A_TRUE, B_TRUE, C_TRUE, D_TRUE, y, u, DT, delay=DELAY, offset=True)
+    assert result["fit_percent"] > truth.fit - 0.5
+    # the transfer function is the state-space model's (scipy's ss2tf as the oracle)
+    A, b, c = (np.array(result[k]) for k in ("A", "b", "c"))
+    num_s, den_s = scipy.signal.ss2tf(A, b[:, None], c[None, :], [[result["d"]]])
+    np.testing.assert_allclose(result["denominator"], den_s, rtol=1e-9)
+    np.testing.assert_allclose(result["numerator"], num_s[0], rtol=1e-8, atol=1e-10)
+    # the CLI is the library's one call on the same record
+    direct = ae.identify(ae.Record(y, u, DT, t0=10.0), order=2)
+    np.testing.assert_allclose(A, direct.A, rtol=1e-9)
+    np.testing.assert_allclose(result["x0"], direct.x0, rtol=1e-9, atol=1e-12)
+    assert result["fit_percent"] == pytest.approx(direct.fit, rel=1e-9)
+    # the printout carries the model, the delay in samples and seconds, x0, offset, fit, time
+    for line in ("A =", "b =", "transfer function", f"delay: {DELAY} samples = 0.2 s",
+                 f"initial state x0 (at sample {DELAY}) =", "output offset =",
+                 f"fit: {result['fit_percent']:.2f} %", "time: ", f"wrote {js}"):
+        assert line in out, line
+    # the compare figure, and its fit (MATLAB's compare) equal to the estimate's
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert result["figure"]["fit_percent"] == pytest.approx(result["fit_percent"], abs=1e-6)
+
+
+def test_identify_npy_files_with_known_delay_mcf_and_no_refinement(tmp_path, capsys):
+    _, u, y = _record(seed=2)
+    np.save(tmp_path / "y.npy", y)
+    np.save(tmp_path / "u.npy", u)
+    js = tmp_path / "e.json"
+    assert main(["identify", str(tmp_path / "y.npy"), "--u", str(tmp_path / "u.npy"), "--dt",
+                 str(DT), "--order", "2", "--delay", str(DELAY), "--structure", "mcf",
+                 "--no-refine", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    result = json.loads(js.read_text())
+    assert result["delay_samples"] == DELAY and result["delay_estimated"] is False
+    assert result["refined"] is False and result["structure"].startswith("MCF(")
+    assert result["input"] == f"--u {tmp_path / 'u.npy'}"
+    assert "not refined (--no-refine)" in out and f"delay: {DELAY} samples = 0.2 s (given)" in out
+    direct = ae.identify(ae.Record(y, u, DT), order=2, delay=DELAY, structure="mcf",
+                         refine=False)
+    np.testing.assert_allclose(result["A"], direct.A, rtol=1e-9, atol=1e-12)
+    # the encoder alone on its own kind of record: a usable model (the refinement makes it exact)
+    assert result["fit_percent"] > 80.0
+
+
+def test_order_auto_reports_every_order_and_applies_the_rule(tmp_path, capsys):
+    t, u, y = _record(seed=3)
+    csv = _write_csv(tmp_path / "lab.csv", "t,u,y", [t, u, y])
+    js = tmp_path / "e.json"
+    assert main(["identify", csv, "--order", "auto", "--no-refine", "--json", str(js)]) == 0
+    result = json.loads(js.read_text())
+    fits = {int(n): f for n, f in result["order_fits"].items()}
+    assert sorted(fits) == [1, 2, 3, 4]
+    best = max(fits.values())
+    # ae.identify's rule: the smallest order within ORDER_TOLERANCE points of the best
+    assert result["order"] == min(n for n, f in fits.items()
+                                  if f >= best - ae.generic.ORDER_TOLERANCE)
+    assert "selected by validation fit (order 1: " in capsys.readouterr().out
+
+
+def _bad_files(tmp_path) -> dict:
+    t, u, y = _record()
+    f = {"lab.csv": _write_csv(tmp_path / "lab.csv", "t,u,y", [t, u, y]),
+         "y.csv": _write_csv(tmp_path / "y.csv", "y", [y]),
+         "u2.csv": _write_csv(tmp_path / "u2.csv", "u", [u[:100]]),
+         "short.csv": _write_csv(tmp_path / "short.csv", "t,u,y", [t[:100], u[:100], y[:100]]),
+         "batch.csv": str(tmp_path / "batch.csv"), "folder": str(tmp_path)}
+    np.savetxt(f["batch.csv"], np.vstack([y, y]), delimiter=",")
+    return f
+
+
+GENERIC_ERRORS = [
+    (["{lab.csv}", "--order", "5"], r"identify: argument --order: expected an order 1, 2, 3, 4 "
+                                    r"or auto; got '5'"),
+    (["{lab.csv}", "--order", "two"], r"argument --order: expected an order .*; got 'two'"),
+    (["{y.csv}", "--order", "2"], r"--dt: RECORD '.*y.csv' has no t column; give its sample "
+                                  r"time by --dt DT"),
+    (["{lab.csv}", "--order", "2", "--dt", "0.1"], r"--dt 0.1 s disagrees with the t column of "
+                                                   r"RECORD '.*lab.csv' \(sampled every 0.05 s\)"),
+    (["{lab.csv}", "--order", "2", "--dt", "-1"], r"argument --dt: expected a finite number > 0"),
+    (["{lab.csv}", "--order", "2", "--delay", "799"], r"--delay must be at most 798 samples for "
+                                                      r"RECORD"),
+    (["{lab.csv}", "--order", "2", "--delay", "-1"], r"argument --delay: expected an integer "
+                                                     r">= 0; got '-1'"),
+    (["{lab.csv}", "--order", "2", "--max-delay", "x"], r"argument --max-delay: expected an "
+                                                        r"integer >= 0; got 'x'"),
+    (["{lab.csv}", "--order", "2", "--structure", "ocf"], r"argument --structure: invalid "
+                                                          r"choice: 'ocf'"),
+    (["{lab.csv}", "--order", "2", "--figure", "{folder}"], r"--figure '.*' is a folder; "
+                                                            r"expected the PNG file to write"),
+    (["{lab.csv}", "--order", "2", "--y", "{y.csv}"], r"identify: --y applies to an identifier "
+                                                      r"MODEL, not to --order"),
+    (["{lab.csv}", "--order", "2", "--refine", "--allow-outside"], r"identify: --refine, "
+                                                                   r"--allow-outside apply to "
+                                                                   r"an identifier MODEL"),
+    (["{lab.csv}", "--order", "2", "--u", "{y.csv}"], r"--u '.*y.csv' and the u column of "
+                                                      r"RECORD '.*lab.csv': give the input once"),
+    (["{y.csv}", "--order", "2", "--dt", "0.05", "--u", "{u2.csv}"],
+     r"--u file '.*u2.csv' holds \(100,\) values; expected one input of 800 samples"),
+    (["{batch.csv}", "--order", "2", "--dt", "0.05"], r"RECORD file '.*batch.csv' holds 2 rows "
+                                                      r"of 800 values; expected one record"),
+    (["{short.csv}", "--order", "2"], r"identify .*short.csv --order 2: the record has 100 "
+                                      r"samples; the generic identifier of order 2 needs at "
+                                      r"least 256 \(its window\)"),
+    (["/nonexistent.csv", "--order", "1", "--dt", "1"], r"RECORD: file not found: "
+                                                        r"'/nonexistent.csv'"),
+    # the two uses do not mix: generic options with an identifier, a record without --order
+    (["leg-stable", "--y", "{y.csv}", "--dt", "0.1", "--no-refine"],
+     r"identify: --dt, --no-refine apply to the generic identifiers: give --order N"),
+    (["{lab.csv}"], r"identify: '.*lab.csv' is a record file: identify it with the generic "
+                    r"identifiers by --order N \(or --order auto\)"),
+    (["generic-2", "--y", "{y.csv}"], r"model 'generic-2' is a generic identifier \(any system, "
+                                      r"any sample time\), not an identifier of one record "
+                                      r"grid: identify a record with it by 'aeid-struct "
+                                      r"identify RECORD --order 2 --dt DT'"),
+]
+
+
+@pytest.mark.parametrize("argv, match", GENERIC_ERRORS,
+                         ids=[" ".join(a[1:]) or a[0] for a, _ in GENERIC_ERRORS])
+def test_generic_identify_errors_are_one_line(tmp_path, capsys, argv, match):
+    files = _bad_files(tmp_path)
+    filled = [re.sub(r"\{([^}]+)\}", lambda hit: files[hit.group(1)], a) for a in argv]
+    line = _refused(["identify", *filled], capsys)
+    assert re.search(match, line), line
