@@ -381,8 +381,9 @@ def run_bench_generic(args: argparse.Namespace) -> int:
     InputError
         A record length shorter than the identifiers' window.
     """
-    from aeid_struct.studies import generic_bench
+    from aeid_struct import studies
 
+    generic_bench = studies.generic_bench
     lengths = tuple(args.lengths or ((400, 1000) if args.quick else (400, 1000, 5000)))
     if min(lengths) < 256:
         raise InputError(f"bench-generic: --lengths must be >= 256 (the generic identifiers' "

@@ -3,13 +3,15 @@ the wear scenario of online identification, their figures, and the benchmarks. T
 imports this package.
 
 Each study is a namespace of its own (``studies.leg_paper``, ``studies.knowledge``,
-``studies.wear``, ``studies.figures``, ``studies.bench``, ``studies.bench_online``): their names
+``studies.wear``, ``studies.figures``, ``studies.bench``, ``studies.bench_online``,
+``studies.generic_bench``): their names
 overlap (each study has its ``evaluate``), so they are not merged into one.
 """
 
 from aeid_struct.studies import bench as bench
 from aeid_struct.studies import bench_online as bench_online
 from aeid_struct.studies import figures as figures
+from aeid_struct.studies import generic_bench as generic_bench
 from aeid_struct.studies import knowledge as knowledge
 from aeid_struct.studies import leg_paper as leg_paper
 from aeid_struct.studies import wear as wear
