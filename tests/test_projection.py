@@ -112,3 +112,14 @@ def test_constant_record_has_no_fit():
     A, b = ccf([1.0, 1.0])
     p = project(A, b, np.full(50, 2.0), np.zeros(50), 0.1)
     assert np.isnan(p.fit)
+
+
+def test_an_overflowed_response_gives_nan_not_a_lapack_error(capfd):
+    """A trial model of an optimiser can overflow; its fit is NaN, quietly (LAPACK printed
+    'DLASCL parameter number 4 had an illegal value' for the non-finite regressors)."""
+    A, b = ccf([1.0, -2000.0])                  # a pole at +2000: overflows within the record
+    u = np.ones(400)
+    with np.errstate(all="ignore"):
+        p = project(A, b, np.sin(np.arange(400.0)), u, 1.0)
+    assert np.isnan(p.fit) and np.isnan(p.c).all()
+    assert "DLASCL" not in capfd.readouterr().err

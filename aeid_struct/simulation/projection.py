@@ -113,6 +113,9 @@ def _forced(A, b, u, dt: float):
     u = np.asarray(u, dtype=np.float64)
     n = A.shape[0]
     Phi, gamma1, gamma2 = _discrete(A, b, dt)
+    if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(gamma1))):
+        # e^{A dt} overflowed (a fast unstable pole): no response to fit
+        return np.full((u.shape[0], n), np.nan), gamma2, Phi
     Bd = gamma1 - gamma2 + Phi @ gamma2
     a = np.real(np.poly(Phi))                     # (n + 1,), a[0] = 1
     markov = np.empty((n, n))                     # markov[m] = Phi^m Bd
@@ -163,6 +166,10 @@ def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:
 def _solve(M: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Least squares with column scaling (columns of slow and fast modes differ by orders of
     magnitude); a rank-deficient problem gets the minimum-norm solution."""
+    if not (np.all(np.isfinite(M)) and np.all(np.isfinite(r))):
+        # an overflowed response (a trial model with a fast unstable pole): no solution, and
+        # LAPACK would print an error line for the non-finite input
+        return np.full(M.shape[1], np.nan)
     scale = np.abs(M).max(axis=0)
     scale = np.where(scale > 0, scale, 1.0)
     z = np.linalg.lstsq(M / scale, r, rcond=None)[0]
