@@ -31,3 +31,26 @@ def tf_coeffs(A, b, c, d=0.0):
     num, den = num / den[0], den / den[0]
     num = np.concatenate([np.zeros(len(den) - len(num)), num])
     return num, den
+
+
+def torchrun(args, *, cwd, env, timeout=240):
+    """``python -m torch.distributed.run ARGS`` in a session of its own, as
+    ``subprocess.run(..., capture_output=True, text=True)`` does, and afterwards every process
+    of that session killed: a rank stuck in a collective after its peer died outlived the test
+    run (found orphaned an hour later)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "torch.distributed.run", *map(str, args)]
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)

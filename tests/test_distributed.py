@@ -5,13 +5,12 @@ import json
 import os
 import re
 import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from helpers import torchrun
 
 import aeid_struct as ae
 from aeid_struct.cli.main import main
@@ -85,10 +84,8 @@ def launch(tmp_path_factory):
     script = out / "run.py"
     script.write_text(_SCRIPT.format(root=str(ROOT), cli=_CLI))
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
-    done = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-         "--monitor-interval", "0.1", str(script), str(out)],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=240)
+    done = torchrun(["--standalone", "--nproc-per-node", "2", "--monitor-interval", "0.1",
+                     script, out], cwd=ROOT, env=env)
     return out, done
 
 

@@ -4,13 +4,12 @@ run, the file loads and identifies, a killed rank and the resumed run."""
 
 import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from helpers import torchrun
 
 from aeid_struct.cli.main import main
 from aeid_struct.generic import GenericConfig, load_generic, normalise_windows
@@ -67,10 +66,8 @@ def launch(tmp_path_factory):
     script = out / "run.py"
     script.write_text(_SCRIPT.format(root=str(ROOT), cli=_CLI))
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
-    done = subprocess.run(
-        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-         "--monitor-interval", "0.1", str(script), str(out)],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=240)
+    done = torchrun(["--standalone", "--nproc-per-node", "2", "--monitor-interval", "0.1",
+                     script, out], cwd=ROOT, env=env)
     return out, done
 
 

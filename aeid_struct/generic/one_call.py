@@ -43,6 +43,7 @@ import numpy as np
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.polish import (
     Model,
+    better_of,
     denominator_of,
     refine_casadi,
     refine_starts,
@@ -187,7 +188,7 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
         # their median beat both the median alone and the candidates alone
         dens = np.vstack([dens, np.median(dens, axis=0)])
     top = min(max_delay, N - window)
-    delays = [D0] if known is not None else range(max(0, D0 - 1), min(top, D0 + 1) + 1)
+    delays = [D0] if known is not None else range(top + 1)
     chosen = select(dens, y, u, delays, feedthrough=feedthrough, shortlist=SHORTLIST,
                     around=D0)
     return _Fit(dens[chosen.index], chosen.projection, len(dens))
@@ -245,7 +246,7 @@ def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough
             ccf_n = CCF(n, feedthrough=feedthrough)
             better, _ = (refine_casadi(ccf_n, model, part, max_delay) if method == "casadi" else
                          refine_starts(ccf_n, model, part, max_delay))
-            model = better if better is not None and better.cost < model.cost else model
+            model = better_of([model, better], part.y) if better is not None else model
         if not holdout:
             fits[n] = model.fit
             continue
@@ -336,7 +337,7 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
             better, casadi_about = refine_casadi(structure, model, data, int(max_delay))
             about |= casadi_about
         info |= about
-        if better is not None and better.cost < model.cost:
+        if better is not None and better_of([model, better], data.y) is better:
             model, refined = better, True
     return model.estimate(structure, data, time.perf_counter() - start, refined, info)
 
