@@ -34,6 +34,7 @@ fits are compared instead by the same rule.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from importlib import import_module
@@ -194,6 +195,14 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
     return _Fit(dens[chosen.index], chosen.projection, len(dens))
 
 
+@functools.cache
+def _shipped(order: int):
+    """The shipped ``generic-n``, read once per process (reading it took two thirds of an
+    unrefined call; ``identify`` never changes an identifier)."""
+    # the loader (module generic.model), looked up when needed
+    return import_module("aeid_struct.generic.model").load_generic(f"generic-{order}")
+
+
 def _identifiers(order, identifier, structure) -> dict:
     """Order -> generic identifier: the given one(s), or the shipped ``generic-n``."""
     if isinstance(identifier, dict):
@@ -201,10 +210,8 @@ def _identifiers(order, identifier, structure) -> dict:
     elif identifier is not None:
         chosen = {int(identifier.config.order): identifier}
     else:
-        # the shipped identifiers' loader (module generic.model), looked up when needed
-        load_generic = import_module("aeid_struct.generic.model").load_generic
         orders = ORDERS if order is None else (order,)
-        chosen = {n: load_generic(f"generic-{n}") for n in orders}
+        chosen = {n: _shipped(n) for n in orders}
     if order is not None:
         if order not in chosen:
             raise ValueError(f"identifier must be a generic identifier of order {order} (or "

@@ -156,7 +156,7 @@ def refine_casadi(structure: Structure, m: Model, data, max_delay: int):
 
 
 def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
-                split: bool = False):
+                split: bool = False, search: bool = True):
     """``(Model, info)`` of ``refinement.refine_separable`` from ``m`` (normalised time) at its
     delay; then every delay of ``0..max_delay`` re-scanned by projection with the refined poles
     and the best other one refined too where it is better (a wrong delay is partly absorbed by
@@ -175,6 +175,8 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
         The record (``y, u, delay``: the known delay or None).
     max_delay : int
     split : bool
+    search : bool
+        Search the delay (else refine at ``m.delay`` only).
 
     Returns
     -------
@@ -194,7 +196,7 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
         return Model(r.A, r.b, r.c, r.d, r.x0, r.y_offset, D, y_hat, r.fit, cost), r.converged
 
     best, converged = run(denominator_of(m.A), m.delay)
-    if data.delay is None and max_delay > 0:
+    if search and data.delay is None and max_delay > 0:
         top = min(max_delay, data.y.shape[0] - 4 * m.A.shape[0] - 4)
         best, converged = _delay_search(run, best, converged, data.y, top)
     poles = np.linalg.eigvals(best.A)
@@ -320,16 +322,22 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     """
     order = m.A.shape[0]
     feedthrough = "d" in structure.element_names and "d" not in structure.fixed_values
-    results = [refine_free(structure, m, data, max_delay, split=split)]
+    # both starts refined at their own delay, the delay searched from the better one only
+    results = [refine_free(structure, m, data, max_delay, split=split, search=False)]
     alt = classical_start(data, order, m.delay, max_delay, feedthrough)
     if alt is not None:
-        results.append(refine_free(structure, alt, data, max_delay, split=split))
+        results.append(refine_free(structure, alt, data, max_delay, split=split, search=False))
     chosen = better_of((r[0] for r in results), data.y)
     if chosen is None:
         return None, results[0][1]
     k = next(i for i, r in enumerate(results) if r[0] is chosen)
-    info = dict(results[k][1])
+    final, info = refine_free(structure, chosen, data, max_delay, split=split)
+    if final is None:
+        final, info = chosen, dict(results[k][1])
+    info = dict(info)
     info["start"] = ("encoder", "classical")[k]
-    info["iterations"] = sum(r[1].get("iterations", 0) for r in results)
-    info["refine_seconds"] = sum(r[1].get("refine_seconds", 0.0) for r in results)
-    return chosen, info
+    info["iterations"] = (sum(r[1].get("iterations", 0) for r in results)
+                          + info.get("iterations", 0))
+    info["refine_seconds"] = (sum(r[1].get("refine_seconds", 0.0) for r in results)
+                              + info.get("refine_seconds", 0.0))
+    return final, info
