@@ -45,12 +45,15 @@ import time
 import control
 import matplotlib.pyplot as plt
 import numpy as np
+import torch
+from IPython.display import Image, display
 
 import aeid_struct as ae
 from aeid_struct import baselines
 from aeid_struct.simulation import fit_initial
 
 FAST = os.environ.get("AEID_FAST") == "1"
+torch.set_num_threads(1)          # the timings below are for one core
 rng = np.random.default_rng(2026)"""),
     ("md", r"""## The lab system (unknown to the identifier)
 
@@ -123,7 +126,8 @@ print(f"{'true model':24s} {true_fit:17.2f}")"""),
     ("md", r"""## `compare`: measured vs simulated output on the validation record"""),
     ("code", r"""cmp = ae.compare(est, validation)
 print(f"validation fit {cmp.fit:.2f} %")
-cmp.figure("compare.png", y_label="load position [m]")"""),
+cmp.figure("compare.png", y_label="load position [m]")
+display(Image("compare.png"))"""),
     ("md", r"""## Bode: the identified models against the true system
 
 The refined model should lie on the true one over the band the record excites (the belt
