@@ -430,3 +430,24 @@ def test_select_shortlist_scores_all_at_the_arx_delay_and_the_best_at_all():
     np.testing.assert_allclose(short.costs[:, 0], full.costs[:, 0], rtol=1e-10)
     assert np.isinf(short.costs[[0, 2], 1]).all() and np.isfinite(short.costs[1, 1])
     assert short.projection.fit == pytest.approx(project(*ccf(den), y, u, 1.0).fit, abs=1e-8)
+
+
+def test_messages_for_an_order_not_shipped_and_a_constant_input():
+    """With the shipped identifiers: an order without one names the choices; a constant input
+    (also the unit step that stands in for a missing u) is refused with the reason, not as
+    'no usable model'."""
+    y = np.sin(np.arange(1000) * 0.05)
+    u = np.cos(np.arange(1000) * 0.03)
+    with pytest.raises(ValueError, match=r"order must be one of \(1, 2, 3, 4\).*got 5"):
+        ae.identify(ae.Record(y, u, 0.1), order=5)
+    for record in (ae.Record(y, np.ones(1000), 0.1), ae.Record(y, None, 0.1)):
+        with pytest.raises(ValueError, match="u is constant over the whole record"):
+            ae.identify(record, order=2)
+
+
+def test_comparison_repr_is_one_line():
+    y = np.sin(np.arange(600) * 0.05)
+    u = np.cos(np.arange(600) * 0.03)
+    A, b, c = np.array([[0.0, 1.0], [-1.0, -0.5]]), np.array([0.0, 1.0]), np.array([1.0, 0.0])
+    text = repr(ae.compare((A, b, c, 0.0), ae.Record(y, u, 0.1)))
+    assert text.startswith("Comparison(fit=") and "\n" not in text and "steps=600" in text

@@ -50,6 +50,10 @@ class Comparison:
     t: np.ndarray
     delay: int
 
+    def __repr__(self) -> str:
+        return (f"Comparison(fit={self.fit:.2f} %, steps={self.y.shape[0]}, delay={self.delay}, "
+                f"y_offset={self.y_offset:.4g})")
+
     def figure(self, path=None, *, y_label: str = "y", time_unit: str = "s",
                title: str | None = None):
         """Measured and simulated output over time, the fit in the legend.

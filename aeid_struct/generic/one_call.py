@@ -180,6 +180,11 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
     if dens.shape[1] != order + 1:
         raise ValueError(f"identifier must give denominators of order {order} ((K, "
                          f"{order + 1}) arrays); got shape {dens.shape}")
+    if len(dens) == 0 and not np.ptp(u) > 0:
+        raise ValueError("u is constant over the whole record: with a free initial state and "
+                         "offset, a constant input says nothing about the system (a step "
+                         "response from rest is the leg identifiers' case, ae.load_pretrained); "
+                         "give a record whose input varies")
     if len(dens) == 0:
         raise ValueError(f"the generic identifier of order {order} found no usable model in "
                          f"any window of this record ({N} samples)")
@@ -199,6 +204,9 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough) -> _Fit
 def _shipped(order: int):
     """The shipped ``generic-n``, read once per process (reading it took two thirds of an
     unrefined call; ``identify`` never changes an identifier)."""
+    if order not in ORDERS:
+        raise ValueError(f"order must be one of {ORDERS} (the shipped generic identifiers) or "
+                         f"None; got {order} (pass identifier= for another order)")
     # the loader (module generic.model), looked up when needed
     return import_module("aeid_struct.generic.model").load_generic(f"generic-{order}")
 
