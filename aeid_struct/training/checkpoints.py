@@ -275,3 +275,34 @@ def resume(path: Path, fingerprint: str, ident, opt, generators: dict) -> dict:
     for key in HISTORY[4:]:   # older checkpoints
         state["history"].setdefault(key, [math.nan] * state["epoch"])
     return state
+
+
+def end_epoch(run, state: dict, held: float, elapsed: float) -> None:
+    """The end of an epoch, shared by ``train()`` and ``train_generic()``: keep the weights if
+    the held-out loss is the best so far (on the CPU whatever the device, so that a checkpoint
+    resumes on any device), count the epoch, and write the checkpoint (rank 0 alone, the other
+    processes waiting for it: ``on_epoch`` may rely on it being there).
+
+    Parameters
+    ----------
+    run : the loop's run record
+        Its ``ident``, ``ckpt`` (Path or None), ``ctx`` (``distributed`` context: ``writer``,
+        ``barrier``), ``fingerprint``, ``opt`` and ``generators``.
+    state : dict
+        The checkpointed state (``best``, ``best_state``, ``epoch``, ``elapsed``), changed here.
+    held : float
+        This epoch's held-out loss.
+    elapsed : float
+        Training seconds so far.
+    """
+    if held < state["best"] and math.isfinite(held):
+        state["best"] = held
+        state["best_state"] = {k: v.detach().to("cpu", copy=True)
+                               for k, v in run.ident.encoder.state_dict().items()}
+    state["epoch"] += 1
+    state["elapsed"] = elapsed
+    if run.ckpt is not None:
+        if run.ctx.writer:
+            save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators, state)
+        run.ctx.barrier()
+

@@ -458,17 +458,7 @@ def _record(run: _Run, loss, held, fit, lr, norms, skipped, elapsed) -> None:
                        ("grad_norm_max", max(norms) if norms else math.nan),
                        ("skipped", skipped), ("holdout_fit", fit)):
         hist[key].append(value)
-    if held < state["best"] and math.isfinite(held):
-        state["best"] = held
-        # on the CPU whatever the device, so that a checkpoint resumes on any device
-        state["best_state"] = {k: v.detach().to("cpu", copy=True)
-                               for k, v in run.ident.encoder.state_dict().items()}
-    state["epoch"] += 1
-    state["elapsed"] = elapsed
-    if run.ckpt is not None:
-        if run.ctx.writer:
-            checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators, state)
-        run.ctx.barrier()                    # on_epoch may rely on the checkpoint being there
+    checkpoints.end_epoch(run, state, held, elapsed)
 
 
 def _finish(run: _Run) -> GenericIdentifier:

@@ -367,18 +367,7 @@ def _record(run: _Run, train_loss: float, held: float, lr: float, norms: list[fl
     hist["grad_norm_median"].append(float(np.median(norms)) if norms else math.nan)
     hist["grad_norm_max"].append(max(norms) if norms else math.nan)
     hist["skipped"].append(skipped)
-    if held < state["best"] and math.isfinite(held):
-        state["best"] = held
-        # on the CPU whatever the device, so that a checkpoint resumes on any device
-        state["best_state"] = {k: v.detach().to("cpu", copy=True)
-                               for k, v in run.ident.encoder.state_dict().items()}
-    state["epoch"] += 1
-    state["elapsed"] = elapsed
-    if run.ckpt is not None:
-        if run.ctx.writer:
-            checkpoints.save(run.ckpt, run.fingerprint, run.ident, run.opt, run.generators,
-                             state)
-        run.ctx.barrier()                    # on_epoch may rely on the checkpoint being there
+    checkpoints.end_epoch(run, state, held, elapsed)
 
 
 def _finish(run: _Run) -> Identifier:
