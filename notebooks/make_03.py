@@ -365,9 +365,10 @@ constraint removes positive real poles only, as $s^3 + s^2 + s + 10$ shows.
 ]
 
 
-def build() -> nbformat.NotebookNode:
+def build(cells_source=None) -> nbformat.NotebookNode:
+    """The notebook of ``cells_source`` ((kind, source) pairs; default this file's CELLS)."""
     cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src)
-             for kind, src in CELLS]
+             for kind, src in (CELLS if cells_source is None else cells_source)]
     nb = new_notebook(cells=cells)
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
                                  "language": "python"}
@@ -401,17 +402,20 @@ def execute(nb: nbformat.NotebookNode) -> float:
             os.environ["MPLBACKEND"] = env_backend
 
 
-def main(argv=None) -> None:
+def main(argv=None, *, cells_source=None, target=None) -> None:
+    """Write the notebook (``--execute``: run it in full mode first); another notebook's
+    generator passes its own cells and target."""
+    target = TARGET if target is None else target
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--execute", action="store_true",
                         help="run the notebook in full mode and store its outputs")
     args = parser.parse_args(argv)
-    nb = build()
+    nb = build(cells_source)
     if args.execute:
         seconds = execute(nb)
         print(f"executed in {seconds:.0f} s", file=sys.stderr)
-    nbformat.write(nb, TARGET)
-    print(f"wrote {TARGET}", file=sys.stderr)
+    nbformat.write(nb, target)
+    print(f"wrote {target}", file=sys.stderr)
 
 
 if __name__ == "__main__":

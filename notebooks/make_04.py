@@ -10,13 +10,9 @@ environment) imports this checkout's ``aeid_struct``.
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
-import nbformat
-from make_03 import execute  # the same full-mode runner (temporary directory, inline figures)
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from make_03 import main  # the same builder and full-mode runner (temporary directory)
 
 HERE = Path(__file__).resolve().parent
 TARGET = HERE / "04_any_system.ipynb"
@@ -66,7 +62,9 @@ w, zeta, p = 40.0, 0.05, 8.0
 den = np.polymul([1.0, p], [1.0, 2 * zeta * w, w * w])       # s^3 + ...
 num = np.array([0.0, 120.0, 12000.0])                        # 120 s + 12000
 n = len(den) - 1
-A_true = np.zeros((n, n)); A_true[:-1, 1:] = np.eye(n - 1); A_true[-1] = -den[1:][::-1]
+A_true = np.zeros((n, n))
+A_true[:-1, 1:] = np.eye(n - 1)                              # bottom-row CCF (paper Eq. 5)
+A_true[-1] = -den[1:][::-1]
 b_true, c_true = np.eye(n)[-1], num[::-1]
 
 preroll = 400
@@ -165,28 +163,5 @@ fits as well is chosen, and the validation fit shows that nothing is lost."""),
 ]
 
 
-def build() -> nbformat.NotebookNode:
-    cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src)
-             for kind, src in CELLS]
-    nb = new_notebook(cells=cells)
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
-                                 "language": "python"}
-    nb.metadata["language_info"] = {"name": "python"}
-    return nb
-
-
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--execute", action="store_true",
-                        help="run the notebook in full mode and store its outputs")
-    args = parser.parse_args(argv)
-    nb = build()
-    if args.execute:
-        seconds = execute(nb)
-        print(f"executed in {seconds:.0f} s", file=sys.stderr)
-    nbformat.write(nb, TARGET)
-    print(f"wrote {TARGET}", file=sys.stderr)
-
-
 if __name__ == "__main__":
-    main()
+    main(cells_source=CELLS, target=TARGET)
