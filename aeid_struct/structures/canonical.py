@@ -280,7 +280,7 @@ class MCF(Structure):
         names = list(self._maps)
         idx = [names.index(k) for k in self._fixed]
         vals = x.new_tensor(list(self._fixed.values()))
-        out, found = x.clone(), torch.zeros(x.shape[0], dtype=torch.bool)
+        out, found = x.clone(), torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
         for pr in itertools.permutations(range(r)):
             for pp in itertools.permutations(range(self.pairs)):
                 perm = list(range(self.q))

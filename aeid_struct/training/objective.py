@@ -77,7 +77,8 @@ def batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
         yinf_hat = stationary_value_batch(A, b, c, d) if gamma > 0 else None
         if not bool(torch.isfinite(y_hat).all()) or (
                 yinf_hat is not None and not bool(torch.isfinite(yinf_hat).all())):
-            return torch.full((), math.nan, dtype=y_hat.dtype)   # overflowed: a skipped batch
+            # overflowed: a skipped batch
+            return torch.full((), math.nan, dtype=y_hat.dtype, device=y_hat.device)
         y_bar = record_scale(ys[r])
         yinf_r = yinf[:, r] if R > 1 else yinf
         total = total + loss(normalise(y_hat, y_bar), normalise(ys[r], y_bar),
