@@ -27,7 +27,6 @@ from aeid_struct.generic.model import load_generic as load_generic
 from aeid_struct.generic.model import normalise_windows as normalise_windows
 from aeid_struct.generic.model import spectra as spectra
 from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
-from aeid_struct.generic.one_call import Measured as Measured
 from aeid_struct.generic.one_call import identify as identify
 from aeid_struct.generic.one_call import measured as measured
 from aeid_struct.generic.poles import denominator as denominator
@@ -45,7 +44,6 @@ __all__ = [
     "GENERIC",
     "GenericConfig",
     "GenericIdentifier",
-    "Measured",
     "ORDERS",
     "ORDER_TOLERANCE",
     "Windows",

@@ -51,11 +51,11 @@ from aeid_struct.generic.polish import (
 )
 from aeid_struct.generic.windows import candidates, select
 from aeid_struct.identification import Estimate
-from aeid_struct.records import as_array, check_dt, require_finite, unit_step
+from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["ESTIMATION_SHARE", "METHODS", "ORDER_TOLERANCE", "Measured", "identify", "measured"]
+__all__ = ["ESTIMATION_SHARE", "METHODS", "ORDER_TOLERANCE", "identify", "measured"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``).
 ORDER_TOLERANCE = 0.5
@@ -69,42 +69,6 @@ ORDERS = (1, 2, 3, 4)
 METHODS = ("auto", "separable", "casadi")
 
 
-@dataclass(frozen=True)
-class Measured:
-    """A validated SISO record (what :func:`measured` makes of a Record or arrays).
-
-    Attributes
-    ----------
-    y : (steps,) float64 array
-    u : (steps,) float64 array
-    dt : float
-    delay : int or None
-        The known input delay in samples, or None.
-    t0 : float
-        Time of the first sample.
-    """
-
-    y: np.ndarray
-    u: np.ndarray
-    dt: float
-    delay: int | None
-    t0: float = 0.0
-
-    @property
-    def steps(self) -> int:
-        """Samples in the record."""
-        return self.y.shape[0]
-
-
-def _samples(name: str, value) -> np.ndarray:
-    arr = as_array(name, value)
-    if arr.ndim != 1 or arr.shape[0] < 2:
-        raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record); got "
-                         f"shape {arr.shape}")
-    require_finite(name, arr)
-    return arr
-
-
 def _delay(name: str, value, steps: int) -> int | None:
     if value is None:
         return None
@@ -115,21 +79,22 @@ def _delay(name: str, value, steps: int) -> int | None:
     return int(value)
 
 
-def measured(record, delay=None) -> Measured:
-    """A user's record, checked once.
+def measured(record, delay=None) -> Record:
+    """A user's record as a checked :class:`~aeid_struct.records.Record` (checked once: a
+    Record is taken as it is, anything else goes through Record's own checks).
 
     Parameters
     ----------
     record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-        Any object with attributes ``y`` (and optionally ``u``, ``dt``, ``delay``, ``t0``),
-        e.g. :class:`aeid_struct.Record`; a lone array is ``y`` with a unit step input and
-        ``dt = 1``.
+        Any object with attributes ``y`` (and optionally ``u``, ``dt``, ``delay``, ``t0``); a
+        lone array is ``y`` with a unit step input and ``dt = 1``.
     delay : int, optional
         A known input delay in samples, over the record's own.
 
     Returns
     -------
-    Measured
+    Record
+        With the known delay (or None); at least 2 samples are left after it.
 
     Raises
     ------
@@ -137,26 +102,21 @@ def measured(record, delay=None) -> Measured:
         Naming the argument: not real numbers, a wrong shape, a non-finite sample, ``u`` of
         another length, a bad ``dt`` or ``delay``.
     """
-    if hasattr(record, "y"):
-        y, u = record.y, getattr(record, "u", None)
-        dt, known, t0 = (getattr(record, "dt", 1.0), getattr(record, "delay", None),
-                         getattr(record, "t0", 0.0))
+    if isinstance(record, Record):
+        rec = record
+    elif hasattr(record, "y"):
+        rec = Record(record.y, getattr(record, "u", None), getattr(record, "dt", 1.0),
+                     delay=getattr(record, "delay", None), t0=getattr(record, "t0", 0.0))
     elif isinstance(record, (tuple, list)) and len(record) in (2, 3):
-        y, u, dt = (*record, 1.0) if len(record) == 2 else record
-        known, t0 = None, 0.0
+        rec = Record(*record)
     elif isinstance(record, (tuple, list)):
         raise ValueError(f"record must be a Record, a (y, u) or (y, u, dt) tuple, or an array "
                          f"y; got a {type(record).__name__} of {len(record)} items")
     else:
-        y, u, dt, known, t0 = record, None, 1.0, None, 0.0
-    y = _samples("y", y)
-    u = unit_step(y.shape[0]) if u is None else _samples("u", u)
-    if u.shape != y.shape:
-        raise ValueError(f"u must have as many samples as y ({y.shape[0]}); got {u.shape[0]}")
-    steps = y.shape[0]
-    known = _delay("record.delay", known, steps)
-    given = _delay("delay", delay, steps)
-    return Measured(y, u, check_dt(dt), known if given is None else given, float(t0))
+        rec = Record(record)
+    known = _delay("record.delay", rec.delay, rec.steps)
+    given = _delay("delay", delay, rec.steps)
+    return rec if given is None or given == known else rec.with_delay(given)
 
 
 @dataclass(frozen=True)
@@ -246,13 +206,13 @@ def _check_order(order, structure):
     return None if order is None else int(order)
 
 
-def _select_order(identifiers: dict, data: Measured, max_delay: int, feedthrough,
+def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
                   refine: bool, method: str) -> dict:
     """Validation fit per order (see the module docstring); returns order -> fit."""
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
     holdout = cut >= max(int(i.config.window) for i in identifiers.values())
-    part = Measured(data.y[:cut], data.u[:cut], data.dt, data.delay) if holdout else data
+    part = Record(data.y[:cut], data.u[:cut], data.dt, delay=data.delay) if holdout else data
     fits = {}
     for n, ident in sorted(identifiers.items()):
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough)

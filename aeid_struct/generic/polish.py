@@ -171,7 +171,7 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
         Free (no fixed elements).
     m : Model
         The start, a CCF in normalised time.
-    data : Measured
+    data : Record
         The record (``y, u, delay``: the known delay or None).
     max_delay : int
     split : bool
@@ -241,7 +241,7 @@ def classical_start(data, order: int, delay: int, max_delay: int,
 
     Parameters
     ----------
-    data : Measured
+    data : Record
     order : int
     delay : int
         The delay the candidates were found at (the ARX estimate, or the known delay).
@@ -310,7 +310,7 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     ----------
     structure : CCF or MCF
     m : Model
-    data : Measured
+    data : Record
     max_delay : int
     split : bool
         As in :func:`refine_free`.
