@@ -30,6 +30,7 @@ from aeid_struct.simulation.initial import free_response as free_response
 from aeid_struct.simulation.initial import initial_state as initial_state
 from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
 from aeid_struct.simulation.kernels import foh_columns as foh_columns
+from aeid_struct.simulation.kernels import free_basis as free_basis
 from aeid_struct.simulation.kernels import powers as powers
 from aeid_struct.simulation.kernels import scan as scan
 from aeid_struct.simulation.kernels import simulate_batch as simulate_batch
@@ -41,7 +42,6 @@ from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
 from aeid_struct.simulation.projection import Projection as Projection
 from aeid_struct.simulation.projection import fit_initial as fit_initial
 from aeid_struct.simulation.projection import forced_states as forced_states
-from aeid_struct.simulation.projection import free_basis as free_basis
 from aeid_struct.simulation.projection import project as project
 from aeid_struct.simulation.projection_torch import BatchProjection as BatchProjection
 from aeid_struct.simulation.projection_torch import initial_states_batch as initial_states_batch

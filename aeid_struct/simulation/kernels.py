@@ -45,6 +45,7 @@ __all__ = [
     "chunk_length",
     "discretise_batch",
     "foh_columns",
+    "free_basis",
     "powers",
     "scan",
     "simulate_batch",
@@ -346,17 +347,7 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
     Phi, gamma1, gamma2 = X[:n, :n], X[:n, n], X[:n, n + 1]
     E = gamma1 - gamma2
     Bd = E + Phi @ gamma2
-    # O[m] = C Phi^m for m < steps - 1, by doubling: O[k:2k] = O[0:k] Phi^k, one GEMM per level.
-    rows = max(steps - 1, 1)
-    O = np.empty((rows, r, n))
-    O[0] = C
-    P, k = Phi, 1
-    while k < rows:
-        m = min(k, rows - k)
-        O[k : k + m] = (O[:m].reshape(m * r, n) @ P).reshape(m, r, n)
-        k += m
-        if k < rows:
-            P = P @ P
+    O = free_basis(Phi, C, max(steps - 1, 1))                 # O[m] = C Phi^m
     H = (O[: steps - 1].reshape(-1, n) @ np.stack([Bd, E], axis=1)).reshape(steps - 1, r, 2)
     tk = np.concatenate([(d + C @ gamma2)[:, None], H[..., 0].T], axis=1)    # (r, steps)
     t0 = np.concatenate([d[:, None], H[..., 1].T], axis=1)                   # (r, steps)
@@ -366,3 +357,31 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
         for i in range(r):
             Y[i] += np.convolve(tk[i], later)[:steps]
     return Y
+
+
+def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:
+    """Rows ``C Phi^k`` for ``k < steps`` by doubling, ``O[k:2k] = O[0:k] Phi^k`` (one matrix
+    product per level), in numpy: the free response's output basis, and the Markov parameters of
+    :func:`simulate_outputs`.
+
+    Parameters
+    ----------
+    Phi : (n, n) array
+    C : (r, n) array
+    steps : int, >= 1
+
+    Returns
+    -------
+    (steps, r, n) array
+    """
+    r, n = C.shape
+    O = np.empty((steps, r, n))
+    O[0] = C
+    P, k = Phi, 1
+    while k < steps:
+        m = min(k, steps - k)
+        O[k : k + m] = (O[:m].reshape(m * r, n) @ P).reshape(m, r, n)
+        k += m
+        if k < steps:
+            P = P @ P
+    return O

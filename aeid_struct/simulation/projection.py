@@ -35,7 +35,9 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-__all__ = ["Projection", "fit_initial", "forced_states", "free_basis", "project"]
+from aeid_struct.simulation.kernels import free_basis
+
+__all__ = ["Projection", "fit_initial", "forced_states", "project"]
 
 
 @dataclass(frozen=True)
@@ -135,32 +137,6 @@ def _forced(A, b, u, dt: float):
         W[:k, k] = 0.0
         W[k:, k] = w[:-k]
     return W @ num + np.outer(u, gamma2), gamma2, Phi
-
-
-def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:
-    """Rows ``C Phi^k`` for ``k < steps`` by doubling (one matrix product per level).
-
-    Parameters
-    ----------
-    Phi : (n, n) array
-    C : (r, n) array
-    steps : int, >= 1
-
-    Returns
-    -------
-    (steps, r, n) array
-    """
-    r, n = C.shape
-    O = np.empty((steps, r, n))
-    O[0] = C
-    P, k = Phi, 1
-    while k < steps:
-        m = min(k, steps - k)
-        O[k : k + m] = (O[:m].reshape(m * r, n) @ P).reshape(m, r, n)
-        k += m
-        if k < steps:
-            P = P @ P
-    return O
 
 
 def _solve(M: np.ndarray, r: np.ndarray) -> np.ndarray:
