@@ -18,6 +18,7 @@ launched by ``torchrun``, ``setup`` returns a one-process ``Context`` and nothin
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -387,3 +388,32 @@ def block_windows(family, seed: int, count: int, window: int, epoch: int, rows):
         pick = torch.as_tensor(rows[keep.numpy()] - block * BLOCK)
         y[keep], u[keep], ok[keep] = yb[pick], ub[pick], True
     return y, u, ok
+
+
+def gradient_step(opt, loss, params, clip: float) -> float | None:
+    """One optimiser step of ``train()`` and ``train_generic()``: backward (DDP averages the
+    gradients over the processes here), the gradient norm clipped at ``clip``, the step.
+
+    Parameters
+    ----------
+    opt : torch.optim.Optimizer
+    loss : 0-d tensor
+        This process's share of the global batch's loss.
+    params : list of tensors
+        The encoder's parameters.
+    clip : float
+        Largest gradient norm (``inf``: none).
+
+    Returns
+    -------
+    float or None
+        The norm before clipping, or None where it is not finite (no step is taken: the batch
+        is skipped on every process alike, as every process sees the same averaged gradient).
+    """
+    loss.backward()
+    norm = float(torch.nn.utils.clip_grad_norm_(params, clip))
+    if not math.isfinite(norm):
+        return None
+    opt.step()
+    return norm
+

@@ -415,13 +415,12 @@ def _epoch(run: _Run, start: float):
             if not math.isfinite(value):
                 skipped += 1
                 continue
-            (local * (ctx.world_size / n)).backward()
-            norm = float(torch.nn.utils.clip_grad_norm_(params, train.clip))
-            if not math.isfinite(norm):
+            norm = distributed.gradient_step(run.opt, local * (ctx.world_size / n), params,
+                                             train.clip)
+            if norm is None:
                 skipped += 1
                 continue
             norms.append(norm)
-            run.opt.step()
             running += value
             done += 1
     finally:

@@ -294,13 +294,11 @@ def _epoch(run: _Run, start: float) -> tuple[float, float, list[float], int]:
             if not math.isfinite(value):
                 skipped += 1
                 continue
-            loss.backward()
-            norm = float(torch.nn.utils.clip_grad_norm_(params, config.clip))
-            if not math.isfinite(norm):
+            norm = distributed.gradient_step(run.opt, loss, params, config.clip)
+            if norm is None:
                 skipped += 1
                 continue
             norms.append(norm)
-            run.opt.step()
             running += value
     finally:
         run.ident.encoder = encoder
