@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from aeid_struct.cli.errors import InputError, one_line
@@ -65,14 +66,24 @@ def run_leg(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fixed_element(flag: str) -> tuple[str, float]:
+    """``"c1=0"`` -> ``("c1", 0.0)``; a ValueError for a value that is not a finite number."""
+    name, _, value = flag.partition("=")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"element {name!r} must be fixed to a finite number; got {value!r}")
+    return name, number
+
+
 def parse_structure(spec: str):
     """The structure a ``train --structure`` spec names.
 
     Parameters
     ----------
     spec : str
-        ``ccf:N[:descartes][:feedthrough]``, ``mcf:REAL,PAIRS``, ``leg-stable`` or
-        ``leg-unstable``.
+        ``ccf:N[:descartes][:feedthrough][:NAME=VALUE...]``, ``mcf:REAL,PAIRS``, ``leg-stable``
+        or ``leg-unstable``. ``NAME=VALUE`` fixes an element (``ccf:2:a1=0:c1=0``: the rotational
+        leg's physics structure, no damping and no s-term).
 
     Returns
     -------
@@ -88,12 +99,14 @@ def parse_structure(spec: str):
     parts = spec.split(":")
     try:
         if parts[0] == "ccf":
-            flags = set(parts[2:])
+            fixed = dict(_fixed_element(f) for f in parts[2:] if "=" in f)
+            flags = {f for f in parts[2:] if "=" not in f}
             unknown = flags - {"descartes", "feedthrough"}
             if unknown:
                 raise ValueError(f"unknown flags {sorted(unknown)}")
-            return structures.CCF(int(parts[1]), descartes="descartes" in flags,
-                                  feedthrough="feedthrough" in flags)
+            ccf = structures.CCF(int(parts[1]), descartes="descartes" in flags,
+                                 feedthrough="feedthrough" in flags)
+            return ccf.fixed(**fixed) if fixed else ccf
         if parts[0] == "mcf":
             real, pairs = (int(v) for v in parts[1].split(","))
             return structures.MCF(real=real, pairs=pairs)
@@ -105,8 +118,8 @@ def parse_structure(spec: str):
                                        inverse=family.inverse())
     except (IndexError, ValueError) as err:
         raise InputError(f"train: --structure {spec!r} is malformed ({one_line(err)}); "
-                         "expected ccf:N[:descartes][:feedthrough], mcf:REAL,PAIRS, "
-                         "leg-stable or leg-unstable") from None
+                         "expected ccf:N[:descartes][:feedthrough][:NAME=VALUE...], "
+                         "mcf:REAL,PAIRS, leg-stable or leg-unstable") from None
     raise InputError(f"train: --structure must be ccf:..., mcf:... or leg-stable/leg-unstable; "
                      f"got {spec!r}")
 

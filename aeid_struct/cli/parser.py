@@ -171,8 +171,9 @@ def _add_train(sub) -> None:
                                     "records of a system family and write it as an .aeid file. "
                                     "TrainConfig checks the values and names any it refuses.")
     tr.add_argument("--structure", required=True,
-                    help="the model structure: ccf:N[:descartes][:feedthrough] (controllable "
-                         "canonical form of order N), mcf:REAL,PAIRS (modal form), leg-stable or "
+                    help="the model structure: ccf:N[:descartes][:feedthrough][:NAME=VALUE...] "
+                         "(controllable canonical form of order N; NAME=VALUE fixes an element, "
+                         "e.g. ccf:2:a1=0:c1=0), mcf:REAL,PAIRS (modal form), leg-stable or "
                          "leg-unstable (the leg's physical k, d, m)")
     tr.add_argument("--family", required=True,
                     help="the systems to train on: leg-stable, leg-unstable, or poles:REAL,PAIRS "

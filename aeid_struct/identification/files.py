@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.identification.head import Head
 from aeid_struct.structures import Structure, check_maps, from_entry, to_entry
 
 __all__ = ["FORMAT", "FORMAT_1", "from_parts", "header", "load", "save", "writable_file"]
@@ -62,7 +63,7 @@ def writable_file(path) -> Path:
 #: Header entries: required ones, and optional ones with the JSON types they may have.
 _HEADER_REQUIRED = ("format", "encoder", "structure", "dt", "scale", "feature_mean",
                     "feature_scale")
-_HEADER_OPTIONAL = ("initial", "inverse", "meta")
+_HEADER_OPTIONAL = ("initial", "inverse", "meta", "head")
 
 
 def _numbers(value, finite: bool = True) -> bool:
@@ -91,6 +92,8 @@ def _check_header(header: dict, source: str) -> None:
         "feature_scale": (_numbers(header["feature_scale"]),
                           "a finite number or a list of them"),
         "meta": (isinstance(header.get("meta", {}), dict), "a dict"),
+        "head": (header.get("head") is None or isinstance(header["head"], dict),
+                 "a dict {'iterations': int, 'fixed': {name: value}} or null"),
         "inverse": (header.get("inverse") is None
                     or isinstance(header["inverse"], (dict, str)), "a map reference or null"),
     }
@@ -202,6 +205,7 @@ def header(ident) -> dict:
         "feature_scale": ident.feature_scale,
         "inverse": None if ident.inverse is None else to_entry(ident.inverse),
         "meta": ident.meta,
+        **({} if ident.head is None else {"head": ident.head.to_dict()}),
     }
 
 
@@ -342,6 +346,7 @@ def from_parts(cls, head: dict, tensors: dict, *, source: str = "header",
             feature_scale=head["feature_scale"],
             inverse=inverse,
             meta=head.get("meta", {}),
+            head=None if head.get("head") is None else Head.from_dict(head["head"]),
         )
     except ValueError as err:
         raise ValueError(f"{source}: {err}") from None

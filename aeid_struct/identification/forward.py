@@ -13,6 +13,7 @@ import torch
 
 from aeid_struct.identification.estimate import Estimate
 from aeid_struct.identification.fast_path import fast_path
+from aeid_struct.identification.head import apply_head
 from aeid_struct.records import RecordBatch, normalise, overflow_problem
 from aeid_struct.structures import System
 
@@ -60,7 +61,8 @@ def differentiable(ident, y, u, *, raw: bool = False):
     return (sys, elements, z) if raw else (sys, elements)
 
 
-def identify_record(ident, record: RecordBatch, start: float, errors: str) -> Estimate:
+def identify_record(ident, record: RecordBatch, start: float, errors: str,
+                    head=None) -> Estimate:
     """The Estimate of a checked record (``Identifier.identify`` after its checks).
 
     Parameters
@@ -71,6 +73,8 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str) -> Es
     start : float
         ``time.perf_counter()`` when the identification began.
     errors : {"raise", "collect"}
+    head : Head, optional
+        In place of ``ident.head`` (``Head.converged()`` for the refinement).
 
     Returns
     -------
@@ -80,7 +84,7 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str) -> Es
         record.raise_first()
     good = record.good
     with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
-        model = _on_rows(ident, record, good)
+        model = _on_rows(ident, record, good, ident.head if head is None else head)
     if record.records == 1:
         record = dataclasses.replace(record, problems=_overflowed(record, good, model))
         if errors == "raise":
@@ -89,9 +93,10 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str) -> Es
                        else record.problems)
 
 
-def _on_rows(ident, record: RecordBatch, good: np.ndarray) -> tuple:
+def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
     """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False; one
-    single record through the batch-1 path (``fast_path``), the others batched."""
+    single record through the batch-1 path (``fast_path``), the others batched; then the
+    ``head``, if any."""
     ys, us, rows = record.y, record.u, np.flatnonzero(good)
     if not good.all():
         ys, us = [v[rows] for v in ys], [v[rows] for v in us]
@@ -100,6 +105,8 @@ def _on_rows(ident, record: RecordBatch, good: np.ndarray) -> tuple:
         fast = fast_path(ident) if len(ys) == 1 and ys[0].shape[0] == 1 else None
         parts = fast(ys[0][0], us[0][0]) if fast is not None else encode(ident, list(ys),
                                                                              list(us))
+        if head is not None:
+            parts = apply_head(ident, head, list(ys), list(us), parts)
     if good.all():
         return parts
     R, count = record.records, record.count

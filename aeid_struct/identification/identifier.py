@@ -4,6 +4,7 @@ identifiers: docs/architecture.md)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -15,6 +16,7 @@ from aeid_struct.encoder import Encoder
 from aeid_struct.identification import files, forward
 from aeid_struct.identification.estimate import Estimate, Provenance
 from aeid_struct.identification.fast_path import fast_path
+from aeid_struct.identification.head import Head, pattern_of
 from aeid_struct.identification.polish import polish
 from aeid_struct.records import check_record
 from aeid_struct.structures import Physical, Structure, System
@@ -149,13 +151,17 @@ class Identifier:
     initial : {"rest", "fitted"}
         Records start from rest (the paper), or mid-motion (the initial state is fitted by least
         squares).
+    head : Head, optional
+        The separable head after the encoder (``identification.head``): a fixed number of
+        Gauss-Newton iterations with the linear elements projected; None: the paper's pass,
+        the encoder alone. An attribute that may be set or cleared (``ident.head = None``).
     """
 
     def __init__(self, encoder: Encoder, structure: Structure, *, dt,
                  theta_mean: torch.Tensor, theta_scale: torch.Tensor,
                  scale: str = "denormalise", feature_mean=0.0,
                  feature_scale=1.0, inverse=None, meta: dict | None = None,
-                 initial: str = "rest"):
+                 initial: str = "rest", head: Head | None = None):
         self._dts = _check_parts(encoder, structure, dt, scale, initial)
         R = encoder.config.records
         self.encoder, self.structure, self.scale, self.initial = encoder, structure, scale, initial
@@ -172,6 +178,11 @@ class Identifier:
         self._provenance = None                     # (its sources, Provenance)
         self._params = list(encoder.parameters())   # cached: walking the modules is slow
         self._output_mask = _output_mask(structure)
+        if head is not None:
+            if not isinstance(head, Head):
+                raise ValueError(f"head must be an identification.Head or None; got {head!r}")
+            pattern_of(self, head)          # refuses a structure the head does not serve
+        self.head = head
 
     # -- the record format ---------------------------------------------------------------------
     @property
@@ -290,7 +301,9 @@ class Identifier:
         refine : {False, True, "auto"}
             Polish the estimate with a CasADi NLP in the same structure
             (``aeid_struct.refinement``): True for every record, ``"auto"`` for exactly the
-            records flagged ``outside`` the training range (``info["refined_rows"]``).
+            records flagged ``outside`` the training range (``info["refined_rows"]``). With a
+            ``head``, True iterates the head to convergence instead (``info["refine"]`` is
+            ``"separable"``): the least-squares optimum in the head's structure, batched.
         errors : {"raise", "collect"}
             A record that cannot be identified (non-finite samples, an all-zero ``y`` or ``u``,
             a varying ``u`` for an identifier that does not read it, ``max|y| / max|u|`` beyond
@@ -318,6 +331,11 @@ class Identifier:
                              "the refinement fits one record; refine each subsystem's estimate "
                              "in its own structure")
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
+        if refine is True and self.head is not None:
+            # the head iterated to convergence: the least-squares optimum in its structure,
+            # batched (refinement.gauss_newton), in place of the CasADi NLP
+            est = forward.identify_record(self, record, start, errors, self.head.converged())
+            return dataclasses.replace(est, info={**est.info, "refine": "separable"})
         est = forward.identify_record(self, record, start, errors)
         return polish(est, refine) if refine else est
 

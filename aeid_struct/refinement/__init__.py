@@ -1,9 +1,13 @@
-"""Refinement: the CasADi NLP that polishes an estimate in its own structure.
+"""Refinement: the CasADi NLP that polishes an estimate in its own structure, and the separable
+Gauss-Newton (numpy, batched) of the partly fixed CCFs.
 
 Layer: below ``identification`` (an estimate is taken duck-typed and returned through
 ``dataclasses.replace``).
 """
 
+from aeid_struct.refinement.batched import Pattern as Pattern
+from aeid_struct.refinement.batched import SeparableFit as SeparableFit
+from aeid_struct.refinement.batched import gauss_newton as gauss_newton
 from aeid_struct.refinement.config import SOLVERS as SOLVERS
 from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
@@ -25,14 +29,17 @@ __all__ = [
     "BUCKETS",
     "CacheInfo",
     "Numeric",
+    "Pattern",
     "RecordFit",
     "RefineConfig",
     "RefineResult",
     "SOLVERS",
+    "SeparableFit",
     "cache_info",
     "casadi_simulate",
     "clear_cache",
     "expm",
+    "gauss_newton",
     "projected_cost",
     "refine",
     "refine_elements",

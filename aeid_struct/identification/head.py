@@ -1,0 +1,156 @@
+r"""The separable head of the one pass: after the encoder, a fixed number of Gauss-Newton
+iterations in the identifier's structure (docs/architecture.md, "One pass at the optimum").
+
+The encoder (paper Sec. III-A) gives the whole model; the head keeps only its poles as the start,
+projects out everything that enters the output linearly (``c``, the initial state of a
+mid-motion record: exact least squares) and moves the free denominator elements by
+``iterations`` Levenberg-Marquardt steps on the projected cost (``refinement.gauss_newton``).
+With ``iterations = 0`` it is the projection alone. Elements that ``fixed`` names are held at
+their values on top of the structure's own fixed elements: the robot leg's physics, ``c1 = 0``
+(translational) or ``a1 = c1 = 0`` (rotational), for an encoder trained in the free CCF.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeid_struct.refinement import Pattern, gauss_newton
+from aeid_struct.structures import CCF
+
+__all__ = ["Head", "apply_head", "pattern_of"]
+
+#: The most iterations a head may ask for (a fixed cost per record).
+MAX_ITERATIONS = 50
+
+
+@dataclass(frozen=True)
+class Head:
+    """What the one pass does after the encoder.
+
+    Attributes
+    ----------
+    iterations : int, 0 <= iterations <= 50
+        Levenberg-Marquardt iterations on the projected cost (0: projection only).
+    fixed : dict str -> float
+        Elements held at a value on top of the structure's fixed elements (``{"c1": 0.0}``).
+    tol : float, optional
+        Iterate each record until a step lowers its cost by less than this fraction (at most
+        ``iterations``): the refinement (:meth:`converged`), not the fixed-cost pass.
+    """
+
+    iterations: int = 3
+    fixed: dict = field(default_factory=dict)
+    tol: float | None = None
+
+    def __post_init__(self):
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or not (
+                0 <= self.iterations <= MAX_ITERATIONS):
+            raise ValueError(f"head: iterations must be an integer in [0, {MAX_ITERATIONS}]; "
+                             f"got {self.iterations!r}")
+        if not isinstance(self.fixed, dict) or not all(
+                isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+                and math.isfinite(v) for k, v in self.fixed.items()):
+            raise ValueError(f"head: fixed must be a dict element name -> finite number; got "
+                             f"{self.fixed!r}")
+        object.__setattr__(self, "fixed", {k: float(v) for k, v in self.fixed.items()})
+        if self.tol is not None and not (isinstance(self.tol, float) and 0 < self.tol < 1):
+            raise ValueError(f"head: tol must be None or a float in (0, 1); got {self.tol!r}")
+
+    def converged(self) -> Head:
+        """The same head iterated to convergence (the refinement of ``identify(refine=True)``):
+        up to 50 iterations, stopping per record below a relative decrease of 1e-12."""
+        return Head(iterations=MAX_ITERATIONS, fixed=self.fixed, tol=1e-12)
+
+    def to_dict(self) -> dict:
+        """The file entry ``{"iterations": int, "fixed": {name: value}}``."""
+        if self.tol is not None:
+            raise ValueError("head: a converged head (tol set) is a refinement, not stored")
+        return {"iterations": self.iterations, "fixed": dict(self.fixed)}
+
+    @classmethod
+    def from_dict(cls, entry) -> Head:
+        """The head of a file entry (ValueError naming what is wrong).
+
+        Parameters
+        ----------
+        entry : dict
+            ``{"iterations": int, "fixed": {name: value}}``.
+        """
+        if not isinstance(entry, dict) or set(entry) - {"iterations", "fixed"}:
+            raise ValueError(f"head must be a dict with entries 'iterations' and 'fixed'; got "
+                             f"{entry!r}")
+        return cls(iterations=entry.get("iterations", 3), fixed=entry.get("fixed", {}))
+
+
+def pattern_of(ident, head: Head) -> Pattern:
+    """The free and fixed elements the head of ``ident`` iterates.
+
+    Parameters
+    ----------
+    ident : Identifier
+    head : Head
+
+    Returns
+    -------
+    Pattern
+
+    Raises
+    ------
+    ValueError
+        For an identifier the head does not serve: not a (partly fixed) CCF, several records,
+        or a ``fixed`` name the structure does not have.
+    """
+    structure = ident.structure
+    if not isinstance(structure, CCF) or ident.records != 1:
+        raise ValueError(f"head: the separable head needs a single-record identifier in a "
+                         f"(partly fixed) CCF; this one has {structure!r} over "
+                         f"{ident.records} record(s)")
+    names = structure.element_names
+    unknown = sorted(set(head.fixed) - set(names))
+    if unknown:
+        raise ValueError(f"head: fixed names {unknown} that are not elements of {structure!r} "
+                         f"(its elements: {', '.join(names)})")
+    fixed = {**structure.config()["fixed"], **head.fixed}
+    return Pattern.of(names, fixed, structure.n, initial=ident.initial == "fitted",
+                      feedthrough=structure.feedthrough)
+
+
+def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
+    """The head's model of good records from the encoder's ``model`` (float64, measured
+    units), rows whose encoder model is not finite left as they are.
+
+    Parameters
+    ----------
+    ident : Identifier
+    head : Head
+    ys, us : lists of one (count, steps) float64 array (``us[0]`` None: a unit step)
+    model : tuple
+        ``A (count, n, n), b (count, n), c (count, n), d (count,), elements (count, q)``.
+
+    Returns
+    -------
+    tuple
+        The same arrays, the head's rows in place of the encoder's.
+    """
+    pattern = pattern_of(ident, head)
+    A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
+    y = ys[0]
+    u = np.ones_like(y) if us[0] is None else np.broadcast_to(us[0], y.shape)
+    a = -A[:, -1, :]
+    rows = np.flatnonzero(np.isfinite(a).all(axis=1))
+    if rows.size == 0:
+        return A, b, c, d, el
+    fit = gauss_newton(pattern, a[rows][:, pattern.free_a], y[rows], u[rows], ident.dt,
+                       iterations=head.iterations, tol=head.tol)
+    ok = np.isfinite(fit.cost)
+    rows, n = rows[ok], pattern.n
+    A[rows, -1, :] = -fit.a[ok]
+    c[rows], d[rows] = fit.c[ok], fit.d[ok]
+    values = {**{f"a{j}": fit.a[ok, j] for j in range(n)},
+              **{f"c{j}": fit.c[ok, j] for j in range(n)}, "d": fit.d[ok]}
+    for i, name in enumerate(ident.structure.element_names):
+        el[rows, i] = values[name]
+    return A, b, c, d, el

@@ -1,0 +1,446 @@
+r"""Separable Gauss-Newton for many records at once, in any partly fixed controllable canonical
+form: the identifiers' near-optimal pass (a fixed number of iterations after the encoder) and
+the batched refinement (iterations to convergence).
+
+A record of ``N`` samples at sample time ``dt`` and a bottom-row CCF (paper Eq. 5) whose
+elements ``a_j, c_j, d`` are each free or fixed (the robot leg's physics: ``c_1 = 0``; the
+rotational leg also ``a_1 = 0``) is modelled, exactly under the first-order hold (Eq. 10-13), as
+
+    y = sum_{c_i free} c_i X_i(alpha) + d u + F(alpha) theta + 1 y_offset + e,
+
+with ``alpha`` the free denominator elements, ``X_i`` state ``i``'s response (from rest:
+``x_0 = 0``), ``F`` the free responses ``e_1^T Phi^k`` when the initial state is fitted, and the
+fixed ``c_i, d`` moved to the left-hand side. Everything but ``alpha`` enters linearly, so it is
+projected out (variable projection, Golub & Pereyra): the cost ``V(alpha) = ||P_perp y||^2`` has
+one or two variables for the leg, and Levenberg-Marquardt on it with Kaufman's Jacobian
+``J = -P_perp dM/dalpha z`` needs a handful of iterations from the encoder's estimate. The
+linear part is then the exact least-squares solution, so a noise-free record is fitted exactly.
+
+Why batched numpy and not ``refine_separable`` or CasADi: those serve one record of any length;
+the identifiers' records share one length and sample time, so the responses of a whole batch
+are one FFT convolution of impulse responses ``Phi^k Bd`` computed by doubling (``log2 N``
+batched matrix products), and the small least-squares problems are one batched solve. The
+Jacobian is a forward difference in each free ``alpha_j`` (relative step :data:`_FD`): its error
+only moves the converged point by that relative amount times the residual, far below the noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+
+__all__ = ["Pattern", "SeparableFit", "evaluate", "gauss_newton"]
+
+#: Forward-difference step of the Jacobian, relative to each free element.
+_FD = 1e-7
+#: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, cap.
+_LAMBDA0, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-4, 10.0, 1e8
+#: Tikhonov floor of the normal equations, relative to their largest diagonal entry.
+_RIDGE = 1e-13
+
+
+@dataclass(frozen=True)
+class Pattern:
+    """Which elements of a bottom-row CCF of order ``n`` are free (None) or fixed (a number).
+
+    Attributes
+    ----------
+    a : tuple of n (float or None)
+        ``a_0 .. a_{n-1}`` (the characteristic polynomial ``s^n + a_{n-1} s^{n-1} + ... + a_0``).
+    c : tuple of n (float or None)
+        ``c_0 .. c_{n-1}``.
+    d : float or None
+        The feedthrough.
+    initial : bool
+        Fit the initial state (a record that starts mid-motion); else from rest.
+    offset : bool
+        Fit a constant output offset.
+    """
+
+    a: tuple
+    c: tuple
+    d: float | None = 0.0
+    initial: bool = False
+    offset: bool = False
+
+    def __post_init__(self):
+        n = len(self.a)
+        if n < 1 or len(self.c) != n:
+            raise ValueError(f"a and c must have the same length n >= 1; got {len(self.a)} and "
+                             f"{len(self.c)}")
+        for name, value in [*(("a", v) for v in self.a), *(("c", v) for v in self.c),
+                            ("d", self.d)]:
+            if value is not None and not (isinstance(value, (int, float)) and
+                                          not isinstance(value, bool) and math.isfinite(value)):
+                raise ValueError(f"every entry of {name} must be None (free) or a finite "
+                                 f"number; got {value!r}")
+        if all(v is not None for v in self.a):
+            raise ValueError("at least one a_j must be free: with every pole fixed there is "
+                             "nothing to iterate (use simulation.project)")
+
+    @classmethod
+    def of(cls, names: tuple, fixed: dict, n: int, *, initial: bool, offset: bool = False,
+           feedthrough: bool = False) -> Pattern:
+        """The pattern of a CCF whose elements ``names`` are free unless ``fixed``.
+
+        Parameters
+        ----------
+        names : tuple of str
+            All element names of the structure (``a0 .. a{n-1}, c0 .. c{n-1}[, d]``).
+        fixed : dict str -> float
+        n : int
+        initial, offset, feedthrough : bool
+        """
+        def entry(name):
+            return float(fixed[name]) if name in fixed else None
+        return cls(a=tuple(entry(f"a{j}") for j in range(n)),
+                   c=tuple(entry(f"c{j}") for j in range(n)),
+                   d=entry("d") if feedthrough else 0.0, initial=initial, offset=offset)
+
+    @property
+    def n(self) -> int:
+        return len(self.a)
+
+    @property
+    def free_a(self) -> np.ndarray:
+        return np.array([j for j, v in enumerate(self.a) if v is None], dtype=int)
+
+    @property
+    def free_c(self) -> np.ndarray:
+        return np.array([j for j, v in enumerate(self.c) if v is None], dtype=int)
+
+
+@dataclass(frozen=True)
+class SeparableFit:
+    """What :func:`gauss_newton` returns, one row per record.
+
+    Attributes
+    ----------
+    a, c : (B, n) arrays
+        The CCF's elements, fixed ones included.
+    d, y_offset : (B,) arrays
+    x0 : (B, n) array
+        The initial state (zeros from rest).
+    cost : (B,) array
+        Mean squared residual; inf where the model's response is not finite.
+    iterations : (B,) int array
+        Accepted Levenberg-Marquardt steps.
+    converged : (B,) bool array
+    """
+
+    a: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    x0: np.ndarray
+    y_offset: np.ndarray
+    cost: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+
+
+def _full_a(pattern: Pattern, alpha: np.ndarray) -> np.ndarray:
+    a = np.array([0.0 if v is None else v for v in pattern.a])[None].repeat(alpha.shape[0], 0)
+    a[:, pattern.free_a] = alpha
+    return a
+
+
+def _discrete(a: np.ndarray, dt: float):
+    """``Phi (B, n, n), gamma1, gamma2 (B, n)`` of Eq. 10 for the CCFs of ``a (B, n)``."""
+    B, n = a.shape
+    E = np.zeros((B, n + 2, n + 2))
+    E[:, np.arange(n - 1), np.arange(1, n)] = dt
+    E[:, n - 1, :n] = -a * dt
+    E[:, n - 1, n] = dt
+    E[:, n, n + 1] = 1.0
+    X = expm_batch(E)
+    return X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
+
+
+#: Taylor degree of :func:`expm_batch` for ``||X / 2^s||_1 <= 1/2``: truncation below 1e-16.
+_TAYLOR = 14
+
+
+def expm_batch(E: np.ndarray) -> np.ndarray:
+    """``expm`` of each small matrix of ``E (B, m, m)``: Taylor with scaling and squaring, each
+    matrix squared its own number of times.
+
+    Why not ``scipy.linalg.expm``: it loops over a batch in Python (tens of microseconds per
+    4 x 4 matrix); here the whole batch takes ``_TAYLOR`` + max(s) batched products. The
+    truncation error after scaling to ``||.||_1 <= 1/2`` is ``0.5^15 / 15! < 3e-17``."""
+    with np.errstate(all="ignore"):
+        norm = np.abs(E).sum(axis=1).max(axis=1)
+        s = np.where(norm > 0.5, np.ceil(np.log2(np.maximum(norm, 0.5) / 0.5)), 0.0)
+        s = np.where(np.isfinite(s), s, 0.0).astype(int)
+        X = E / np.ldexp(1.0, s)[:, None, None]
+        eye = np.eye(E.shape[1])
+        T = eye + X / _TAYLOR
+        for k in range(_TAYLOR - 1, 0, -1):
+            T = eye + (X @ T) / k
+        for i in range(int(s.max(initial=0))):
+            more = s > i
+            T = np.where(more[:, None, None], T @ T, T)
+    return T
+
+
+def _rows(Phi: np.ndarray, rows: np.ndarray, N: int) -> np.ndarray:
+    """``e_i^T Phi^k`` for the states ``rows`` and ``k < N``, ``(B, r, n, N)`` (time last), by
+    doubling: ``log2 N`` levels, each a sum of ``n`` broadcast products.
+
+    Why not ``matmul``: over many ``1 x n`` by ``n x n`` products numpy spends its time per
+    product, not per flop; with time as the last, contiguous axis each level is ``n^2``
+    vectorised operations over the batch."""
+    B, n, _ = Phi.shape
+    R = np.empty((B, rows.size, n, N))
+    R[..., 0] = np.eye(n)[rows]
+    m, step = 1, Phi
+    while m < N:
+        k = min(m, N - m)
+        for j in range(n):
+            out = R[:, :, j, m: m + k]
+            np.multiply(R[:, :, 0, :k], step[:, None, 0, j, None], out=out)
+            for i in range(1, n):
+                out += R[:, :, i, :k] * step[:, None, i, j, None]
+        m += k
+        if m < N:
+            step = step @ step
+    return R
+
+
+def _states(pattern: Pattern) -> np.ndarray:
+    """The states whose responses the regressors need: state 1 (the free responses, and the
+    first state of every CCF output) and those of the free and nonzero fixed ``c_i``."""
+    used = {0} | {i for i, v in enumerate(pattern.c) if v != 0.0}
+    return np.array(sorted(used), dtype=int)
+
+
+def _basis(pattern: Pattern, a: np.ndarray, y: np.ndarray, u: np.ndarray, dt: float,
+           U: np.ndarray):
+    """Regressors ``M (B, p, N)`` and target ``t (B, N)`` (``y`` less the fixed terms);
+    ``U`` is ``rfft(u, L)``, shared by every evaluation of a call."""
+    B, N = y.shape
+    states = _states(pattern)
+    with np.errstate(all="ignore"):
+        Phi, g1, g2 = _discrete(a, dt)
+        R = _rows(Phi, states, N)                                  # (B, r, n, N)
+        Bd = g1 - g2 + (Phi @ g2[:, :, None])[:, :, 0]
+        h = np.einsum("brjk,bj->brk", R, Bd)                       # e_i^T Phi^k Bd
+        L = 2 * (U.shape[1] - 1)
+        xi = scipy.fft.irfft(scipy.fft.rfft(h, L) * U[:, None], L)[:, :, : N - 1]
+        X = np.empty((B, states.size, N))
+        X[:, :, 0] = 0.0
+        X[:, :, 1:] = xi                                           # xi_k, from xi_0 = 0
+        X += g2[:, states, None] * u[:, None, :]                   # x_k = xi_k + g2 u_k ...
+        if not pattern.initial:                                    # ... + Phi^k (x_0 - g2 u_0)
+            X -= np.einsum("brjk,bj->brk", R, g2) * u[:, None, :1]
+        where = {int(i): j for j, i in enumerate(states)}
+        cols, t = [], y.copy()
+        for i, ci in enumerate(pattern.c):
+            if ci is None:
+                cols.append(X[:, where[i]])
+            elif ci != 0.0:
+                t -= ci * X[:, where[i]]
+        if pattern.d is None:
+            cols.append(u)
+        elif pattern.d != 0.0:
+            t -= pattern.d * u
+        if pattern.initial:
+            cols.extend(np.moveaxis(R[:, where[0]], 1, 0))         # e_1^T Phi^k e_j
+        if pattern.offset:
+            cols.append(np.ones_like(y))
+        M = np.stack(cols, axis=1)
+    return M, t, (Phi, g2)
+
+
+def _spectrum(u: np.ndarray) -> np.ndarray:
+    """``rfft(u)`` zero-padded to a fast length >= 2 N - 1 (a linear, not circular,
+    convolution)."""
+    return scipy.fft.rfft(u, scipy.fft.next_fast_len(2 * u.shape[1] - 1, real=True))
+
+
+def _coefficients(Ms: np.ndarray, Gi: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``G^-1 M v`` per record, ``(B, p)`` (``M (B, p, N)``, ``v (B, N)``)."""
+    return (Gi @ (Ms @ v[:, :, None]))[:, :, 0]
+
+
+def _combine(Ms: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """``M^T z`` per record, ``(B, N)``."""
+    return (z[:, None, :] @ Ms)[:, 0]
+
+
+def _project(Ms: np.ndarray, Gi: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M^T G^-1 M v`` per record, ``(B, N)``: the part of ``v`` the regressors span."""
+    return _combine(Ms, _coefficients(Ms, Gi, v))
+
+
+def _solve(M: np.ndarray, t: np.ndarray):
+    """Row-scaled normal equations per record: ``z (B, p)``, residual ``r (B, N)``,
+    ``(M_scaled, G^-1)`` for the projection, and finiteness ``ok (B,)``."""
+    ok = np.isfinite(M).all(axis=(1, 2)) & np.isfinite(t).all(axis=1)
+    M = np.where(ok[:, None, None], M, 0.0)
+    scale = np.abs(M).max(axis=2)
+    scale = np.where(scale > 0, scale, 1.0)
+    Ms = M / scale[:, :, None]
+    G = Ms @ Ms.transpose(0, 2, 1)
+    eye = np.eye(G.shape[1])
+    G += (_RIDGE * np.einsum("bii->b", G) + 1e-300)[:, None, None] * eye
+    G[~ok] = eye
+    try:
+        Gi = np.linalg.inv(G)
+    except np.linalg.LinAlgError:      # a degenerate trial model: minimum-norm solutions
+        Gi = np.linalg.pinv(G)
+    tt = np.where(ok[:, None], t, 0.0)
+    zs = _coefficients(Ms, Gi, tt)
+    r = tt - _combine(Ms, zs)
+    zs += _coefficients(Ms, Gi, r)                    # one step of iterative refinement
+    r = tt - _combine(Ms, zs)
+    return zs / scale, r, Ms, Gi, ok
+
+
+def evaluate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray,
+             dt: float, U: np.ndarray | None = None) -> dict:
+    """The projection at ``alpha (B, nf)``: ``cost (B,)`` (mean squared residual, inf where not
+    finite), ``r (B, N)``, ``z (B, p)`` and what the Jacobian reuses.
+
+    Parameters
+    ----------
+    pattern : Pattern
+    alpha : (B, nf) array
+        The free ``a_j`` (in ``pattern.free_a`` order).
+    y, u : (B, N) arrays
+    dt : float
+    U : array, optional
+        ``rfft`` of ``u`` as :func:`_spectrum` gives it (computed when not given).
+    """
+    U = _spectrum(u) if U is None else U
+    a = _full_a(pattern, alpha)
+    M, t, (Phi, g2) = _basis(pattern, a, y, u, dt, U)
+    z, r, Ms, Gi, ok = _solve(M, t)
+    with np.errstate(all="ignore"):
+        cost = np.where(ok, np.mean(r * r, axis=1), np.inf)
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    return {"alpha": alpha, "a": a, "M": M, "t": t, "z": z, "r": r, "Ms": Ms, "Gi": Gi,
+            "cost": cost, "Phi": Phi, "g2": g2}
+
+
+def _jacobian(pattern: Pattern, e: dict, y, u, dt, U) -> np.ndarray:
+    """Kaufman's ``J = d r / d alpha (B, nf, N)`` by forward differences of ``M^T z - t``."""
+    alpha, z, Ms, Gi = e["alpha"], e["z"], e["Ms"], e["Gi"]
+    base = _combine(e["M"], z) - e["t"]
+    J = np.empty((y.shape[0], alpha.shape[1], y.shape[1]))
+    for j in range(alpha.shape[1]):
+        h = _FD * np.maximum(np.abs(alpha[:, j]), 1e-8)
+        shifted = alpha.copy()
+        shifted[:, j] += h
+        M, t, _ = _basis(pattern, _full_a(pattern, shifted), y, u, dt, U)
+        dy = (_combine(M, z) - t - base) / h[:, None]
+        J[:, j] = -(dy - _project(Ms, Gi, dy))
+    return np.where(np.isfinite(J), J, 0.0)
+
+
+def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
+                 tol: float | None = None) -> SeparableFit:
+    """Levenberg-Marquardt on the separable cost from ``alpha0``, every record at once.
+
+    Parameters
+    ----------
+    pattern : Pattern
+    alpha0 : (B, nf) array
+        Start of the free ``a_j`` (the encoder's estimate).
+    y, u : (B, N) arrays
+        The records (checked by the caller), ``u`` linear between samples.
+    dt : float, > 0
+    iterations : int, >= 0
+        Iterations (a fixed cost: the identifiers' pass), or the cap with ``tol``.
+    tol : float, optional
+        Stop a record once a step lowers its cost by less than this fraction (refinement).
+
+    Returns
+    -------
+    SeparableFit
+        The best point each record reached (never worse than the start).
+    """
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    alpha = np.array(alpha0, dtype=np.float64).reshape(y.shape[0], -1)
+    if alpha.shape[1] != pattern.free_a.size:
+        raise ValueError(f"alpha0 must have {pattern.free_a.size} free a_j per record; got "
+                         f"shape {alpha.shape}")
+    B = y.shape[0]
+    U = _spectrum(u)
+    now = evaluate(pattern, alpha, y, u, dt, U)
+    lam = np.full(B, _LAMBDA0)
+    done = ~np.isfinite(now["cost"])
+    accepted = np.zeros(B, dtype=int)
+    for _ in range(iterations):
+        active = np.flatnonzero(~done)
+        if active.size == 0:
+            break
+        if active.size == B:          # views, not copies (the fixed-cost pass)
+            sub, ya, ua, Ua = now, y, u, U
+        else:
+            sub = {k: (v[active] if isinstance(v, np.ndarray) and v.shape[:1] == (B,) else v)
+                   for k, v in now.items()}
+            ya, ua, Ua = y[active], u[active], U[active]
+        J = _jacobian(pattern, sub, ya, ua, dt, Ua)
+        g = (J @ sub["r"][:, :, None])[:, :, 0]
+        H = J @ J.transpose(0, 2, 1)
+        diag = np.einsum("bjj->bj", H) + 1e-300
+        step = -np.linalg.solve(H + lam[active, None, None] * diag[:, :, None] *
+                                np.eye(H.shape[1]), g[:, :, None])[:, :, 0]
+        trial = sub["alpha"] + step
+        new = evaluate(pattern, trial, ya, ua, dt, Ua)
+        better = new["cost"] < sub["cost"]
+        if tol is not None:
+            # converged: an accepted step or the Gauss-Newton prediction lowers the cost by
+            # less than tol (relative), or no damped step descends
+            N = y.shape[1]
+            predicted = -(2.0 * np.einsum("bj,bj->b", g, step)
+                          + np.einsum("bj,bjk,bk->b", step, H, step)) / N
+            flat = (better & (sub["cost"] - new["cost"] <= tol * sub["cost"])) | (
+                predicted <= tol * sub["cost"]) | (lam[active] > _LAMBDA_MAX)
+            done[active[flat]] = True
+        rows = active[better]
+        if rows.size:
+            for k, v in new.items():
+                if isinstance(v, np.ndarray) and v.shape[:1] == (active.size,):
+                    now[k][rows] = v[better]
+        accepted[rows] += 1
+        lam[rows] = np.maximum(lam[rows] / _LAMBDA_FACTOR, 1e-12)
+        lam[active[~better]] *= _LAMBDA_FACTOR
+    return _fit(pattern, now, u, accepted, done)
+
+
+def _fit(pattern: Pattern, e: dict, u: np.ndarray, iterations, converged) -> SeparableFit:
+    """The CCF, initial state and offset of the evaluation ``e``."""
+    B, n = e["a"].shape
+    z = e["z"]
+    c = np.array([0.0 if v is None else v for v in pattern.c])[None].repeat(B, 0)
+    free_c = pattern.free_c
+    c[:, free_c] = z[:, : free_c.size]
+    k = free_c.size
+    if pattern.d is None:
+        d, k = z[:, k], k + 1
+    else:
+        d = np.full(B, float(pattern.d))
+    x0 = np.zeros((B, n))
+    if pattern.initial:
+        theta = z[:, k: k + n]
+        k += n
+        # c^T Phi^k delta = e_1^T Phi^k theta for all k: delta from the first 2n samples
+        P = _rows(e["Phi"], np.arange(n), 2 * n)                 # (B, n, n, 2n): Phi^k
+        O = np.einsum("bi,bijk->bkj", c, P)                        # c^T Phi^k, (B, 2n, n)
+        F = np.einsum("bjk,bj->bk", P[:, 0], theta)
+        with np.errstate(all="ignore"):
+            G = O.transpose(0, 2, 1) @ O
+            G += (1e-14 * np.einsum("bii->b", G) + 1e-300)[:, None, None] * np.eye(n)
+            good = np.isfinite(G).all(axis=(1, 2)) & np.isfinite(F).all(axis=1)
+            G[~good] = np.eye(n)
+            delta = np.linalg.solve(G, (O.transpose(0, 2, 1) @ F[:, :, None]))[:, :, 0]
+            delta[~good] = np.nan
+        x0 = delta + e["g2"] * u[:, :1]
+    y_offset = z[:, k] if pattern.offset else np.zeros(B)
+    return SeparableFit(a=e["a"], c=c, d=d, x0=x0, y_offset=y_offset, cost=e["cost"],
+                        iterations=iterations, converged=np.asarray(converged, dtype=bool))
