@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.generic import compare as compare
     from aeid_struct.generic import identify as identify
     from aeid_struct.identification import Estimate as Estimate
+    from aeid_struct.identification import Head as Head
     from aeid_struct.identification import Identifier as Identifier
     from aeid_struct.identification import load_pretrained as load_pretrained
     from aeid_struct.records import Record as Record
@@ -58,6 +59,7 @@ _SOURCES = {
     "compare": "generic",
     "identify": "generic",
     "Estimate": "identification",
+    "Head": "identification",
     "Identifier": "identification",
     "load_pretrained": "identification",
     "Record": "records",
@@ -77,6 +79,7 @@ __all__ = [
     "MCF",
     "EncoderConfig",
     "Estimate",
+    "Head",
     "Identifier",
     "LegFamily",
     "Physical",

@@ -124,7 +124,7 @@ class Context:
     def stable(self):
         """leg-stable: steps 300 at dt 0.01, step records, no u."""
         import aeid_struct as ae
-        return ae.load_pretrained("leg-stable")
+        return ae.load_pretrained("leg-stable-ccf")
 
     @cached_property
     def any_(self):
@@ -194,7 +194,7 @@ class Context:
         """A copy of the shipped leg-stable file."""
         from importlib.resources import files
         path = self.tmp / "leg-stable.aeid"
-        path.write_bytes((files("aeid_struct.pretrained") / "leg-stable.aeid").read_bytes())
+        path.write_bytes((files("aeid_struct.pretrained") / "leg-stable-ccf.aeid").read_bytes())
         return path
 
     @cached_property

@@ -221,7 +221,7 @@ def test_shipped_names_are_those_load_pretrained_loads():
 
     names = shipped_names()
     assert names == _shipped_oracle()
-    assert len(names) == 7 and {"leg-stable", "leg-unstable-any"} <= set(names)
+    assert len(names) == 9 and {"leg-stable", "leg-unstable-any"} <= set(names)
 
 
 def test_package_names_resolve_lazily():
@@ -383,8 +383,9 @@ def test_identify_input_errors_are_one_line(tmp_path, capsys, extra, match):
 
 MODEL_ERRORS = [
     ("{missing.aeid}", r"model: file not found: '.*mymodel.aeid' \(and it is not a shipped "
-                       r"name: leg-stable, leg-stable-any, leg-stable-noisy, leg-stable-window, "
-                       r"leg-unstable, leg-unstable-any, leg-unstable-noisy\)$"),
+                       r"name: leg-stable, leg-stable-any, leg-stable-ccf, leg-stable-noisy, "
+                       r"leg-stable-window, leg-unstable, leg-unstable-any, leg-unstable-ccf, "
+                       r"leg-unstable-noisy\)$"),
     ("leg-stabel", r"model: file not found: 'leg-stabel' \(and it is not a shipped name: "),
     ("{folder}", r"model: '.*' is a folder; expected an identifier file \(.aeid\) or a shipped "
                  r"name: leg-stable, "),
@@ -461,7 +462,7 @@ def test_command_line_status_and_stderr(tmp_path):
                                        "line 3, column 1 is 'abc'; expected a number"]
     flagged = _run_python(code, "identify", "leg-stable", "--y", str(tmp_path / "coarse.csv"))
     assert flagged.returncode == 3 and "Traceback" not in flagged.stderr
-    assert flagged.stderr.startswith("aeid-struct: WARNING: this estimate (fit 43.9")
+    assert flagged.stderr.startswith("aeid-struct: WARNING: this estimate (fit 47.1")
     assert "OUTSIDE the training range" in flagged.stdout
 
 

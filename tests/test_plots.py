@@ -302,7 +302,7 @@ def test_study_run_titles_fig3_with_where_the_identifiers_came_from(tmp_path, mo
     assert (folder / "fig3_leg_scenario.png").stat().st_size > 10_000
     (title,) = titles
     assert title.startswith("Robot leg, paper scenario k = 24.23 N/m")
-    assert title.endswith("shipped identifiers leg-stable, leg-unstable" if pretrained else
+    assert title.endswith("shipped identifiers leg-stable-ccf, leg-unstable-ccf" if pretrained else
                           "identifiers trained in this run: 30 s budget each (7 / 9 epochs), "
                           "seed 3")
 

@@ -69,8 +69,9 @@ def test_batch_matches_single_and_unknown_name():
     for i in range(5):
         np.testing.assert_allclose(ident.identify(y[i]).A, batch.A[i], rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-stable-any', "
-                                         r"'leg-stable-noisy', 'leg-stable-window', "
-                                         r"'leg-unstable', 'leg-unstable-any', "
+                                         r"'leg-stable-ccf', 'leg-stable-noisy', "
+                                         r"'leg-stable-window', 'leg-unstable', "
+                                         r"'leg-unstable-any', 'leg-unstable-ccf', "
                                          r"'leg-unstable-noisy'\]; got"):
         ae.load_pretrained("leg-middle")
 
@@ -87,7 +88,8 @@ def test_shipped_identifiers_flag_legs_outside_their_training_range():
     excess = ident.identify(y).excess
     k_lo, k_hi, k_err = ident.training_range["physical"]["k"]
     assert excess[0] == 0.0
-    assert excess[1] >= (ident.identify(y[1]).physical["k"] - k_hi) / k_err > 0
+    # (a batch and a single record agree to float32 rounding)
+    assert excess[1] >= 0.999 * (ident.identify(y[1]).physical["k"] - k_hi) / k_err > 0
     # records from rest: the estimate's initial state is zero, shaped like b
     est = ident.identify(y)
     np.testing.assert_array_equal(est.x0, np.zeros((3, 2)))

@@ -22,6 +22,7 @@ from test_identify import _identifier, _record
 
 import aeid_struct as ae
 from aeid_struct import simulation as S
+from aeid_struct.identification import Head
 from aeid_struct.refinement import (
     RefineConfig,
     cache_info,
@@ -631,6 +632,7 @@ def test_identify_refines_windows_of_a_running_leg():
     from aeid_struct.training import records
 
     ident = ae.load_pretrained("leg-stable-window")
+    ident.head = None                  # the encoder alone, then the CasADi NLP
     rec = records(ae.LegFamily(subsystem="stable"), 4, steps=300, dt=0.01,
                   excitation_kind="mix", seed=9, warmup=200)
     enc = ident.identify(rec.y, rec.u)
@@ -642,3 +644,10 @@ def test_identify_refines_windows_of_a_running_leg():
         assert np.abs(enc.physical[p] / truth - 1).max() > 1e-3     # the encoder alone is not
     np.testing.assert_allclose(est.x0, rec.x0, rtol=1e-6, atol=1e-9)
     assert np.all(est.fit > 99.9999)
+    # with a head, refine=True iterates the head instead: the same legs, exactly
+    ident.head = Head(iterations=3, fixed={"c1": 0.0})
+    sep = ident.identify(rec.y, rec.u, refine=True)
+    assert sep.refined and sep.info["refine"] == "separable"
+    for p in ("k", "d", "m"):
+        assert np.abs(sep.physical[p] / rec.systems.params[p] - 1).max() < 1e-7
+    np.testing.assert_allclose(sep.x0, rec.x0, rtol=1e-6, atol=1e-9)

@@ -71,7 +71,7 @@ def test_pretrained_run_writes_its_own_folder_and_names_its_identifiers(tmp_path
     # which identifiers: the shipped names and the SHA-256 of the files they were read from
     for sub in ("stable", "unstable"):
         assert run["identifiers"][sub] == {
-            "shipped": f"leg-{sub}", "sha256": _sha256(SHIPPED / f"leg-{sub}.aeid")}
+            "shipped": f"leg-{sub}-ccf", "sha256": _sha256(SHIPPED / f"leg-{sub}-ccf.aeid")}
     assert result["train_epochs"] == {"stable": 0, "unstable": 0}
     assert result["warnings"] == []
 

@@ -17,7 +17,7 @@ from aeid_struct.identification.head import apply_head
 from aeid_struct.records import RecordBatch, normalise, overflow_problem
 from aeid_struct.structures import System
 
-__all__ = ["differentiable", "encode", "estimate_of", "identify_record"]
+__all__ = ["differentiable", "encode", "estimate_of", "identify_record", "refine_with_head"]
 
 
 def differentiable(ident, y, u, *, raw: bool = False):
@@ -91,6 +91,28 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
             record.raise_first()
     return estimate_of(ident, record, model, start, None if errors == "raise"
                        else record.problems)
+
+
+def refine_with_head(ident, record: RecordBatch, start: float, errors: str) -> Estimate:
+    """``identify(refine=True)`` of an identifier with a head: the head iterated to
+    convergence (``Head.converged``), the least-squares optimum in its structure, batched
+    (``refinement.gauss_newton``) in place of the CasADi NLP.
+
+    Parameters
+    ----------
+    ident : Identifier
+        With ``ident.head`` set.
+    record : RecordBatch
+    start : float
+    errors : {"raise", "collect"}
+
+    Returns
+    -------
+    Estimate
+        ``refined`` True, ``info["refine"] = "separable"``.
+    """
+    est = identify_record(ident, record, start, errors, ident.head.converged())
+    return dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
 
 
 def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:

@@ -20,7 +20,7 @@ import numpy as np
 from aeid_struct.refinement import Pattern, gauss_newton
 from aeid_struct.structures import CCF
 
-__all__ = ["Head", "apply_head", "pattern_of"]
+__all__ = ["Head", "apply_head", "checked_head", "pattern_of"]
 
 #: The most iterations a head may ask for (a fixed cost per record).
 MAX_ITERATIONS = 50
@@ -61,11 +61,27 @@ class Head:
 
     def converged(self) -> Head:
         """The same head iterated to convergence (the refinement of ``identify(refine=True)``):
-        up to 50 iterations, stopping per record below a relative decrease of 1e-12."""
+        up to 50 iterations, stopping per record below a relative decrease of 1e-12.
+
+        Returns
+        -------
+        Head
+        """
         return Head(iterations=MAX_ITERATIONS, fixed=self.fixed, tol=1e-12)
 
     def to_dict(self) -> dict:
-        """The file entry ``{"iterations": int, "fixed": {name: value}}``."""
+        """The file entry.
+
+        Returns
+        -------
+        dict
+            ``{"iterations": int, "fixed": {name: value}}``.
+
+        Raises
+        ------
+        ValueError
+            For a converged head (``tol`` set): a refinement, not a part of a file.
+        """
         if self.tol is not None:
             raise ValueError("head: a converged head (tol set) is a refinement, not stored")
         return {"iterations": self.iterations, "fixed": dict(self.fixed)}
@@ -78,11 +94,40 @@ class Head:
         ----------
         entry : dict
             ``{"iterations": int, "fixed": {name: value}}``.
+
+        Returns
+        -------
+        Head
+
+        Raises
+        ------
+        ValueError
+            For anything else.
         """
         if not isinstance(entry, dict) or set(entry) - {"iterations", "fixed"}:
             raise ValueError(f"head must be a dict with entries 'iterations' and 'fixed'; got "
                              f"{entry!r}")
         return cls(iterations=entry.get("iterations", 3), fixed=entry.get("fixed", {}))
+
+
+def checked_head(ident, head) -> Head | None:
+    """``head`` if ``ident`` can carry it (a ValueError naming ``head`` if not), or None.
+
+    Parameters
+    ----------
+    ident : Identifier
+    head : Head or None
+
+    Returns
+    -------
+    Head or None
+    """
+    if head is None:
+        return None
+    if not isinstance(head, Head):
+        raise ValueError(f"head must be an identification.Head or None; got {head!r}")
+    pattern_of(ident, head)            # refuses a structure the head does not serve
+    return head
 
 
 def pattern_of(ident, head: Head) -> Pattern:

@@ -4,7 +4,6 @@ identifiers: docs/architecture.md)."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -16,7 +15,7 @@ from aeid_struct.encoder import Encoder
 from aeid_struct.identification import files, forward
 from aeid_struct.identification.estimate import Estimate, Provenance
 from aeid_struct.identification.fast_path import fast_path
-from aeid_struct.identification.head import Head, pattern_of
+from aeid_struct.identification.head import Head, checked_head
 from aeid_struct.identification.polish import polish
 from aeid_struct.records import check_record
 from aeid_struct.structures import Physical, Structure, System
@@ -119,6 +118,24 @@ def _provenance_of(ident) -> Provenance:
                       training_range=ident.training_range)
 
 
+def _range_of(rng) -> dict | None:
+    """The training range of ``meta["training_range"]`` with tuples for its triples."""
+    if not rng:
+        return None
+    return {g: ({k: tuple(v) for k, v in rng[g].items()} if isinstance(rng[g], dict)
+                else rng[g]) for g in rng}
+
+
+def _cached_provenance(ident) -> Provenance:
+    """``ident``'s Provenance, rebuilt only when one of its sources is another object."""
+    sources = (ident.structure, ident.inverse, ident.initial,
+               ident.meta.get("training_range"))
+    cached = ident._provenance
+    if cached is None or any(a is not b for a, b in zip(cached[0], sources, strict=True)):
+        cached = ident._provenance = (sources, _provenance_of(ident))
+    return cached[1]
+
+
 def _output_mask(structure: Structure) -> torch.Tensor:
     """``(1, q)``: 1 for the elements that scale with the output (``c_i``, ``d``), 0 elsewhere."""
     return torch.tensor([[1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
@@ -152,9 +169,8 @@ class Identifier:
         Records start from rest (the paper), or mid-motion (the initial state is fitted by least
         squares).
     head : Head, optional
-        The separable head after the encoder (``identification.head``): a fixed number of
-        Gauss-Newton iterations with the linear elements projected; None: the paper's pass,
-        the encoder alone. An attribute that may be set or cleared (``ident.head = None``).
+        The separable head after the encoder (``identification.head``); None: the paper's
+        pass, the encoder alone. An attribute that may be set or cleared.
     """
 
     def __init__(self, encoder: Encoder, structure: Structure, *, dt,
@@ -178,11 +194,7 @@ class Identifier:
         self._provenance = None                     # (its sources, Provenance)
         self._params = list(encoder.parameters())   # cached: walking the modules is slow
         self._output_mask = _output_mask(structure)
-        if head is not None:
-            if not isinstance(head, Head):
-                raise ValueError(f"head must be an identification.Head or None; got {head!r}")
-            pattern_of(self, head)          # refuses a structure the head does not serve
-        self.head = head
+        self.head = checked_head(self, head)
 
     # -- the record format ---------------------------------------------------------------------
     @property
@@ -204,21 +216,13 @@ class Identifier:
     def training_range(self) -> dict | None:
         """``{"elements": {name: (lo, hi, err)}, "physical": {...}, "fit": f, "excess": e}``
         recorded by ``train`` (``Estimate.outside``), or None."""
-        rng = self.meta.get("training_range")
-        if not rng:
-            return None
-        return {g: ({k: tuple(v) for k, v in rng[g].items()} if isinstance(rng[g], dict)
-                    else rng[g]) for g in rng}
+        return _range_of(self.meta.get("training_range"))
 
     @property
     def provenance(self) -> Provenance:
         """What this identifier's estimates refer to (one object, shared by its estimates;
         rebuilt only when the structure, inverse, initial mode or training range changes)."""
-        sources = (self.structure, self.inverse, self.initial, self.meta.get("training_range"))
-        cached = self._provenance
-        if cached is None or any(a is not b for a, b in zip(cached[0], sources, strict=True)):
-            cached = self._provenance = (sources, _provenance_of(self))
-        return cached[1]
+        return _cached_provenance(self)
 
     def time(self):
         """Sample instants ``t_k = k*dt``.
@@ -332,10 +336,7 @@ class Identifier:
                              "in its own structure")
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
         if refine is True and self.head is not None:
-            # the head iterated to convergence: the least-squares optimum in its structure,
-            # batched (refinement.gauss_newton), in place of the CasADi NLP
-            est = forward.identify_record(self, record, start, errors, self.head.converged())
-            return dataclasses.replace(est, info={**est.info, "refine": "separable"})
+            return forward.refine_with_head(self, record, start, errors)
         est = forward.identify_record(self, record, start, errors)
         return polish(est, refine) if refine else est
 

@@ -17,8 +17,9 @@ from aeid_struct.identification.identifier import Identifier
 __all__ = ["PRETRAINED", "load_pretrained"]
 
 #: The shipped leg identifiers' names.
-PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-noisy", "leg-unstable-noisy",
-              "leg-stable-window", "leg-stable-any", "leg-unstable-any")
+PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-ccf", "leg-unstable-ccf",
+              "leg-stable-noisy", "leg-unstable-noisy", "leg-stable-window", "leg-stable-any",
+              "leg-unstable-any")
 #: How the shipped generic identifiers' names begin (``generic-1`` .. ``generic-4``).
 _GENERIC_PREFIX = "generic-"
 
@@ -42,14 +43,18 @@ def _shipped() -> dict[str, list[str]]:
 def load_pretrained(name: str) -> Identifier:
     """A leg identifier shipped in the package.
 
-    ``"leg-stable"``, ``"leg-unstable"``, and their noise-trained variants
-    ``"leg-stable-noisy"``, ``"leg-unstable-noisy"`` for measured (noisy) records;
+    ``"leg-stable"`` and ``"leg-unstable"`` (step responses from rest) in the leg's physics
+    structure: the translational leg's numerator has no s-term (``c1 = 0``), the rotational leg
+    has neither damping nor an s-term (``a1 = c1 = 0``); ``"leg-stable-ccf"`` and
+    ``"leg-unstable-ccf"``, the same in the paper's free CCF (its Table I comparison); the
+    noise-trained free-CCF variants ``"leg-stable-noisy"``, ``"leg-unstable-noisy"``;
     ``"leg-stable-window"`` reads the input too and identifies windows of a running leg under a
     random binary force (records that start mid-motion; the tracker's identifier,
     ``aeid-struct track``); ``"leg-stable-any"`` (windows mid-motion) and ``"leg-unstable-any"``
     (records from rest) read any reasonably exciting input: steps of random height and timing,
-    binary sequences, multisines, filtered noise (their encoder alone is a start for
-    ``refine=True``; accuracy in ``pretrained/README.md``).
+    binary sequences, multisines, filtered noise. These three carry a separable head
+    (``Identifier.head``: three Gauss-Newton iterations in the physics structure after the
+    encoder; accuracy in ``pretrained/README.md``).
 
     The generic identifiers shipped beside them (``generic-1`` .. ``generic-4``) are another
     kind of file: ``aeid_struct.identify(record, order=n)`` uses them, and

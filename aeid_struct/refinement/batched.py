@@ -93,6 +93,10 @@ class Pattern:
         fixed : dict str -> float
         n : int
         initial, offset, feedthrough : bool
+
+        Returns
+        -------
+        Pattern
         """
         def entry(name):
             return float(fixed[name]) if name in fixed else None
@@ -119,11 +123,14 @@ class SeparableFit:
 
     Attributes
     ----------
-    a, c : (B, n) arrays
-        The CCF's elements, fixed ones included.
-    d, y_offset : (B,) arrays
+    a : (B, n) array
+        The denominator elements, fixed ones included.
+    c : (B, n) array
+        The numerator elements, fixed ones included.
+    d : (B,) array
     x0 : (B, n) array
         The initial state (zeros from rest).
+    y_offset : (B,) array
     cost : (B,) array
         Mean squared residual; inf where the model's response is not finite.
     iterations : (B,) int array
