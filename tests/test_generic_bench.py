@@ -23,6 +23,12 @@ def test_bench_generic_cli_writes_every_method_and_the_stand_ins(tmp_path, capsy
     # within 0.5 points of the true model's validation fit; the true model scores 100 on the
     # noise-free output
     assert by[("thermal", "refined")]["fit"] >= by[("thermal", "true")]["fit"] - 0.5
+    # the one pass reaches the refined fit on it (a clean record, a good start); the encoder's
+    # pass alone is reported beside it
+    assert by[("thermal", "one pass")]["fit"] >= by[("thermal", "refined")]["fit"] - 0.1
+    assert by[("thermal", "one pass")]["start"] in ("encoder", "classical")
+    assert by[("thermal", "n4sid")]["start"] == ""
+    assert "one pass - refined: median" in text and "encoder  - refined: median" in text
     assert by[("thermal", "true")]["fit_clean"] == pytest.approx(100.0, abs=1e-6)
     assert np.isfinite(by[("1/0", "refined")]["fit"])
 

@@ -229,9 +229,10 @@ def test_identify_a_record_shorter_than_the_window_is_refused():
 
 def test_identify_perturbed_double_keeps_the_best_candidate():
     # a 10 %-perturbed identifier: whole-record projection keeps the best of the windows'
-    # candidates and their coefficient-wise median, well above the median candidate's fit
+    # candidates and their coefficient-wise median, well above the median candidate's fit (the
+    # encoder's pass alone: no iterations, no classical candidate)
     y, u = make_record()
-    est = identify((y, u, DT), 3, refine=False, delay=2,
+    est = identify((y, u, DT), 3, refine=False, delay=2, iterations=0, classical=False,
                    identifier=ArxDouble(3, perturb=0.1, seed=3))
     dens = candidates(ArxDouble(3, perturb=0.1, seed=3), y[2:], u[:-2])
     fits = [project(*ccf(d), y, u, 1.0, delay=2).fit for d in dens]
@@ -400,10 +401,11 @@ def test_identify_refined_in_mcf_and_with_a_fixed_element():
     np.testing.assert_allclose(transfer(est, S), G_TRUE, rtol=1e-6)
 
 
-def test_identify_refine_false_keeps_the_encoder_model():
+def test_identify_encoder_pass_alone_keeps_the_encoder_model():
     y, u = make_record()
-    est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3, perturb=0.1, seed=3))
-    assert not est.refined and "iterations" not in est.info
+    est = identify((y, u, DT), 3, refine=False, iterations=0, classical=False,
+                   identifier=ArxDouble(3, perturb=0.1, seed=3))
+    assert not est.refined and "iterations" not in est.info and est.info["start"] == "encoder"
     assert np.max(np.abs(transfer(est, S) / G_TRUE - 1)) > 1e-3
 
 

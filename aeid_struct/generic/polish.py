@@ -156,7 +156,7 @@ def refine_casadi(structure: Structure, m: Model, data, max_delay: int):
 
 
 def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
-                split: bool = False, search: bool = True):
+                split: bool = False, search: bool = True, max_iter: int = 100):
     """``(Model, info)`` of ``refinement.refine_separable`` from ``m`` (normalised time) at its
     delay; then every delay of ``0..max_delay`` re-scanned by projection with the refined poles
     and the best other one refined too where it is better (a wrong delay is partly absorbed by
@@ -177,6 +177,9 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
     split : bool
     search : bool
         Search the delay (else refine at ``m.delay`` only).
+    max_iter : int, >= 1
+        Levenberg-Marquardt iterations per refinement, at most (the one pass of ``identify``
+        runs a fixed few).
 
     Returns
     -------
@@ -189,7 +192,7 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
     def run(den, D):
         nonlocal seconds, iterations
         r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough,
-                             cost_tol=COST_TOL)
+                             cost_tol=COST_TOL, max_iter=max_iter)
         seconds, iterations = seconds + r.seconds, iterations + r.iterations
         y_hat = np.asarray(r.y_hat, dtype=np.float64)
         cost = float(np.mean((data.y[D:] - y_hat[D:]) ** 2))
@@ -300,7 +303,7 @@ def better_of(models, y: np.ndarray) -> Model | None:
 
 
 def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
-                  split: bool = False):
+                  split: bool = False, classical: bool = True):
     """:func:`refine_free` from the encoder's start ``m`` and from the classical start
     (:func:`classical_start`), the better kept (:func:`better_of`); ``info["start"]`` says
     which. Measured on the benchmark's stand-in for a flexible arm: from the encoder's start
@@ -314,6 +317,8 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     max_delay : int
     split : bool
         As in :func:`refine_free`.
+    classical : bool
+        Refine from the classical start too (else from ``m`` alone).
 
     Returns
     -------
@@ -324,7 +329,7 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     feedthrough = "d" in structure.element_names and "d" not in structure.fixed_values
     # both starts refined at their own delay, the delay searched from the better one only
     results = [refine_free(structure, m, data, max_delay, split=split, search=False)]
-    alt = classical_start(data, order, m.delay, max_delay, feedthrough)
+    alt = classical_start(data, order, m.delay, max_delay, feedthrough) if classical else None
     if alt is not None:
         results.append(refine_free(structure, alt, data, max_delay, split=split, search=False))
     chosen = better_of((r[0] for r in results), data.y)

@@ -9,8 +9,12 @@ validation record (a run whose validation half has a constant input -- a step ea
 -- is redrawn: every model, the true one included, scores 0 on it). Methods, on the estimation
 record:
 
-* ``encoder``: ``ae.identify(record, order=n, refine=False)`` (one pass + projection),
-* ``refined``: ``ae.identify(record, order=n)`` (output error on the whole record),
+* ``encoder``: ``ae.identify(record, order=n, refine=False, iterations=0, classical=False)``
+  (the encoder's pass alone: its candidates, whole-record projection),
+* ``one pass``: ``ae.identify(record, order=n, refine=False)`` (the encoder's and the
+  Steiglitz-McBride candidates, projection, a fixed few Levenberg-Marquardt iterations),
+* ``refined``: ``ae.identify(record, order=n)`` (output error on the whole record, iterated to
+  convergence from two starts, the delay searched),
 * ``refined, D given``: the same with the true input delay given (``record.delay``),
 * ``n4sid``: ``baselines.n4sid(record, order=n)`` (no zero padding, free initial state),
 * ``least squares``: ``baselines.least_squares(record, order=n)`` (CCF, variable projection),
@@ -44,7 +48,10 @@ from aeid_struct.simulation import fit_initial
 __all__ = ["METHODS", "Row", "bench_generic", "format_tables", "measured_stand_ins", "write_json"]
 
 #: Method names in table order.
-METHODS = ("encoder", "refined", "refined, D given", "n4sid", "least squares", "true")
+METHODS = ("encoder", "one pass", "refined", "refined, D given", "n4sid", "least squares",
+           "true")
+#: The methods that estimate the delay (the others are given the true one).
+_DELAY_ESTIMATED = ("encoder", "one pass", "refined")
 
 
 @dataclass(frozen=True)
@@ -70,6 +77,9 @@ class Row:
         Wall time of the identification.
     delay : int
         The delay the method used (samples).
+    start : str
+        The identifiers' winning candidate or start (``info["start"]``: ``"encoder"`` or
+        ``"classical"``); empty for the other methods.
     """
 
     case: str
@@ -81,6 +91,7 @@ class Row:
     fit_clean: float
     seconds: float
     delay: int
+    start: str = ""
 
 
 def _score(A, b, c, d, delay: int, validation: Record, clean: np.ndarray) -> tuple[float, float]:
@@ -101,19 +112,21 @@ def _methods(order: int, identifiers=None):
     import aeid_struct as ae
     from aeid_struct import baselines
 
-    def ident(refine):
+    def ident(**kwargs):
         def run(record):
-            est = ae.identify(record, order=order, refine=refine, identifier=identifiers)
-            return est.A, est.b, est.c, est.d, int(est.delay)
+            est = ae.identify(record, order=order, identifier=identifiers, **kwargs)
+            return est.A, est.b, est.c, est.d, int(est.delay), est.info.get("start", "")
         return run
 
     def classical(fn):
         def run(record):
             est = fn(record, order=order)
-            return est.A, est.b, est.c, est.d, int(record.delay or 0)
+            return est.A, est.b, est.c, est.d, int(record.delay or 0), ""
         return run
 
-    return {"encoder": ident(False), "refined": ident(True), "refined, D given": ident(True),
+    return {"encoder": ident(refine=False, iterations=0, classical=False),
+            "one pass": ident(refine=False), "refined": ident(refine=True),
+            "refined, D given": ident(refine=True),
             "n4sid": classical(baselines.n4sid),
             "least squares": classical(baselines.least_squares)}
 
@@ -144,16 +157,17 @@ def _run_record(methods, estimation, validation, clean, true, label, order, nois
     rows = []
     for name, run in methods.items():
         # The baselines get the true delay; the identifiers estimate it (and once are given it).
-        record = estimation if name in ("encoder", "refined") else estimation.with_delay(true[4])
+        record = (estimation if name in _DELAY_ESTIMATED
+                  else estimation.with_delay(true[4]))
         t0 = time.perf_counter()
         try:
-            A, b, c, d, D = run(record)
+            A, b, c, d, D, start = run(record)
         except (ValueError, np.linalg.LinAlgError, RuntimeError):
             A = b = c = np.full((order,), np.nan)
-            A, d, D = np.full((order, order), np.nan), np.nan, 0
+            A, d, D, start = np.full((order, order), np.nan), np.nan, 0, ""
         seconds = time.perf_counter() - t0
         fit, fit_clean = _score(A, b, c, d, D, validation, clean)
-        rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D))
+        rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D, start))
     fit, fit_clean = _score(*true, validation, clean)
     rows.append(Row(label, order, noise, steps, "true", fit, fit_clean, 0.0, true[4]))
     return rows
@@ -273,9 +287,30 @@ def _median(values) -> float:
     return statistics.median(values) if values else float("nan")
 
 
+def _gap_lines(rows: list[Row], by_case: dict) -> list[str]:
+    """The one pass and the encoder's pass alone against the refined model, per record: the
+    median, the 10th percentile and the count within 1 point of the difference in validation
+    fit; how often the classical candidate won the one pass."""
+    lines = ["", "Per record: validation fit minus the refined model's (points; the records "
+                 "where both gave a model)"]
+    for name in ("encoder", "one pass"):
+        gaps = np.array([v[name] - v["refined"] for v in by_case.values()
+                         if np.isfinite(v.get(name, np.nan))
+                         and np.isfinite(v.get("refined", np.nan))])
+        if gaps.size == 0:
+            continue
+        lines.append(f"  {name:8s} - refined: median {np.median(gaps):6.2f}, 10th percentile "
+                     f"{np.percentile(gaps, 10):7.2f}, within 1 point {int(np.sum(gaps >= -1))} "
+                     f"of {gaps.size}")
+    won = [r.start for r in rows if r.method == "one pass" and r.start]
+    lines.append(f"  one pass: the classical (Steiglitz-McBride) candidate won on "
+                 f"{won.count('classical')} of {len(won)} records")
+    return lines
+
+
 def format_tables(rows: list[Row]) -> str:
-    """The fit table (median validation fit per cell and method), the worst gap to n4sid and
-    the timings, as text.
+    """The fit table (median validation fit per cell and method), the one pass against the
+    refined model, the worst gap to n4sid and the timings, as text.
 
     Parameters
     ----------
@@ -294,11 +329,12 @@ def format_tables(rows: list[Row]) -> str:
         vals = [_median(r.fit for r in sel if r.method == m) for m in METHODS]
         lines.append(f"{order:5d} {noise:5.0%} {steps:5d} | "
                      + " | ".join(f"{v:16.2f}" for v in vals))
-    lines += ["", "Per record: refined minus n4sid and least squares (points, worst and count > 1 "
-              "below), refined minus true (median)"]
     by_case = {}
     for r in rows:
         by_case.setdefault((r.case, r.noise, r.steps), {})[r.method] = r.fit
+    lines += _gap_lines(rows, by_case)
+    lines += ["", "Per record: refined minus n4sid and least squares (points, worst and count > 1 "
+              "below), refined minus true (median)"]
     for name in ("refined", "refined, D given"):
         for other in ("n4sid", "least squares"):
             gaps = [v[name] - v[other] for v in by_case.values()
@@ -310,8 +346,9 @@ def format_tables(rows: list[Row]) -> str:
                      f"{sum(g >= -1 for g in gap)} of {len(gap)}")
     failed = {m: sum(not np.isfinite(r.fit) for r in rows if r.method == m) for m in METHODS}
     lines.append("  no model (failed): " + ", ".join(f"{m} {k}" for m, k in failed.items()))
-    lines.append(f"  encoder - true: median "
-                 f"{_median(v['encoder'] - v['true'] for v in by_case.values()):.2f}")
+    for name in ("encoder", "one pass"):
+        lines.append(f"  {name} - true: median "
+                     f"{_median(v[name] - v['true'] for v in by_case.values()):.2f}")
     lines += ["", "Measured-data stand-ins (validation fit %)"]
     for r in rows:
         if r.noise < 0:
