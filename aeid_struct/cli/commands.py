@@ -323,8 +323,9 @@ def run_bench_online(args: argparse.Namespace) -> int:
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    """The ``bench`` subcommand: identification accuracy and speed of every method, and the
-    decoder timings (``studies.bench``), printed and written as JSON.
+    """The ``bench`` subcommand: identification accuracy and speed of every method
+    (``studies.bench``), the one-pass study (``studies.onepass_bench``) and the decoder timings,
+    printed and written as JSON (``identification``, ``onepass``, ``decoder``).
 
     Parameters
     ----------
@@ -335,24 +336,74 @@ def run_bench(args: argparse.Namespace) -> int:
     -------
     int
         0.
+
+    Raises
+    ------
+    InputError
+        ``--decoder-only`` with ``--onepass-only``, or ``--timed`` above ``--records``.
     """
     import torch
 
     from aeid_struct import studies
 
     bench = studies.bench
+    if args.decoder_only and args.onepass_only:
+        raise InputError("bench: --decoder-only and --onepass-only exclude each other")
+    if args.records and args.timed and args.timed > args.records:
+        raise InputError(f"bench: --timed must be <= --records ({args.records}); got "
+                         f"{args.timed}")
     result = {}
-    if not args.decoder_only:
+    if not (args.decoder_only or args.onepass_only):
         count = args.count or (20 if args.quick else 500)
         print(f"Identification of the robot-leg subsystems: {count} systems per subsystem and "
               f"noise level, one call per record, all methods on the same records "
               f"(noise-free truth as reference), {torch.get_num_threads()} torch thread(s):",
               flush=True)
-        ident = bench.bench_identification(count=count, noises=tuple(args.noise),
+        ident = bench.bench_identification(count=count, noises=tuple(args.noise or
+                                                                     (0.0, 0.01, 0.05)),
                                            progress=not args.quiet)
         print()
         print(bench.format_identification_table(ident))
         result["identification"] = ident
+    if not args.decoder_only:
+        result["onepass"] = _run_onepass(args)
+    if not args.onepass_only:
+        result["decoder"] = _run_decoder(args)
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2, default=float))
+    print(f"wrote {out}")
+    return 0
+
+
+def _run_onepass(args: argparse.Namespace) -> dict:
+    """The one-pass study of ``bench`` (``studies.onepass_bench``), printed; its result."""
+    from aeid_struct import studies
+
+    onepass_bench, onepass_tables = studies.onepass_bench, studies.onepass_tables
+    kw = {"names": tuple(args.identifiers)} if args.identifiers else {}
+    if args.kinds:
+        kw["kinds"] = tuple(args.kinds)
+    print("\nOne pass at the optimum (issue 15): the encoder alone, the one pass, the "
+          "least-squares optimum and the cold classical fits on the same records, one thread "
+          "(progress on stderr):", flush=True)
+    result = onepass_bench.bench_onepass(
+        quick=args.quick, noises=tuple(args.noise) if args.noise else None,
+        count=args.records, timed=min(args.timed or (4 if args.quick else 30),
+                                      args.records or (8 if args.quick else 60)),
+        progress=not args.quiet, **kw)
+    print()
+    print(onepass_tables.format_onepass_tables(result))
+    return result
+
+
+def _run_decoder(args: argparse.Namespace) -> list:
+    """The decoder timings of ``bench`` (``studies.bench.bench_decoder``), printed; the rows."""
+    import torch
+
+    from aeid_struct import studies
+
+    bench = studies.bench
     steps = (100, 300) if args.quick else tuple(args.steps)
     rows = []
     for dtype in (torch.float32, torch.float64):
@@ -360,12 +411,7 @@ def run_bench(args: argparse.Namespace) -> int:
                                     threads=args.threads)
     print(f"\nDecoder forward+backward, batch {args.batch}, {args.threads} thread(s):")
     print(bench.format_decoder_table(rows))
-    result["decoder"] = [_row_dict(r) for r in rows]
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2, default=float))
-    print(f"wrote {out}")
-    return 0
+    return [_row_dict(r) for r in rows]
 
 
 def _row_dict(row) -> dict:

@@ -378,14 +378,31 @@ def _add_identify(sub, names: str, generic: str) -> None:
 
 def _add_bench(sub) -> None:
     bench = sub.add_parser(
-        "bench", help="accuracy and speed of the encoder, refinement and classical baselines, "
-                      "and decoder timings, measured side by side; prints and writes JSON")
-    bench.add_argument("--quick", action="store_true", help="20 systems, short decoder table")
+        "bench", help="accuracy and speed of the encoder, the one pass, refinement and classical "
+                      "baselines, and decoder timings, measured side by side; prints and writes "
+                      "JSON")
+    bench.add_argument("--quick", action="store_true",
+                       help="20 systems, 8 records per one-pass row, short decoder table")
     bench.add_argument("--count", type=_POSITIVE_INT, default=None,
                        help="systems per subsystem and noise level (default 500)")
-    bench.add_argument("--noise", type=_FRACTION, nargs="+", default=[0.0, 0.01, 0.05],
-                       help="noise levels, std relative to max|y| (default 0 0.01 0.05)")
+    bench.add_argument("--noise", type=_FRACTION, nargs="+", default=None,
+                       help="noise levels, std relative to max|y| (default 0 0.01 0.05; the "
+                            "one-pass study with --quick: 0 0.01)")
     bench.add_argument("--decoder-only", action="store_true", help="only the decoder timings")
+    bench.add_argument("--onepass-only", action="store_true",
+                       help="only the one-pass study (encoder alone, one pass, refined, cold "
+                            "least squares, cold CasADi, n4sid under four inputs)")
+    bench.add_argument("--records", type=_POSITIVE_INT, default=None,
+                       help="records per one-pass row (default 60; --quick 8)")
+    bench.add_argument("--timed", type=_POSITIVE_INT, default=None,
+                       help="records per one-pass row timed at batch 1 and fitted by the cold "
+                            "baselines (default 30; --quick 4)")
+    bench.add_argument("--identifiers", nargs="+", default=None,
+                       choices=["leg-stable-any", "leg-unstable-any", "leg-stable-window"],
+                       help="identifiers of the one-pass study (default all three)")
+    bench.add_argument("--kinds", nargs="+", default=None,
+                       choices=["steps", "prbs", "multisine", "noise"],
+                       help="input kinds of the one-pass study (default all four)")
     bench.add_argument("--batch", type=_POSITIVE_INT, default=256,
                        help="records per decoder call in the decoder timings (default 256)")
     bench.add_argument("--steps", type=_POSITIVE_INT, nargs="+", default=[100, 300, 1000],
