@@ -38,6 +38,9 @@ __all__ = ["Pattern", "SeparableFit", "evaluate", "gauss_newton"]
 _FD = 1e-7
 #: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, cap.
 _LAMBDA0, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-4, 10.0, 1e8
+#: An exact fit: a mean squared residual below this share of the record's mean square (a
+#: residual of 1e-12 relative: rounding, where every further step is rejected).
+_EXACT = 1e-24
 #: Tikhonov floor of the normal equations, relative to their largest diagonal entry.
 _RIDGE = 1e-13
 
@@ -380,6 +383,7 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
     now = evaluate(pattern, alpha, y, u, dt, U)
     lam = np.full(B, _LAMBDA0)
     done = ~np.isfinite(now["cost"])
+    energy = np.mean(y * y, axis=1)
     accepted = np.zeros(B, dtype=int)
     for _ in range(iterations):
         active = np.flatnonzero(~done)
@@ -402,12 +406,13 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
         better = new["cost"] < sub["cost"]
         if tol is not None:
             # converged: an accepted step or the Gauss-Newton prediction lowers the cost by
-            # less than tol (relative), or no damped step descends
+            # less than tol (relative), no damped step descends, or the fit is exact
             N = y.shape[1]
             predicted = -(2.0 * np.einsum("bj,bj->b", g, step)
                           + np.einsum("bj,bjk,bk->b", step, H, step)) / N
             flat = (better & (sub["cost"] - new["cost"] <= tol * sub["cost"])) | (
-                predicted <= tol * sub["cost"]) | (lam[active] > _LAMBDA_MAX)
+                predicted <= tol * sub["cost"]) | (lam[active] > _LAMBDA_MAX) | (
+                np.minimum(sub["cost"], new["cost"]) <= _EXACT * energy[active])
             done[active[flat]] = True
         rows = active[better]
         if rows.size:
