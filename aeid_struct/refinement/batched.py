@@ -36,13 +36,14 @@ __all__ = ["Pattern", "SeparableFit", "evaluate", "gauss_newton"]
 
 #: Forward-difference step of the Jacobian, relative to each free element.
 _FD = 1e-7
-#: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, cap.
-_LAMBDA0, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-4, 10.0, 1e8
+#: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, cap (shared with the
+#: compiled path, refinement.compiled, as are EXACT and RIDGE).
+LAMBDA0, LAMBDA_FACTOR, LAMBDA_MAX = 1e-4, 10.0, 1e8
 #: An exact fit: a mean squared residual below this share of the record's mean square (a
 #: residual of 1e-12 relative: rounding, where every further step is rejected).
-_EXACT = 1e-24
-#: Tikhonov floor of the normal equations, relative to their largest diagonal entry.
-_RIDGE = 1e-13
+EXACT = 1e-24
+#: Tikhonov floor of the normal equations, relative to the trace of the scaled Gram matrix.
+RIDGE = 1e-13
 
 
 @dataclass(frozen=True)
@@ -295,7 +296,7 @@ def _solve(M: np.ndarray, t: np.ndarray):
     Ms = M / scale[:, :, None]
     G = Ms @ Ms.transpose(0, 2, 1)
     eye = np.eye(G.shape[1])
-    G += (_RIDGE * np.einsum("bii->b", G) + 1e-300)[:, None, None] * eye
+    G += (RIDGE * np.einsum("bii->b", G) + 1e-300)[:, None, None] * eye
     G[~ok] = eye
     try:
         Gi = np.linalg.inv(G)
@@ -381,7 +382,7 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
     B = y.shape[0]
     U = _spectrum(u)
     now = evaluate(pattern, alpha, y, u, dt, U)
-    lam = np.full(B, _LAMBDA0)
+    lam = np.full(B, LAMBDA0)
     done = ~np.isfinite(now["cost"])
     energy = np.mean(y * y, axis=1)
     accepted = np.zeros(B, dtype=int)
@@ -411,8 +412,8 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
             predicted = -(2.0 * np.einsum("bj,bj->b", g, step)
                           + np.einsum("bj,bjk,bk->b", step, H, step)) / N
             flat = (better & (sub["cost"] - new["cost"] <= tol * sub["cost"])) | (
-                predicted <= tol * sub["cost"]) | (lam[active] > _LAMBDA_MAX) | (
-                np.minimum(sub["cost"], new["cost"]) <= _EXACT * energy[active])
+                predicted <= tol * sub["cost"]) | (lam[active] > LAMBDA_MAX) | (
+                np.minimum(sub["cost"], new["cost"]) <= EXACT * energy[active])
             done[active[flat]] = True
         rows = active[better]
         if rows.size:
@@ -420,8 +421,8 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
                 if isinstance(v, np.ndarray) and v.shape[:1] == (active.size,):
                     now[k][rows] = v[better]
         accepted[rows] += 1
-        lam[rows] = np.maximum(lam[rows] / _LAMBDA_FACTOR, 1e-12)
-        lam[active[~better]] *= _LAMBDA_FACTOR
+        lam[rows] = np.maximum(lam[rows] / LAMBDA_FACTOR, 1e-12)
+        lam[active[~better]] *= LAMBDA_FACTOR
     return _fit(pattern, now, u, accepted, done)
 
 
