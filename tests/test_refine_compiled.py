@@ -62,7 +62,9 @@ def test_compiled_equals_the_numpy_path_on_the_leg_records(name, iterations, tol
     pattern, N, _ = LEGS[name]
     y, u, dt, _, start = records(name)
     assert compiled.solver(pattern, N) is not None, "a C compiler is present: it must build"
-    fast = gauss_newton(pattern, start, y, u, dt, iterations=iterations, tol=tol)
+    # a start in Fortran order, as column selections give it: each record's row is strided
+    fast = gauss_newton(pattern, np.asfortranarray(start), y, u, dt, iterations=iterations,
+                        tol=tol)
     ref = numpy_path(monkeypatch, pattern, start, y, u, dt, iterations=iterations, tol=tol)
     # numpy's forward-difference Jacobian moves each step in its ~8th digit
     for field in ("a", "c", "x0"):

@@ -341,9 +341,13 @@ def _step(pattern, kernels: _Kernels, N: int) -> casadi.Function:
     finite = cost < np.inf
     better = casadi.logic_and(trial < cost, finite)
     predicted = -(2.0 * casadi.dot(g, step) + casadi.bilin(H, step, step)) / N
+    # numpy's rule: a small decrease, actual or predicted, no damped step that descends, or an
+    # exact fit (min(cost, trial), NaN when the trial is, at rounding level of the record)
+    exact = batched.EXACT * casadi.sumsqr(y) / N
     flat = casadi.logic_or(casadi.logic_or(
         casadi.logic_and(better, cost - trial <= tol * cost), predicted <= tol * cost),
-        lam > batched.LAMBDA_MAX)
+        casadi.logic_or(lam > batched.LAMBDA_MAX, casadi.logic_and(
+            trial == trial, casadi.logic_or(cost <= exact, trial <= exact))))
     done = casadi.logic_or(casadi.logic_not(finite), casadi.logic_and(stop, flat))
     lam = casadi.if_else(better, casadi.fmax(lam / batched.LAMBDA_FACTOR, 1e-12),
                          lam * batched.LAMBDA_FACTOR)
@@ -447,8 +451,8 @@ def gauss_newton_rows(pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, 
     Parameters
     ----------
     pattern : Pattern
-    alpha : (B, nf) float64 array, C-contiguous
-    y, u : (B, N) float64 arrays, C-contiguous
+    alpha : (B, nf) array
+    y, u : (B, N) arrays
     dt : float
     iterations : int
     tol : float or None
@@ -471,6 +475,8 @@ def gauss_newton_rows(pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, 
     if f is None:
         return None
     n = pattern.n
+    # the numeric buffer reads each row's memory as it lies
+    alpha, y, u = (np.ascontiguousarray(v, dtype=np.float64) for v in (alpha, y, u))
     q = np.array([dt, iterations, 0.0 if tol is None else tol, tol is not None], dtype=float)
     out = np.empty((B, 3 * n + 5))
     with _LOCK:                        # one numeric buffer per solver
