@@ -399,3 +399,21 @@ def test_both_engines_run_the_head_and_agree():
         assert abs(encoder[k] / est[k] - 1) > 1e-3           # the head moved it
         for x, z in zip(ua, ub, strict=True):
             assert x.estimate[k] == pytest.approx(z.estimate[k], rel=1e-6)
+
+
+def test_unset_smoothing_follows_whether_the_head_iterates_and_set_values_are_kept():
+    from aeid_struct.identification import Head
+    from aeid_struct.online import DEFAULT_SMOOTHING
+
+    def used(head, **given):
+        stub = _Stub()
+        stub.head = head
+        cfg = Tracker(stub, TrackerConfig(**given)).config
+        return cfg.median, cfg.smoothing
+
+    assert used(None) == DEFAULT_SMOOTHING["encoder"]
+    assert used(Head(iterations=0)) == DEFAULT_SMOOTHING["encoder"]    # projection only
+    assert used(Head(iterations=1)) == DEFAULT_SMOOTHING["head"]
+    assert used(Head(iterations=2), median=5) == (5, DEFAULT_SMOOTHING["head"][1])
+    assert used(None, smoothing=1.0) == (DEFAULT_SMOOTHING["encoder"][0], 1.0)
+    assert DEFAULT_SMOOTHING["head"][0] < DEFAULT_SMOOTHING["encoder"][0]

@@ -274,8 +274,9 @@ def _add_track(sub, names: str) -> None:
                      help="measurement noise, of max|y|")
     tracker = TrackerConfig()          # the tracker's own defaults, not copies of them
     (m0, s0), (m1, s1) = DEFAULT_SMOOTHING["encoder"], DEFAULT_SMOOTHING["head"]
-    by_head = {"median": f"{m1} for an identifier with a separable head, {m0} without",
-               "smoothing": f"{s1} for an identifier with a separable head, {s0} without"}
+    by_head = {"median": f"{m1} for an identifier whose separable head iterates, {m0} "
+                         "without", "smoothing": f"{s1} for an identifier whose separable head "
+                                                 f"iterates, {s0} without"}
     for name, kind, text in (
             ("hop", int, "samples between identifications"),
             ("smoothing", float, "moving-average weight"),

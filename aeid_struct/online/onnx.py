@@ -187,6 +187,8 @@ class OnnxIdentifier:
                              f"[{self.steps}]")
         self.inputs, self.initial = bool(header["inputs"]), header["initial"]
         self.element_names = tuple(header["elements"])
+        self._output_mask = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
+                                      for k in self.element_names])
         self.records = 1
         self._physical_elements = header.get("physical_elements")
         self._ccf = bool(header.get("ccf", True))
@@ -267,16 +269,14 @@ class OnnxIdentifier:
                                  f"{gain[r]:.3g} at record {r}")
             root = np.sqrt(gain)[:, None]
             y_in, u_in = y_unit * root, u_unit / root
-        rows = []
-        for y_r, u_r in zip(y_in.astype(np.float32), u_in.astype(np.float32), strict=True):
-            rows.append([np.asarray(o, dtype=np.float64)
-                         for o in self.session.run(None, {"y": y_r, "u": u_r})])
-        A, b, c, d, el = (np.stack(t) for t in zip(*rows, strict=True))
+        rows = [self.session.run(None, {"y": y_r, "u": u_r})
+                for y_r, u_r in zip(y_in.astype(np.float32), u_in.astype(np.float32),
+                                    strict=True)]
+        A, b, c, d, el = (np.stack(t).astype(np.float64) for t in zip(*rows, strict=True))
         if self._scale == "denormalise":
             # Exact de-normalisation (linearity), in float64: c, d and the elements c_i, d
             # scale with the output (Identifier._output_mask).
-            scaled = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
-                               for k in self.element_names])
+            scaled = self._output_mask
             with np.errstate(over="ignore", invalid="ignore"):   # overflow: refused below
                 c, d = c * gain[:, None], d * gain
                 el = np.where(scaled, el * gain[:, None], el)

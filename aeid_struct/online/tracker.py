@@ -20,10 +20,11 @@ import numpy as np
 from aeid_struct.records import RecordError, as_array
 
 #: ``(median, smoothing)`` where :class:`TrackerConfig` leaves them None, for an identifier
-#: without and with a separable head (``Identifier.head``): the head's window estimates scatter
-#: far less, so a shorter median and a lighter average track the parameter with less lag, while
-#: the encoder's estimates need the heavier smoothing (chosen by ``studies.bench_online``'s wear
-#: scenario on seeds other than those it reports).
+#: without and with a separable head that iterates (``Identifier.head``, ``iterations >= 1``):
+#: the iterated head's window estimates scatter far less, so a shorter median and a lighter
+#: average follow the parameter with less lag, while the encoder's estimates (and those of a
+#: projection-only head) need the heavier smoothing; chosen on the wear scenario of
+#: ``studies.wear`` and checked on other seeds.
 DEFAULT_SMOOTHING = {"encoder": (9, 0.3), "head": (3, 0.7)}
 
 
@@ -175,8 +176,8 @@ class Tracker:
         works too (then the engine is that file).
     config : TrackerConfig
         How the tracker windows, smooths and alarms; ``median`` and ``smoothing`` left None
-        are set by the identifier's head (:data:`DEFAULT_SMOOTHING`), and ``Tracker.config``
-        holds the values used.
+        are set by the identifier's head (:data:`DEFAULT_SMOOTHING`, at construction), and
+        ``Tracker.config`` holds the values used.
     engine : str
         ``"auto"`` (default: onnx when onnxruntime is installed), ``"onnx"`` or
         ``"identifier"``.
@@ -394,9 +395,11 @@ class Tracker:
 
 def _resolved(config: TrackerConfig, engine) -> TrackerConfig:
     """``config`` with ``median`` and ``smoothing`` set where None, by whether ``engine`` (the
-    identifier or its ONNX runner) has a separable head (:data:`DEFAULT_SMOOTHING`)."""
+    identifier or its ONNX runner) has a separable head that iterates
+    (:data:`DEFAULT_SMOOTHING`)."""
+    head = getattr(engine, "head", None)
     median, smoothing = DEFAULT_SMOOTHING[
-        "encoder" if getattr(engine, "head", None) is None else "head"]
+        "head" if head is not None and head.iterations >= 1 else "encoder"]
     return dataclasses.replace(
         config, median=median if config.median is None else config.median,
         smoothing=smoothing if config.smoothing is None else config.smoothing)
