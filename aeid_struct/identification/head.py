@@ -64,11 +64,27 @@ class Head:
 
     def converged(self) -> Head:
         """The same head iterated to convergence (the refinement of ``identify(refine=True)``):
-        up to 50 iterations, stopping per record below a relative decrease of 1e-12."""
+        up to 50 iterations, stopping per record below a relative decrease of 1e-12.
+
+        Returns
+        -------
+        Head
+        """
         return Head(iterations=MAX_ITERATIONS, fixed=self.fixed, tol=1e-12)
 
     def to_dict(self) -> dict:
-        """The file entry ``{"iterations": int, "fixed": {name: value}}``."""
+        """The file entry of the head.
+
+        Returns
+        -------
+        dict
+            ``{"iterations": int, "fixed": {name: value}}``.
+
+        Raises
+        ------
+        ValueError
+            For a converged head (a refinement, not stored).
+        """
         if self.tol is not None:
             raise ValueError("head: a converged head (tol set) is a refinement, not stored")
         return {"iterations": self.iterations, "fixed": dict(self.fixed)}
@@ -81,6 +97,10 @@ class Head:
         ----------
         entry : dict
             ``{"iterations": int, "fixed": {name: value}}``.
+
+        Returns
+        -------
+        Head
         """
         if not isinstance(entry, dict) or set(entry) - {"iterations", "fixed"}:
             raise ValueError(f"head must be a dict with entries 'iterations' and 'fixed'; got "

@@ -96,6 +96,10 @@ class Pattern:
         fixed : dict str -> float
         n : int
         initial, offset, feedthrough : bool
+
+        Returns
+        -------
+        Pattern
         """
         def entry(name):
             return float(fixed[name]) if name in fixed else None
@@ -122,9 +126,12 @@ class SeparableFit:
 
     Attributes
     ----------
-    a, c : (B, n) arrays
-        The CCF's elements, fixed ones included.
-    d, y_offset : (B,) arrays
+    a : (B, n) array
+        The CCF's ``a_j``, fixed ones included.
+    c : (B, n) array
+        Its ``c_j``, fixed ones included.
+    d : (B,) array
+    y_offset : (B,) array
     x0 : (B, n) array
         The initial state (zeros from rest), a property solved on first use.
     cost : (B,) array
@@ -148,9 +155,8 @@ class SeparableFit:
 
     @functools.cached_property
     def x0(self) -> np.ndarray:
-        """``(B, n)``, solved when first read (the identifiers' head never reads it): the free
-        responses ``e_1^T Phi^k theta`` equal ``c^T Phi^k delta`` for all ``k``, so ``delta``
-        from the first ``2n`` samples, and ``x0 = delta + g2 u_0`` (Eq. 10-11)."""
+        """``(B, n)``, solved on first read (the head never reads it): ``e_1^T Phi^k theta =
+        c^T Phi^k delta`` for all ``k``, ``delta`` from ``2n`` samples, ``x0 = delta + g2 u_0``."""
         if self.initial is None:
             return np.zeros_like(self.c)
         Phi, theta, g2u0 = self.initial
@@ -186,14 +192,14 @@ def _discrete(a: np.ndarray, dt: float):
     return X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
 
 
-#: Taylor coefficients ``1/k!``, ``k = 0 .. 15``, as four blocks of four for
-#: :func:`expm_batch`: truncation below ``0.5^16 / 16! < 1e-18`` for ``||X||_1 <= 1/2``.
+#: Taylor coefficients ``1/k!``, ``k = 0 .. 15``, in four blocks (:func:`expm_batch`).
 _TAYLOR = np.array([[1.0 / math.factorial(4 * i + j) for j in range(4)] for i in range(4)])
 
 
 def expm_batch(E: np.ndarray) -> np.ndarray:
     """``expm`` of each small matrix of ``E (B, m, m)``: Taylor of degree 15 with scaling and
-    squaring, each matrix squared its own number of times.
+    squaring (truncation below ``0.5^16 / 16! < 1e-18`` for ``||X||_1 <= 1/2``), each matrix
+    squared its own number of times.
 
     Why not ``scipy.linalg.expm``: it loops over a batch in Python (tens of microseconds per
     4 x 4 matrix). Here the polynomial is evaluated the Paterson-Stockmeyer way, ``X^2, X^3,
@@ -350,9 +356,8 @@ def evaluate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray,
 
     Notes
     -----
-    The shifted models of the differences go through the same basis call as ``alpha`` (``1 +
-    nf`` times the rows): for a few records a call costs numpy's per-operation overhead, not
-    its size, so the Jacobian comes with the point instead of ``nf`` calls after it.
+    The shifted models go through the basis call of ``alpha`` (:func:`_bases`): for a few
+    records a call costs numpy's per-operation overhead, not its size.
     """
     U = _spectrum(u) if U is None else U
     B, nf = alpha.shape
@@ -382,8 +387,7 @@ def evaluate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray,
 
 def _bases(pattern: Pattern, points: list, y, u, dt: float, U) -> list:
     """:func:`_basis` at each ``alpha (B, nf)`` of ``points``: one call over all of them for a
-    few records (per-operation overhead), one call each for many (each call's arrays stay in
-    cache)."""
+    few records (per-operation overhead), one each for many (their arrays stay in cache)."""
     B, k = y.shape[0], len(points)
     if k == 1 or B * k > _TOGETHER:
         return [_basis(pattern, _full_a(pattern, a), y, u, dt, U) for a in points]
@@ -418,9 +422,8 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
 
     Notes
     -----
-    Each trial point is evaluated with its Jacobian (:func:`evaluate`), which the next
-    iteration needs if the step is accepted; a rejected step keeps the point and its Jacobian.
-    So ``K`` iterations are ``K + 1`` basis calls.
+    Each trial point is evaluated with the Jacobian the next iteration needs if it is accepted;
+    a rejected step keeps the point and its Jacobian: ``K`` iterations are ``K + 1`` calls.
     """
     y = np.ascontiguousarray(y, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
