@@ -75,3 +75,20 @@ def test_tables_keep_every_parameter_in_its_place_and_define_their_columns():
     assert "nan" not in text.lower()
     assert LEGENDS["excitation"] in text and LEGENDS["flags"] in text
     assert "'-': the subsystem does not contain the parameter" in LEGENDS["excitation"]
+
+
+def test_tracker_rows_report_the_update_percentile_and_the_head_lowers_k_error():
+    from aeid_struct.identification import Head
+    from aeid_struct.studies.bench_online import bench_tracker
+
+    ident = ae.load_pretrained("leg-stable-window")
+    rows = {}
+    for name, head in (("encoder", None), ("head", Head(iterations=1, fixed={"c1": 0.0}))):
+        ident.head = head
+        (rows[name],) = bench_tracker(ident, seconds=30.0, seeds=(1,), engines=("onnx",))
+    for r in rows.values():
+        assert 0 < r["latency_ms"] <= r["latency_p95_ms"]
+    assert rows["head"]["rms"]["k"] < 0.5 * rows["encoder"]["rms"]["k"]
+    text = format_tables({"tracker": list(rows.values())})
+    assert "update ms median / p95" in text
+    assert f"{rows['head']['latency_ms']:.3f} / {rows['head']['latency_p95_ms']:.3f} |" in text

@@ -113,6 +113,7 @@ def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
     from aeid_struct.online import OnnxIdentifier, to_onnx
 
     ident = ae.load_pretrained("leg-stable-window")
+    ident.head = None       # the graph is the encoder pass; the head after it: tests below
     path = to_onnx(ident, tmp_path / "leg.onnx")
     rec = ae.data.records(ae.LegFamily(subsystem="stable"), 5, steps=300, dt=0.01,
                           excitation_kind="prbs", seed=4, warmup=200, noise=0.0)
@@ -250,3 +251,85 @@ def test_onnx_reader_checks_its_model(tmp_path):
         OnnxIdentifier(model.SerializeToString())
     with pytest.raises(ValueError, match=r"threads must be a positive integer"):
         OnnxIdentifier(onnx_bytes(ident), threads=0)
+
+
+@pytest.mark.parametrize("structure", [ae.CCF(2).fixed(a1=0.0), ae.MCF(real=1, pairs=1)])
+def test_the_onnx_graph_holds_eq15_and_the_denormalisation(structure):
+    # The graph run bare on a raw record (y of ~1e3, u of ~1e-2: gain 1e5) gives the
+    # identifier's model in measured units, so Eq. 15 and the exact de-normalisation are in it
+    import onnxruntime as ort
+
+    from aeid_struct.online import onnx_bytes
+
+    ident = _identifier(structure, True)
+    session = ort.InferenceSession(onnx_bytes(ident), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(3)
+    y = 1e3 * np.cumsum(rng.uniform(0.1, 1.0, 60))
+    u = 1e-2 * rng.uniform(0.5, 1.5, 60)
+    est = ident.identify(y, u)
+    got = session.run(None, {"y": y.astype(np.float32), "u": u.astype(np.float32)})
+    for out, want in zip(got, (est.A, est.b, est.c, est.d), strict=False):
+        want = np.asarray(want)
+        np.testing.assert_allclose(out, want, rtol=1e-5, atol=1e-5 * np.abs(want).max())
+    assert np.abs(est.c).max() > 1e3                # measured units, not normalised ones
+
+
+def _leg_head_case():
+    from aeid_struct.identification.head import Head
+
+    ident = ae.load_pretrained("leg-stable-window")
+    if ident.head is None:         # until the shipped file holds one
+        ident.head = Head(iterations=2, fixed={"c1": 0.0})
+    rec = ae.data.records(ae.LegFamily(subsystem="stable"), 4, steps=300, dt=0.01,
+                          excitation_kind="noise", seed=5, warmup=200, noise=0.01)
+    return ident, rec
+
+
+def test_onnx_identifier_applies_the_files_head_as_identify_does():
+    from aeid_struct.online import OnnxIdentifier, onnx_bytes
+
+    ident, rec = _leg_head_case()
+    runner = OnnxIdentifier(onnx_bytes(ident))
+    assert runner.head == ident.head and runner.structure.config() == ident.structure.config()
+    est, got = ident.identify(rec.y, rec.u), runner(rec.y, rec.u)
+    for k in "Acd":
+        want = np.asarray(getattr(est, k))
+        np.testing.assert_allclose(got[k], want, rtol=1e-6, atol=1e-6 * np.abs(want).max())
+    phys = runner.physical(got)
+    for p in ("k", "d", "m"):
+        np.testing.assert_allclose(phys[p], est.physical[p], rtol=1e-6)
+    assert np.all(got["elements"][:, 3] == 0.0)            # c1 = 0: the physics structure
+    # the head matters: without it (cleared on both) the encoder's numbers, another model
+    runner.head, ident.head = None, None
+    bare, encoder = runner(rec.y, rec.u), ident.identify(rec.y, rec.u)
+    np.testing.assert_allclose(bare["c"], encoder.c, rtol=2e-5)
+    assert np.abs(bare["A"][:, 1] / got["A"][:, 1] - 1).max() > 1e-3
+
+
+def test_onnx_metadata_head_is_checked_against_its_structure():
+    import json
+
+    import onnx
+
+    from aeid_struct.online import OnnxIdentifier, onnx_bytes
+
+    ident, _ = _leg_head_case()
+
+    def edited(edit):
+        model = onnx.load_from_string(onnx_bytes(ident))
+        (prop,) = [p for p in model.metadata_props if p.key == "aeid"]
+        header = json.loads(prop.value)
+        edit(header)
+        prop.value = json.dumps(header)
+        return model.SerializeToString()
+
+    with pytest.raises(ValueError, match=r"^model: 'aeid' metadata entry 'head': head: "
+                                         r"iterations must be an integer in \[0, 50\]"):
+        OnnxIdentifier(edited(lambda h: h["head"].update(iterations=-1)))
+    with pytest.raises(ValueError, match=r"^model: 'aeid' metadata entry 'head': head: fixed "
+                                         r"names \['e9'\] that are not elements"):
+        OnnxIdentifier(edited(lambda h: h["head"].update(fixed={"e9": 0.0})))
+    # a file written before heads (format 2) reads as one without a head
+    old = OnnxIdentifier(edited(lambda h: (h.update(format="aeid-struct-onnx-2"),
+                                           h.pop("head"))))
+    assert old.head is None

@@ -198,6 +198,43 @@ def test_fast_path_follows_weight_changes():
     np.testing.assert_allclose(after.A, eager.A[0], rtol=1e-5, atol=1e-6)
 
 
+def test_a_loaded_identifier_has_built_and_run_its_batch1_path(tmp_path, monkeypatch):
+    # load warms the identifier (fast_path.warm): its first single-record call builds nothing
+    # (the build, its TorchScript trace and the eager agreement check took ~40 ms there)
+    from aeid_struct.identification import fast_path
+
+    path = _random_identifier(ae.CCF(2, descartes=True), inputs=True).save(tmp_path / "i.aeid")
+    ident = Identifier.load(path)
+    built = ident._fast_path
+    assert built is not None and built[1] is not None
+    assert built[0] == tuple(p._version for p in ident._params)
+
+    builds = []
+    monkeypatch.setattr(fast_path, "Batch1", lambda *a: builds.append(a))
+    rng = np.random.default_rng(3)
+    y, u = np.cumsum(rng.random(60)), 0.5 + rng.random(60)
+    one = ident.identify(y, u)
+    assert builds == [] and ident._fast_path is built
+    np.testing.assert_allclose(one.A, ident.identify(np.stack([y, y]), u).A[0], rtol=1e-5,
+                               atol=1e-6)
+
+
+def test_chunked_batches_equal_one_pass(monkeypatch):
+    # the encoder's and the head's chunks (forward.CHUNK, head.CHUNK) bound memory only
+    from aeid_struct.identification import forward, head
+
+    ident = ae.load_pretrained("leg-stable-window")
+    ident.head = head.Head(iterations=2, fixed={"c1": 0.0})
+    rec = ae.data.records(ae.LegFamily(subsystem="stable"), 7, steps=300, dt=0.01,
+                          excitation_kind="prbs", seed=2, warmup=200, noise=0.01)
+    whole = ident.identify(rec.y, rec.u)
+    monkeypatch.setattr(forward, "CHUNK", 3)
+    monkeypatch.setattr(head, "CHUNK", 2)
+    parts = ident.identify(rec.y, rec.u)
+    np.testing.assert_allclose(parts.A, whole.A, rtol=1e-8)
+    np.testing.assert_allclose(parts.c, whole.c, rtol=1e-8)
+
+
 def test_dt_mismatch_names_what_the_identifier_expects():
     ident = _identifier()
     with pytest.raises(ValueError, match=r"dt must be 0.05 s for this identifier \(trained on "

@@ -347,3 +347,73 @@ def test_an_engine_failure_says_how_many_samples_were_consumed():
     assert [round(up.t / 0.01) for up in err.updates + rest] == \
         [round(up.t / 0.01) for up in whole if round(up.t / 0.01) != 39]
     assert [up.estimate["k"] for up in rest] == [up.estimate["k"] for up in whole[3:]]
+
+
+def _with_head(ident):
+    """``ident`` with the leg's physics head (c1 = 0, two iterations) where its file has none."""
+    from aeid_struct.identification.head import Head
+
+    if ident.head is None:
+        ident.head = Head(iterations=2, fixed={"c1": 0.0})
+    return ident
+
+
+def test_the_head_cuts_the_window_scatter_and_the_lighter_smoothing_it_allows_tracks_k_closer():
+    # 30 s of wear at 1 % noise: the raw window estimates of k scatter several times less
+    # with the head, and its default smoothing (shorter median, lighter average) then lags
+    # less than the encoder's needs to
+    from aeid_struct.online.tracker import DEFAULT_SMOOTHING
+    from aeid_struct.studies.wear import wear_study
+
+    ident = _with_head(ae.load_pretrained("leg-stable-window"))
+    config = TrackerConfig(watch=("k",))
+    head = wear_study(ident, seconds=30.0, seed=0, config=config)
+    ident.head = None
+    encoder = wear_study(ident, seconds=30.0, seed=0, config=config)
+    assert (head.config.median, head.config.smoothing) == DEFAULT_SMOOTHING["head"]
+    assert (encoder.config.median, encoder.config.smoothing) == DEFAULT_SMOOTHING["encoder"]
+
+    def scatter(r):
+        return np.sqrt(np.mean((r.estimate["k"] / r.true["k"] - 1) ** 2))
+
+    assert scatter(head) < 0.3 * scatter(encoder)
+    assert head.rms["k"] < 0.5 * encoder.rms["k"]
+    assert head.rms["m"] < encoder.rms["m"]
+
+
+def test_both_engines_run_the_head_and_agree():
+    from aeid_struct.training import records
+
+    ident = _with_head(ae.load_pretrained("leg-stable-window"))
+    rec = records(ae.LegFamily(subsystem="stable"), 1, steps=500, dt=0.01,
+                  excitation_kind="prbs", seed=8, warmup=200, noise=0.01)
+    cfg = TrackerConfig(hop=100, baseline=1)
+    a, b = Tracker(ident, cfg, engine="onnx"), Tracker(ident, cfg, engine="identifier")
+    ua, ub = a.push(rec.u[0], rec.y[0]), b.push(rec.u[0], rec.y[0])
+    # the window ending at sample 299 is the one identify sees alone
+    est = ident.identify(rec.y[0][:300], rec.u[0][:300]).physical
+    ident.head = None
+    encoder = ident.identify(rec.y[0][:300], rec.u[0][:300]).physical
+    for k in ("k", "d", "m"):
+        assert ua[0].estimate[k] == pytest.approx(est[k], rel=1e-6)
+        assert abs(encoder[k] / est[k] - 1) > 1e-3           # the head moved it
+        for x, z in zip(ua, ub, strict=True):
+            assert x.estimate[k] == pytest.approx(z.estimate[k], rel=1e-6)
+
+
+def test_unset_smoothing_follows_whether_the_head_iterates_and_set_values_are_kept():
+    from aeid_struct.identification import Head
+    from aeid_struct.online import DEFAULT_SMOOTHING
+
+    def used(head, **given):
+        stub = _Stub()
+        stub.head = head
+        cfg = Tracker(stub, TrackerConfig(**given)).config
+        return cfg.median, cfg.smoothing
+
+    assert used(None) == DEFAULT_SMOOTHING["encoder"]
+    assert used(Head(iterations=0)) == DEFAULT_SMOOTHING["encoder"]    # projection only
+    assert used(Head(iterations=1)) == DEFAULT_SMOOTHING["head"]
+    assert used(Head(iterations=2), median=5) == (5, DEFAULT_SMOOTHING["head"][1])
+    assert used(None, smoothing=1.0) == (DEFAULT_SMOOTHING["encoder"][0], 1.0)
+    assert DEFAULT_SMOOTHING["head"][0] < DEFAULT_SMOOTHING["encoder"][0]

@@ -1,5 +1,6 @@
 """refinement.batched: the separable Gauss-Newton of partly fixed CCFs, against scipy's expm,
-exact simulations (ae.simulate), linear least squares and scipy.optimize.least_squares."""
+exact simulations (ae.simulate), linear least squares, scipy.optimize.least_squares and finite
+differences of its own cost (an independent derivative)."""
 
 import numpy as np
 import pytest
@@ -8,10 +9,17 @@ import scipy.optimize
 
 import aeid_struct as ae
 from aeid_struct.refinement import Pattern, gauss_newton
-from aeid_struct.refinement.batched import evaluate, expm_batch
+from aeid_struct.refinement.batched import _spectrum, evaluate, expm_batch
+from aeid_struct.training import LegFamily, records
 
 STABLE = Pattern(a=(None, None), c=(None, 0.0), d=0.0)
 UNSTABLE = Pattern(a=(None, 0.0), c=(None, 0.0), d=0.0)
+WINDOW = Pattern(a=(None, None), c=(None, 0.0), d=0.0, initial=True)
+
+
+def windows(count, noise=0.0, seed=0):
+    return records(LegFamily(subsystem="stable"), count, steps=300, dt=0.01,
+                   excitation_kind="prbs", noise=noise, seed=seed, warmup=200)
 
 
 def _ccf(a, c):
@@ -159,3 +167,32 @@ def test_pattern_and_start_are_checked():
     a, c, u, y, _ = _legs(2, 8)
     with pytest.raises(ValueError, match="alpha0 must have 2 free a_j"):
         gauss_newton(STABLE, a[:, :1], y, u, 0.01, iterations=1)
+
+
+def test_one_record_alone_is_its_row_of_a_large_batch():
+    # a few records evaluate every Jacobian point in one call, many one call per point
+    rec = windows(30, noise=0.01, seed=1)
+    start = -rec.systems.A[:, -1, :] * 1.05
+    batch = gauss_newton(WINDOW, start, rec.y, rec.u, 0.01, iterations=2)
+    for r in (0, 17):
+        one = gauss_newton(WINDOW, start[r:r + 1], rec.y[r:r + 1], rec.u[r:r + 1], 0.01,
+                           iterations=2)
+        assert np.allclose(one.a[0], batch.a[r], rtol=1e-10)
+        assert np.allclose(one.c[0], batch.c[r], rtol=1e-10)
+
+
+@pytest.mark.parametrize("count", [1, 30])
+def test_jacobian_gives_the_finite_difference_gradient_of_the_cost(count):
+    rec = windows(count, noise=0.02, seed=2)
+    alpha = -rec.systems.A[:, -1, :] * 1.03
+    U = _spectrum(rec.u)
+    e = evaluate(WINDOW, alpha, rec.y, rec.u, 0.01, U, jacobian=True)
+    gradient = 2.0 * np.einsum("bjn,bn->bj", e["J"], e["r"]) / rec.y.shape[1]
+    for j in range(2):
+        h = 1e-5 * alpha[:, j]
+        up, down = alpha.copy(), alpha.copy()
+        up[:, j] += h
+        down[:, j] -= h
+        fd = (evaluate(WINDOW, up, rec.y, rec.u, 0.01, U)["cost"]
+              - evaluate(WINDOW, down, rec.y, rec.u, 0.01, U)["cost"]) / (2 * h)
+        assert np.allclose(gradient[:, j], fd, rtol=1e-4, atol=1e-12)

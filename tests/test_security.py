@@ -609,4 +609,4 @@ def test_exports_refuse_a_directory_and_the_reader_refuses_non_onnx(tmp_path):
     runner = OnnxIdentifier(to_onnx(ident, tmp_path / "ok.onnx"))
     assert maps.reference(runner._inverse) == {"map": "symbolic.leg.stable_inverse",
                                                "args": {"l0": 0.8, "g": 9.81}}
-    assert ONNX_FORMAT == "aeid-struct-onnx-2"
+    assert ONNX_FORMAT == "aeid-struct-onnx-3"

@@ -273,12 +273,17 @@ def run_track(args: argparse.Namespace) -> int:
           + ", ".join(f"{p} {v:.2f} %" for p, v in result.rms.items()))
     print(f"true k left its start by {100 * args.threshold:g} % at {result.drift_time:.2f} s; "
           f"alarm at {result.alarm_time:.2f} s (delay {result.delay:.2f} s)")
+    used = result.config
+    print(f"smoothing: running median of {used.median} windows, moving average weight "
+          f"{used.smoothing:g}; head: {ident.head if ident.head is not None else 'none'}")
     print(f"update (one window identified, {result.engine} engine): "
-          f"{result.latency_ms:.3f} ms median, one call each")
+          f"{result.latency_ms:.3f} ms median, {result.latency_p95_ms:.3f} ms p95")
     js = out / "wear_tracking.json"
     js.write_text(json.dumps({"rms_percent": result.rms, "drift_time_s": result.drift_time,
                               "alarm_time_s": result.alarm_time, "delay_s": result.delay,
-                              "latency_ms": result.latency_ms, "engine": result.engine,
+                              "latency_ms": result.latency_ms,
+                              "latency_p95_ms": result.latency_p95_ms, "engine": result.engine,
+                              "median": used.median, "smoothing": used.smoothing,
                               "windows": len(result.t)},
                              indent=2))
     print(f"wrote {png}, {js}")

@@ -261,7 +261,7 @@ def _add_train_generic(sub) -> None:
 
 def _add_track(sub, names: str) -> None:
     # light (numpy only): the tracker's defaults are the CLI's
-    from aeid_struct.online import TrackerConfig
+    from aeid_struct.online import DEFAULT_SMOOTHING, TrackerConfig
 
     trk = sub.add_parser(
         "track", help="follow a wearing robot leg window by window (online identification): "
@@ -273,6 +273,10 @@ def _add_track(sub, names: str) -> None:
     trk.add_argument("--noise", type=_FRACTION, default=0.01,
                      help="measurement noise, of max|y|")
     tracker = TrackerConfig()          # the tracker's own defaults, not copies of them
+    (m0, s0), (m1, s1) = DEFAULT_SMOOTHING["encoder"], DEFAULT_SMOOTHING["head"]
+    by_head = {"median": f"{m1} for an identifier whose separable head iterates, {m0} "
+                         "without", "smoothing": f"{s1} for an identifier whose separable head "
+                                                 f"iterates, {s0} without"}
     for name, kind, text in (
             ("hop", int, "samples between identifications"),
             ("smoothing", float, "moving-average weight"),
@@ -281,7 +285,7 @@ def _add_track(sub, names: str) -> None:
             ("baseline", int, "windows in the reference"),
             ("patience", int, "windows over the threshold")):
         trk.add_argument(f"--{name}", type=kind, default=getattr(tracker, name),
-                         help=f"{text} (default {getattr(tracker, name)})")
+                         help=f"{text} (default {by_head.get(name, getattr(tracker, name))})")
     trk.add_argument("--watch", nargs="*", default=["k"],
                      help="parameters whose drift raises the alarm (default: k, the spring)")
     trk.add_argument("--seed", type=_number(int, 0, strict=False), default=0,

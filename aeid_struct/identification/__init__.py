@@ -13,6 +13,8 @@ from aeid_struct.identification.files import FORMAT as FORMAT
 from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
 from aeid_struct.identification.files import writable_file as writable_file
 from aeid_struct.identification.head import Head as Head
+from aeid_struct.identification.head import apply_head as apply_head
+from aeid_struct.identification.head import pattern_of as pattern_of
 from aeid_struct.identification.identifier import ERROR_MODES as ERROR_MODES
 from aeid_struct.identification.identifier import INITIAL_STATES as INITIAL_STATES
 from aeid_struct.identification.identifier import SCALE_MODES as SCALE_MODES
@@ -36,9 +38,11 @@ __all__ = [
     "Provenance",
     "RecordBatch",
     "SCALE_MODES",
+    "apply_head",
     "excess",
     "inverse_of_models",
     "load_pretrained",
+    "pattern_of",
     "through_ccf",
     "writable_file",
 ]

@@ -11,7 +11,7 @@ import torch
 from aeid_struct.records import normalise
 from aeid_struct.structures import Physical
 
-__all__ = ["Batch1", "fast_path"]
+__all__ = ["Batch1", "fast_path", "warm"]
 
 _NUMPY_ACTIVATIONS = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}
 
@@ -136,11 +136,48 @@ def fast_path(ident):
     return ident._fast_path[1]
 
 
-def _agrees(ident, fast: Batch1) -> bool:
-    """Whether ``fast`` gives the eager path's model of a random record (to float32)."""
+def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
+    """A made-up record ``y, u (1, steps)``: increasing, with a varying positive input."""
     g = torch.Generator().manual_seed(0)
     y = torch.cumsum(torch.rand(1, ident.steps, generator=g), dim=1)
-    u = 0.5 + torch.rand(1, ident.steps, generator=g)
+    return y, 0.5 + torch.rand(1, ident.steps, generator=g)
+
+
+def warm(ident) -> None:
+    """Identify a made-up record twice, so that the first call on a user's record costs what
+    the next ones do.
+
+    Why: a single-record identifier builds its batch-1 path on first use (a TorchScript trace,
+    freezing and the agreement check with the eager pass, whose first torch operations
+    initialise their kernels), TorchScript optimises a frozen graph only after its first
+    profiling run, a separable head's first FFTs and solves initialise scipy's and LAPACK's,
+    and the first batched call takes its memory (a chunk's activations, ``forward.CHUNK``)
+    from the system page by page. An identifier file's ``load`` runs this once (a record
+    twice, then one chunk of a batch), so that none of it falls on the first identification.
+    Best effort: a failure is left to that first call to report.
+
+    Parameters
+    ----------
+    ident : Identifier
+    """
+    if ident.records > 1:
+        return
+    from aeid_struct.identification.forward import CHUNK
+
+    y, u = (t.numpy()[0].astype(np.float64) for t in _example(ident))
+    try:
+        for _ in range(2):
+            ident.identify(y, u if ident.inputs else None, errors="collect")
+        # one chunk of a batch: the memory every batched call reuses, touched here
+        ys = y * np.linspace(1.0, 2.0, CHUNK)[:, None]
+        ident.identify(ys, u if ident.inputs else None, errors="collect")
+    except Exception:  # noqa: S110 - warming only; the first real call raises it again
+        pass
+
+
+def _agrees(ident, fast: Batch1) -> bool:
+    """Whether ``fast`` gives the eager path's model of a random record (to float32)."""
+    y, u = _example(ident)
     was_training = ident.encoder.training
     ident.encoder.eval()
     try:

@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.identification.fast_path import warm
 from aeid_struct.identification.head import Head
 from aeid_struct.structures import Structure, check_maps, from_entry, to_entry
 
@@ -276,7 +277,9 @@ def load(cls, path, *, maps: dict | None = None, trust: bool = False):
     source = f"identifier file {str(path)!r}"
     if head["format"] == FORMAT_1:
         source += f" (format {FORMAT_1!r}, which stored CasADi maps as code)"
-    return from_parts(cls, head, tensors, source=source, maps=maps, trust=trust)
+    ident = from_parts(cls, head, tensors, source=source, maps=maps, trust=trust)
+    warm(ident)            # the first identification as fast as the next (fast_path.warm)
+    return ident
 
 
 def _encoder(head: dict, tensors: dict, source: str) -> Encoder:

@@ -17,7 +17,11 @@ from aeid_struct.identification.head import apply_head
 from aeid_struct.records import RecordBatch, normalise, overflow_problem
 from aeid_struct.structures import System
 
-__all__ = ["differentiable", "encode", "estimate_of", "identify_record", "refine_with_head"]
+__all__ = ["CHUNK", "differentiable", "encode", "estimate_of", "identify_record",
+           "refine_with_head"]
+
+#: Records through the encoder at once in a batched call.
+CHUNK = 256
 
 
 def differentiable(ident, y, u, *, raw: bool = False):
@@ -195,12 +199,12 @@ def _decoded(ident, x: list, features, count: int) -> tuple:
         torch.set_num_threads(1)
     try:
         with torch.no_grad():
-            # Chunks of 1024 records keep the activations in cache (faster than one pass over
-            # a batch of many thousands).
+            # Chunks (CHUNK) keep the activations in cache and bound the memory a call takes,
+            # which load (fast_path.warm) touches once.
             parts = []
-            for i in range(0, count, 1024):
-                sys, el, _ = ident._decode([v[i: i + 1024] for v in x],
-                                           None if features is None else features[i: i + 1024])
+            for i in range(0, count, CHUNK):
+                sys, el, _ = ident._decode([v[i: i + CHUNK] for v in x],
+                                           None if features is None else features[i: i + CHUNK])
                 parts.append((sys.A, sys.b, sys.c, sys.d, el))
             return tuple(torch.cat(t).numpy().astype(np.float64)
                          for t in zip(*parts, strict=True))

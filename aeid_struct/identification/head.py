@@ -24,6 +24,9 @@ __all__ = ["Head", "apply_head", "checked_head", "pattern_of"]
 
 #: The most iterations a head may ask for (a fixed cost per record).
 MAX_ITERATIONS = 50
+#: The most records in one ``gauss_newton`` call: its arrays stay in cache, and a batch of any
+#: size reuses the memory of one chunk (which an identifier's load touches once).
+CHUNK = 256
 
 
 @dataclass(frozen=True)
@@ -188,14 +191,15 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
     rows = np.flatnonzero(np.isfinite(a).all(axis=1))
     if rows.size == 0:
         return A, b, c, d, el
-    fit = gauss_newton(pattern, a[rows][:, pattern.free_a], y[rows], u[rows], ident.dt,
-                       iterations=head.iterations, tol=head.tol)
-    ok = np.isfinite(fit.cost)
-    rows, n = rows[ok], pattern.n
-    A[rows, -1, :] = -fit.a[ok]
-    c[rows], d[rows] = fit.c[ok], fit.d[ok]
-    values = {**{f"a{j}": fit.a[ok, j] for j in range(n)},
-              **{f"c{j}": fit.c[ok, j] for j in range(n)}, "d": fit.d[ok]}
-    for i, name in enumerate(ident.structure.element_names):
-        el[rows, i] = values[name]
+    for part in np.array_split(rows, -(-rows.size // CHUNK)):
+        fit = gauss_newton(pattern, a[part][:, pattern.free_a], y[part], u[part], ident.dt,
+                           iterations=head.iterations, tol=head.tol)
+        ok = np.isfinite(fit.cost)
+        done, n = part[ok], pattern.n
+        A[done, -1, :] = -fit.a[ok]
+        c[done], d[done] = fit.c[ok], fit.d[ok]
+        values = {**{f"a{j}": fit.a[ok, j] for j in range(n)},
+                  **{f"c{j}": fit.c[ok, j] for j in range(n)}, "d": fit.d[ok]}
+        for i, name in enumerate(ident.structure.element_names):
+            el[done, i] = values[name]
     return A, b, c, d, el

@@ -9,6 +9,7 @@ exercises the tracker is a study: ``aeid_struct.studies.wear``.
 from importlib import import_module
 from typing import TYPE_CHECKING
 
+from aeid_struct.online.tracker import DEFAULT_SMOOTHING as DEFAULT_SMOOTHING
 from aeid_struct.online.tracker import PushError as PushError
 from aeid_struct.online.tracker import Tracker as Tracker
 from aeid_struct.online.tracker import TrackerConfig as TrackerConfig
@@ -20,11 +21,14 @@ if TYPE_CHECKING:  # static analysers and the documentation see the lazy names
     from aeid_struct.online.export import to_torchscript as to_torchscript
     from aeid_struct.online.onnx import ONNX_FORMAT as ONNX_FORMAT
     from aeid_struct.online.onnx import ONNX_FORMAT_1 as ONNX_FORMAT_1
+    from aeid_struct.online.onnx import ONNX_FORMAT_2 as ONNX_FORMAT_2
     from aeid_struct.online.onnx import OnnxIdentifier as OnnxIdentifier
 
 __all__ = [
+    "DEFAULT_SMOOTHING",
     "ONNX_FORMAT",
     "ONNX_FORMAT_1",
+    "ONNX_FORMAT_2",
     "OnnxIdentifier",
     "PushError",
     "Tracker",
@@ -36,7 +40,8 @@ __all__ = [
 ]
 
 #: deployment names -> the module that defines them, imported when first used
-_LAZY = {"ONNX_FORMAT": "onnx", "ONNX_FORMAT_1": "onnx", "OnnxIdentifier": "onnx",
+_LAZY = {"ONNX_FORMAT": "onnx", "ONNX_FORMAT_1": "onnx", "ONNX_FORMAT_2": "onnx",
+         "OnnxIdentifier": "onnx",
          "onnx_bytes": "export", "to_onnx": "export", "to_torchscript": "export"}
 
 

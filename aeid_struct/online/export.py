@@ -72,7 +72,9 @@ def to_torchscript(ident, path) -> Path:
     ``A (n, n), b (n,), c (n,), d ()`` and the structure's elements ``(q,)``, the numbers of
     ``Identifier.identify`` to float32 precision. It identifies one record per call and does
     not compute the fitted initial state or the physical parameters (both are cheap functions
-    of the returned model).
+    of the returned model), nor the identifier's separable head (``Identifier.head``: the
+    module gives the encoder pass; the ONNX file names the head and ``OnnxIdentifier`` runs
+    it).
 
     Parameters
     ----------
@@ -122,8 +124,9 @@ def onnx_bytes(ident) -> bytes:
     Returns
     -------
     bytes
-        The model (opset 17), with the record format and the inverse map (a reference,
-        ``structures.to_entry``) in its ``aeid`` metadata.
+        The model (opset 17), with the record format, the inverse map (a reference,
+        ``structures.to_entry``) and the identifier's separable head (``Head.to_dict``, or
+        null) in its ``aeid`` metadata.
 
     Raises
     ------
@@ -132,6 +135,11 @@ def onnx_bytes(ident) -> bytes:
 
     Notes
     -----
+    The graph is the encoder pass (Eq. 15, the encoder, the structure, the de-normalisation);
+    the head (``identification.head``: FFTs and small solves, iterated) is not in it but named
+    in the metadata, and :class:`OnnxIdentifier` applies it after onnxruntime in numpy, so the
+    file gives ``Identifier.identify``'s estimate with the head.
+
     The TorchScript-based ONNX exporter (``dynamo=False``), not ``torch.export``: the
     structures validate their elements with data-dependent branches (``if bad.any(): raise``)
     that ``torch.export`` refuses to trace; tracing records the branch taken for valid elements,
@@ -162,6 +170,7 @@ def onnx_bytes(ident) -> bytes:
         "structure": ident.structure.config(),
         "ccf": isinstance(ident.structure, CCF),
         "scale": ident.scale,
+        "head": None if ident.head is None else ident.head.to_dict(),
     }
     entry = model.metadata_props.add()
     entry.key, entry.value = "aeid", json.dumps(header)

@@ -10,8 +10,11 @@ import numpy as np
 
 from aeid_struct.records import RecordError, check_records, normalise, overflow_problem
 
-#: The metadata format written: the inverse map as a reference to a named map (``structures``).
-ONNX_FORMAT = "aeid-struct-onnx-2"
+#: The metadata format written: the inverse map as a reference to a named map (``structures``),
+#: and the separable head (``identification.head``) that the reader applies after the graph.
+ONNX_FORMAT = "aeid-struct-onnx-3"
+#: The format before the head: read as a file without one.
+ONNX_FORMAT_2 = "aeid-struct-onnx-2"
 #: The format before named maps (the inverse serialised inline): read with ``trust=True``.
 ONNX_FORMAT_1 = "aeid-struct-onnx-1"
 
@@ -81,6 +84,20 @@ def _check_onnx_header(header: dict, source: str) -> None:
                          f"elements of {header['elements']}; got {physical!r}")
 
 
+def _read_head(runner, header: dict, source: str) -> None:
+    """Set ``runner.head`` and ``runner.structure`` from the metadata (a ValueError naming
+    ``source`` for a malformed entry or a head the structure refuses)."""
+    from aeid_struct.identification import Head, pattern_of
+    from aeid_struct.structures import Structure
+
+    try:
+        runner.head = Head.from_dict(header["head"])
+        runner.structure = Structure.from_config(header.get("structure"))
+        pattern_of(runner, runner.head)
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{source}: 'aeid' metadata entry 'head': {err}") from None
+
+
 class OnnxIdentifier:
     """Identification from an exported ONNX file (:func:`to_onnx`) with onnxruntime and numpy.
 
@@ -110,12 +127,18 @@ class OnnxIdentifier:
         ``"rest"`` or ``"fitted"`` (records that start mid-motion).
     element_names : tuple of str
         The structure's elements, in the order of the ``elements`` output.
+    head : identification.Head or None
+        The separable head of the exported identifier, applied after the graph (may be set or
+        cleared, as ``Identifier.head``).
+    structure : Structure or None
+        The structure the head iterates in (from the metadata; None without a head).
 
     Raises
     ------
     ValueError
-        A file that is not an aeid-struct ONNX export, a metadata entry of the wrong type, or
-        an inverse map that is neither named nor passed in ``maps``.
+        A file that is not an aeid-struct ONNX export, a metadata entry of the wrong type, an
+        inverse map that is neither named nor passed in ``maps``, or a head its structure does
+        not serve.
     """
 
     def __init__(self, model, threads: int = 1, *, maps: dict | None = None,
@@ -148,9 +171,9 @@ class OnnxIdentifier:
             header = None
         if not isinstance(header, dict):
             raise ValueError(f"{source}: its 'aeid' metadata is not a JSON object")
-        if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_1):
+        if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_2, ONNX_FORMAT_1):
             raise ValueError(f"{source} has format {header.get('format')!r}; this reader reads "
-                             f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_1!r})")
+                             f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_2!r}, {ONNX_FORMAT_1!r})")
         if header["format"] == ONNX_FORMAT_1:
             source += f" (format {ONNX_FORMAT_1!r}, which stored its inverse map as code)"
         _check_onnx_header(header, source)
@@ -164,11 +187,16 @@ class OnnxIdentifier:
                              f"[{self.steps}]")
         self.inputs, self.initial = bool(header["inputs"]), header["initial"]
         self.element_names = tuple(header["elements"])
+        self._output_mask = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
+                                      for k in self.element_names])
         self.records = 1
         self._physical_elements = header.get("physical_elements")
         self._ccf = bool(header.get("ccf", True))
         self._scale = header.get("scale")       # None: a file written before it was recorded
         self._inverse = None
+        self.head = self.structure = None
+        if header.get("head") is not None:
+            _read_head(self, header, source)
         if header.get("inverse"):
             try:
                 self._inverse = from_entry(header["inverse"], "'inverse'", maps=maps,
@@ -202,7 +230,8 @@ class OnnxIdentifier:
         -------
         dict of str to ndarray
             float64 ``A (n, n), b (n,), c (n,), d ()`` and ``elements (q,)``, the numbers of
-            ``Identifier.identify`` to float32 precision; a leading batch axis for a batch.
+            ``Identifier.identify`` to float32 precision (the head's iterations, when the file
+            has one, after the graph in float64); a leading batch axis for a batch.
 
         Raises
         ------
@@ -240,19 +269,23 @@ class OnnxIdentifier:
                                  f"{gain[r]:.3g} at record {r}")
             root = np.sqrt(gain)[:, None]
             y_in, u_in = y_unit * root, u_unit / root
-        rows = []
-        for y_r, u_r in zip(y_in.astype(np.float32), u_in.astype(np.float32), strict=True):
-            rows.append([np.asarray(o, dtype=np.float64)
-                         for o in self.session.run(None, {"y": y_r, "u": u_r})])
-        A, b, c, d, el = (np.stack(t) for t in zip(*rows, strict=True))
+        rows = [self.session.run(None, {"y": y_r, "u": u_r})
+                for y_r, u_r in zip(y_in.astype(np.float32), u_in.astype(np.float32),
+                                    strict=True)]
+        A, b, c, d, el = (np.stack(t).astype(np.float64) for t in zip(*rows, strict=True))
         if self._scale == "denormalise":
             # Exact de-normalisation (linearity), in float64: c, d and the elements c_i, d
             # scale with the output (Identifier._output_mask).
-            scaled = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
-                               for k in self.element_names])
+            scaled = self._output_mask
             with np.errstate(over="ignore", invalid="ignore"):   # overflow: refused below
                 c, d = c * gain[:, None], d * gain
                 el = np.where(scaled, el * gain[:, None], el)
+        if self.head is not None:     # after the graph, as Identifier.identify runs it
+            from aeid_struct.identification import apply_head
+
+            with np.errstate(over="ignore", invalid="ignore"):
+                A, b, c, d, el = apply_head(self, self.head, [checked.y], [checked.u],
+                                            (A, b, c, d, el))
         finite = np.isfinite(c).all(axis=1) & np.isfinite(d.reshape(len(d), -1)).all(axis=1)
         if not finite.all():          # as Identifier.identify refuses it (identify._overflowed)
             r = int(np.argmin(finite))

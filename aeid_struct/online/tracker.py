@@ -9,6 +9,7 @@ docstring).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 import time
@@ -17,6 +18,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeid_struct.records import RecordError, as_array
+
+#: ``(median, smoothing)`` where :class:`TrackerConfig` leaves them None, for an identifier
+#: without and with a separable head that iterates (``Identifier.head``, ``iterations >= 1``):
+#: the iterated head's window estimates scatter far less, so a shorter median and a lighter
+#: average follow the parameter with less lag, while the encoder's estimates (and those of a
+#: projection-only head) need the heavier smoothing; chosen on the wear scenario of
+#: ``studies.wear`` and checked on other seeds.
+DEFAULT_SMOOTHING = {"encoder": (9, 0.3), "head": (3, 0.7)}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -27,10 +36,12 @@ class TrackerConfig:
     ----------
     hop : int
         Samples between two identifications (window starts), >= 1.
-    smoothing : float
-        The moving-average weight ``alpha`` in (0, 1] (1 = no smoothing).
-    median : int
-        Window estimates in the running median taken before the moving average (1 = none).
+    smoothing : float or None
+        The moving-average weight ``alpha`` in (0, 1] (1 = no smoothing); None: by the
+        identifier (:data:`DEFAULT_SMOOTHING`, resolved by ``Tracker``).
+    median : int or None
+        Window estimates in the running median taken before the moving average (1 = none);
+        None: by the identifier, as ``smoothing``.
     threshold : float
         Relative drift of a smoothed parameter from its reference that alarms, > 0.
     baseline : int
@@ -49,8 +60,8 @@ class TrackerConfig:
     """
 
     hop: int = 50
-    smoothing: float = 0.3
-    median: int = 9
+    smoothing: float | None = None
+    median: int | None = None
     threshold: float = 0.05
     baseline: int = 10
     patience: int = 3
@@ -60,12 +71,15 @@ class TrackerConfig:
     def __post_init__(self) -> None:
         for name in ("hop", "median", "baseline", "patience"):
             v = getattr(self, name)
+            if name == "median" and v is None:
+                continue
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
         def number(v) -> bool:
             return isinstance(v, (int, float)) and not isinstance(v, bool)
 
-        if not (number(self.smoothing) and 0 < self.smoothing <= 1):
+        if self.smoothing is not None and not (number(self.smoothing)
+                                               and 0 < self.smoothing <= 1):
             raise ValueError(f"smoothing must be in (0, 1]; got {self.smoothing!r}")
         if not (number(self.threshold) and math.isfinite(self.threshold)
                 and self.threshold > 0):
@@ -161,7 +175,9 @@ class Tracker:
         (``initial="fitted"``) and, for arbitrary inputs, reading ``u``. An ``OnnxIdentifier``
         works too (then the engine is that file).
     config : TrackerConfig
-        How the tracker windows, smooths and alarms.
+        How the tracker windows, smooths and alarms; ``median`` and ``smoothing`` left None
+        are set by the identifier's head (:data:`DEFAULT_SMOOTHING`, at construction), and
+        ``Tracker.config`` holds the values used.
     engine : str
         ``"auto"`` (default: onnx when onnxruntime is installed), ``"onnx"`` or
         ``"identifier"``.
@@ -205,6 +221,11 @@ class Tracker:
     parameters with the identifier's CasADi inverse; ``"identifier"`` calls
     ``Identifier.identify`` (a full ``Estimate``). Both give the same numbers to float32
     precision.
+
+    *Head.* An identifier with a separable head (``Identifier.head``: Gauss-Newton iterations
+    in its structure after the encoder, ``identification.head``) has it run on every window by
+    both engines, the ONNX engine after onnxruntime (the head the identifier had when the
+    tracker exported it); the update's time includes it.
     """
 
     def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
@@ -239,6 +260,7 @@ class Tracker:
                 raise ValueError("engine='onnx' needs an Identifier to export; got "
                                  f"{type(identifier).__name__}")
         self.engine = "identifier" if self.runner is None else "onnx"
+        self.config = _resolved(config, identifier if self.runner is None else self.runner)
         self.reset()
 
     def reset(self) -> None:
@@ -369,6 +391,18 @@ class Tracker:
                      else math.nan) for k in s.smoothed}
         return Update(s.samples * self.dt - self.dt, {k: math.nan for k in names},
                       dict(s.smoothed), drift, s.alarm, seconds, error=reason)
+
+
+def _resolved(config: TrackerConfig, engine) -> TrackerConfig:
+    """``config`` with ``median`` and ``smoothing`` set where None, by whether ``engine`` (the
+    identifier or its ONNX runner) has a separable head that iterates
+    (:data:`DEFAULT_SMOOTHING`)."""
+    head = getattr(engine, "head", None)
+    median, smoothing = DEFAULT_SMOOTHING[
+        "head" if head is not None and head.iterations >= 1 else "encoder"]
+    return dataclasses.replace(
+        config, median=median if config.median is None else config.median,
+        smoothing=smoothing if config.smoothing is None else config.smoothing)
 
 
 def _physical_names(identifier) -> tuple[str, ...] | None:

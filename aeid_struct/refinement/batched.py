@@ -30,8 +30,9 @@ overhead; this path stays the reference and the fallback.
 
 from __future__ import annotations
 
+import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft
@@ -48,6 +49,8 @@ LAMBDA0, LAMBDA_FACTOR, LAMBDA_MAX = 1e-4, 10.0, 1e8
 EXACT = 1e-24
 #: Tikhonov floor of the normal equations, relative to the trace of the scaled Gram matrix.
 RIDGE = 1e-13
+#: The most rows (records times points) evaluated in one basis call (:func:`_bases`).
+_TOGETHER = 64
 
 
 @dataclass(frozen=True)
@@ -132,28 +135,51 @@ class SeparableFit:
     Attributes
     ----------
     a : (B, n) array
-        The denominator elements, fixed ones included.
+        The CCF's ``a_j``, fixed ones included.
     c : (B, n) array
-        The numerator elements, fixed ones included.
+        Its ``c_j``, fixed ones included.
     d : (B,) array
-    x0 : (B, n) array
-        The initial state (zeros from rest).
     y_offset : (B,) array
+    x0 : (B, n) array
+        The initial state (zeros from rest), a property solved on first use.
     cost : (B,) array
         Mean squared residual; inf where the model's response is not finite.
     iterations : (B,) int array
         Accepted Levenberg-Marquardt steps.
     converged : (B,) bool array
+    initial : tuple or None
+        What ``x0`` is solved from, ``Phi (B, n, n)``, the free-response coefficients
+        ``theta (B, n)`` and ``g2 u_0 (B, n)``; None from rest.
     """
 
     a: np.ndarray
     c: np.ndarray
     d: np.ndarray
-    x0: np.ndarray
     y_offset: np.ndarray
     cost: np.ndarray
     iterations: np.ndarray
     converged: np.ndarray
+    initial: tuple | None = field(default=None, repr=False, compare=False)
+
+    @functools.cached_property
+    def x0(self) -> np.ndarray:
+        """``(B, n)``, solved on first read (the head never reads it): ``e_1^T Phi^k theta =
+        c^T Phi^k delta`` for all ``k``, ``delta`` from ``2n`` samples, ``x0 = delta + g2 u_0``."""
+        if self.initial is None:
+            return np.zeros_like(self.c)
+        Phi, theta, g2u0 = self.initial
+        n = Phi.shape[1]
+        P = _rows(Phi, np.arange(n), 2 * n)                        # (B, n, 2n, n): Phi^k
+        O = np.einsum("bi,bikj->bkj", self.c, P)                   # c^T Phi^k, (B, 2n, n)
+        F = np.einsum("bkj,bj->bk", P[:, 0], theta)
+        with np.errstate(all="ignore"):
+            G = O.transpose(0, 2, 1) @ O
+            G += (1e-14 * np.einsum("bii->b", G) + 1e-300)[:, None, None] * np.eye(n)
+            good = np.isfinite(G).all(axis=(1, 2)) & np.isfinite(F).all(axis=1)
+            G[~good] = np.eye(n)
+            delta = np.linalg.solve(G, (O.transpose(0, 2, 1) @ F[:, :, None]))[:, :, 0]
+            delta[~good] = np.nan
+        return delta + g2u0
 
 
 def _full_a(pattern: Pattern, alpha: np.ndarray) -> np.ndarray:
@@ -174,50 +200,56 @@ def _discrete(a: np.ndarray, dt: float):
     return X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
 
 
-#: Taylor degree of :func:`expm_batch` for ``||X / 2^s||_1 <= 1/2``: truncation below 1e-16.
-_TAYLOR = 14
+#: Taylor coefficients ``1/k!``, ``k = 0 .. 15``, in four blocks (:func:`expm_batch`).
+_TAYLOR = np.array([[1.0 / math.factorial(4 * i + j) for j in range(4)] for i in range(4)])
 
 
 def expm_batch(E: np.ndarray) -> np.ndarray:
-    """``expm`` of each small matrix of ``E (B, m, m)``: Taylor with scaling and squaring, each
-    matrix squared its own number of times.
+    """``expm`` of each small matrix of ``E (B, m, m)``: Taylor of degree 15 with scaling and
+    squaring (truncation below ``0.5^16 / 16! < 1e-18`` for ``||X||_1 <= 1/2``), each matrix
+    squared its own number of times.
 
     Why not ``scipy.linalg.expm``: it loops over a batch in Python (tens of microseconds per
-    4 x 4 matrix); here the whole batch takes ``_TAYLOR`` + max(s) batched products. The
-    truncation error after scaling to ``||.||_1 <= 1/2`` is ``0.5^15 / 15! < 3e-17``."""
+    4 x 4 matrix). Here the polynomial is evaluated the Paterson-Stockmeyer way, ``X^2, X^3,
+    X^4``, the four blocks ``sum_j c_{4i+j} X^j`` in one product with :data:`_TAYLOR` and
+    Horner in ``X^4``: six batched products and a handful of additions whatever the batch,
+    which matters where a call costs numpy's per-operation overhead (a few records)."""
     with np.errstate(all="ignore"):
         norm = np.abs(E).sum(axis=1).max(axis=1)
         s = np.where(norm > 0.5, np.ceil(np.log2(np.maximum(norm, 0.5) / 0.5)), 0.0)
         s = np.where(np.isfinite(s), s, 0.0).astype(int)
         X = E / np.ldexp(1.0, s)[:, None, None]
-        eye = np.eye(E.shape[1])
-        T = eye + X / _TAYLOR
-        for k in range(_TAYLOR - 1, 0, -1):
-            T = eye + (X @ T) / k
+        P = np.empty((3, *X.shape))                                   # X, X^2, X^3
+        P[0] = X
+        np.matmul(X, X, out=P[1])
+        np.matmul(P[1], X, out=P[2])
+        m = X.shape[1]
+        blocks = (_TAYLOR[:, 1:] @ P.reshape(3, -1)).reshape(4, *X.shape)
+        blocks[:, :, np.arange(m), np.arange(m)] += _TAYLOR[:, :1, None]
+        X4 = P[1] @ P[1]
+        T = blocks[3]
+        for i in (2, 1, 0):
+            T = T @ X4 + blocks[i]
         for i in range(int(s.max(initial=0))):
             more = s > i
-            T = np.where(more[:, None, None], T @ T, T)
+            T = T @ T if more.all() else np.where(more[:, None, None], T @ T, T)
     return T
 
 
 def _rows(Phi: np.ndarray, rows: np.ndarray, N: int) -> np.ndarray:
-    """``e_i^T Phi^k`` for the states ``rows`` and ``k < N``, ``(B, r, n, N)`` (time last), by
-    doubling: ``log2 N`` levels, each a sum of ``n`` broadcast products.
+    """``e_i^T Phi^k`` for the states ``rows`` and ``k < N``, ``(B, r, N, n)``, by doubling:
+    ``log2 N`` levels, each one batched product ``R[.., m:m+k, :] = R[.., :k, :] Phi^m``.
 
-    Why not ``matmul``: over many ``1 x n`` by ``n x n`` products numpy spends its time per
-    product, not per flop; with time as the last, contiguous axis each level is ``n^2``
-    vectorised operations over the batch."""
+    Why time before the state: each level is then one ``(k x n) (n x n)`` product per record
+    and state, a few calls whatever the batch (not ``k`` products of ``1 x n`` rows, nor ``n^2``
+    broadcast operations)."""
     B, n, _ = Phi.shape
-    R = np.empty((B, rows.size, n, N))
-    R[..., 0] = np.eye(n)[rows]
-    m, step = 1, Phi
+    R = np.empty((B, rows.size, N, n))
+    R[:, :, 0] = np.eye(n)[rows]
+    m, step = 1, Phi[:, None]
     while m < N:
         k = min(m, N - m)
-        for j in range(n):
-            out = R[:, :, j, m: m + k]
-            np.multiply(R[:, :, 0, :k], step[:, None, 0, j, None], out=out)
-            for i in range(1, n):
-                out += R[:, :, i, :k] * step[:, None, i, j, None]
+        np.matmul(R[:, :, :k], step, out=R[:, :, m: m + k])
         m += k
         if m < N:
             step = step @ step
@@ -239,9 +271,9 @@ def _basis(pattern: Pattern, a: np.ndarray, y: np.ndarray, u: np.ndarray, dt: fl
     states = _states(pattern)
     with np.errstate(all="ignore"):
         Phi, g1, g2 = _discrete(a, dt)
-        R = _rows(Phi, states, N)                                  # (B, r, n, N)
+        R = _rows(Phi, states, N)                                  # (B, r, N, n)
         Bd = g1 - g2 + (Phi @ g2[:, :, None])[:, :, 0]
-        h = np.einsum("brjk,bj->brk", R, Bd)                       # e_i^T Phi^k Bd
+        h = (R @ Bd[:, None, :, None])[..., 0]                     # e_i^T Phi^k Bd
         L = 2 * (U.shape[1] - 1)
         xi = scipy.fft.irfft(scipy.fft.rfft(h, L) * U[:, None], L)[:, :, : N - 1]
         X = np.empty((B, states.size, N))
@@ -249,7 +281,7 @@ def _basis(pattern: Pattern, a: np.ndarray, y: np.ndarray, u: np.ndarray, dt: fl
         X[:, :, 1:] = xi                                           # xi_k, from xi_0 = 0
         X += g2[:, states, None] * u[:, None, :]                   # x_k = xi_k + g2 u_k ...
         if not pattern.initial:                                    # ... + Phi^k (x_0 - g2 u_0)
-            X -= np.einsum("brjk,bj->brk", R, g2) * u[:, None, :1]
+            X -= (R @ g2[:, None, :, None])[..., 0] * u[:, None, :1]
         where = {int(i): j for j, i in enumerate(states)}
         cols, t = [], y.copy()
         for i, ci in enumerate(pattern.c):
@@ -262,7 +294,7 @@ def _basis(pattern: Pattern, a: np.ndarray, y: np.ndarray, u: np.ndarray, dt: fl
         elif pattern.d != 0.0:
             t -= pattern.d * u
         if pattern.initial:
-            cols.extend(np.moveaxis(R[:, where[0]], 1, 0))         # e_1^T Phi^k e_j
+            cols.extend(np.moveaxis(R[:, where[0]], 2, 0))         # e_1^T Phi^k e_j
         if pattern.offset:
             cols.append(np.ones_like(y))
         M = np.stack(cols, axis=1)
@@ -285,28 +317,26 @@ def _combine(Ms: np.ndarray, z: np.ndarray) -> np.ndarray:
     return (z[:, None, :] @ Ms)[:, 0]
 
 
-def _project(Ms: np.ndarray, Gi: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``M^T G^-1 M v`` per record, ``(B, N)``: the part of ``v`` the regressors span."""
-    return _combine(Ms, _coefficients(Ms, Gi, v))
-
-
 def _solve(M: np.ndarray, t: np.ndarray):
     """Row-scaled normal equations per record: ``z (B, p)``, residual ``r (B, N)``,
     ``(M_scaled, G^-1)`` for the projection, and finiteness ``ok (B,)``."""
     ok = np.isfinite(M).all(axis=(1, 2)) & np.isfinite(t).all(axis=1)
-    M = np.where(ok[:, None, None], M, 0.0)
+    whole = ok.all()                   # the usual case: no row to blank (fewer operations)
+    if not whole:
+        M, t = np.where(ok[:, None, None], M, 0.0), np.where(ok[:, None], t, 0.0)
     scale = np.abs(M).max(axis=2)
     scale = np.where(scale > 0, scale, 1.0)
     Ms = M / scale[:, :, None]
     G = Ms @ Ms.transpose(0, 2, 1)
     eye = np.eye(G.shape[1])
     G += (RIDGE * np.einsum("bii->b", G) + 1e-300)[:, None, None] * eye
-    G[~ok] = eye
+    if not whole:
+        G[~ok] = eye
     try:
         Gi = np.linalg.inv(G)
     except np.linalg.LinAlgError:      # a degenerate trial model: minimum-norm solutions
         Gi = np.linalg.pinv(G)
-    tt = np.where(ok[:, None], t, 0.0)
+    tt = t
     zs = _coefficients(Ms, Gi, tt)
     r = tt - _combine(Ms, zs)
     zs += _coefficients(Ms, Gi, r)                    # one step of iterative refinement
@@ -315,9 +345,9 @@ def _solve(M: np.ndarray, t: np.ndarray):
 
 
 def evaluate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray,
-             dt: float, U: np.ndarray | None = None) -> dict:
+             dt: float, U: np.ndarray | None = None, *, jacobian: bool = False) -> dict:
     """The projection at ``alpha (B, nf)``: ``cost (B,)`` (mean squared residual, inf where not
-    finite), ``r (B, N)``, ``z (B, p)`` and what the Jacobian reuses.
+    finite), ``r (B, N)``, ``z (B, p)``, and with ``jacobian`` Kaufman's ``J (B, nf, N)``.
 
     Parameters
     ----------
@@ -328,31 +358,52 @@ def evaluate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray,
     dt : float
     U : array, optional
         ``rfft`` of ``u`` as :func:`_spectrum` gives it (computed when not given).
+    jacobian : bool
+        Also ``J = d r / d alpha = -P_perp dM/dalpha z``, by forward differences of
+        ``M^T z - t`` (relative step ``_FD``).
+
+    Notes
+    -----
+    The shifted models go through the basis call of ``alpha`` (:func:`_bases`): for a few
+    records a call costs numpy's per-operation overhead, not its size.
     """
     U = _spectrum(u) if U is None else U
-    a = _full_a(pattern, alpha)
-    M, t, (Phi, g2) = _basis(pattern, a, y, u, dt, U)
+    B, nf = alpha.shape
+    points = [alpha]
+    if jacobian:
+        h = _FD * np.maximum(np.abs(alpha), 1e-8)                    # (B, nf)
+        for j in range(nf):
+            points.append(alpha.copy())
+            points[-1][:, j] += h[:, j]
+    (M, t, (Phi, g2)), *shifted = _bases(pattern, points, y, u, dt, U)
     z, r, Ms, Gi, ok = _solve(M, t)
     with np.errstate(all="ignore"):
         cost = np.where(ok, np.mean(r * r, axis=1), np.inf)
     cost = np.where(np.isfinite(cost), cost, np.inf)
-    return {"alpha": alpha, "a": a, "M": M, "t": t, "z": z, "r": r, "Ms": Ms, "Gi": Gi,
-            "cost": cost, "Phi": Phi, "g2": g2}
+    out = {"alpha": alpha, "a": _full_a(pattern, alpha), "M": M, "t": t, "z": z, "r": r,
+           "Ms": Ms, "Gi": Gi, "cost": cost, "Phi": Phi, "g2": g2}
+    if jacobian:
+        with np.errstate(all="ignore"):
+            base = _combine(M, z) - t
+            dy = np.stack([(_combine(Mj, z) - tj - base) / h[:, j, None]
+                           for j, (Mj, tj, _) in enumerate(shifted)], axis=1)   # (B, nf, N)
+            # -P_perp dy, every column at once: dy - M^T G^-1 M dy
+            J = dy @ Ms.transpose(0, 2, 1) @ Gi @ Ms - dy
+        out["J"] = np.where(np.isfinite(J), J, 0.0)
+    return out
 
 
-def _jacobian(pattern: Pattern, e: dict, y, u, dt, U) -> np.ndarray:
-    """Kaufman's ``J = d r / d alpha (B, nf, N)`` by forward differences of ``M^T z - t``."""
-    alpha, z, Ms, Gi = e["alpha"], e["z"], e["Ms"], e["Gi"]
-    base = _combine(e["M"], z) - e["t"]
-    J = np.empty((y.shape[0], alpha.shape[1], y.shape[1]))
-    for j in range(alpha.shape[1]):
-        h = _FD * np.maximum(np.abs(alpha[:, j]), 1e-8)
-        shifted = alpha.copy()
-        shifted[:, j] += h
-        M, t, _ = _basis(pattern, _full_a(pattern, shifted), y, u, dt, U)
-        dy = (_combine(M, z) - t - base) / h[:, None]
-        J[:, j] = -(dy - _project(Ms, Gi, dy))
-    return np.where(np.isfinite(J), J, 0.0)
+def _bases(pattern: Pattern, points: list, y, u, dt: float, U) -> list:
+    """:func:`_basis` at each ``alpha (B, nf)`` of ``points``: one call over all of them for a
+    few records (per-operation overhead), one each for many (their arrays stay in cache)."""
+    B, k = y.shape[0], len(points)
+    if k == 1 or B * k > _TOGETHER:
+        return [_basis(pattern, _full_a(pattern, a), y, u, dt, U) for a in points]
+    M, t, (Phi, g2) = _basis(pattern, _full_a(pattern, np.concatenate(points)),
+                             *(np.concatenate([v] * k) for v in (y, u)), dt,
+                             np.concatenate([U] * k))
+    return [(M[i * B: (i + 1) * B], t[i * B: (i + 1) * B],
+             (Phi[i * B: (i + 1) * B], g2[i * B: (i + 1) * B])) for i in range(k)]
 
 
 def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
@@ -381,6 +432,11 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
     -------
     SeparableFit
         The best point each record reached (never worse than the start).
+
+    Notes
+    -----
+    Each trial point is evaluated with the Jacobian the next iteration needs if it is accepted;
+    a rejected step keeps the point and its Jacobian: ``K`` iterations are ``K + 1`` calls.
     """
     y = np.ascontiguousarray(y, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
@@ -402,12 +458,12 @@ def _iterate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, 
     """:func:`gauss_newton` in numpy, every record at once (arguments checked)."""
     B = y.shape[0]
     U = _spectrum(u)
-    now = evaluate(pattern, alpha, y, u, dt, U)
+    now = evaluate(pattern, alpha, y, u, dt, U, jacobian=iterations > 0)
     lam = np.full(B, LAMBDA0)
     done = ~np.isfinite(now["cost"])
     energy = np.mean(y * y, axis=1)
     accepted = np.zeros(B, dtype=int)
-    for _ in range(iterations):
+    for it in range(iterations):
         active = np.flatnonzero(~done)
         if active.size == 0:
             break
@@ -417,14 +473,14 @@ def _iterate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, 
             sub = {k: (v[active] if isinstance(v, np.ndarray) and v.shape[:1] == (B,) else v)
                    for k, v in now.items()}
             ya, ua, Ua = y[active], u[active], U[active]
-        J = _jacobian(pattern, sub, ya, ua, dt, Ua)
+        J = sub["J"]
         g = (J @ sub["r"][:, :, None])[:, :, 0]
         H = J @ J.transpose(0, 2, 1)
         diag = np.einsum("bjj->bj", H) + 1e-300
         step = -np.linalg.solve(H + lam[active, None, None] * diag[:, :, None] *
                                 np.eye(H.shape[1]), g[:, :, None])[:, :, 0]
-        trial = sub["alpha"] + step
-        new = evaluate(pattern, trial, ya, ua, dt, Ua)
+        new = evaluate(pattern, sub["alpha"] + step, ya, ua, dt, Ua,
+                       jacobian=it < iterations - 1)
         better = new["cost"] < sub["cost"]
         if tol is not None:
             # converged: an accepted step or the Gauss-Newton prediction lowers the cost by
@@ -437,7 +493,9 @@ def _iterate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, 
                 np.minimum(sub["cost"], new["cost"]) <= EXACT * energy[active])
             done[active[flat]] = True
         rows = active[better]
-        if rows.size:
+        if rows.size == B:            # every record took its step (the fixed-cost pass)
+            now = new
+        elif rows.size:
             for k, v in new.items():
                 if isinstance(v, np.ndarray) and v.shape[:1] == (active.size,):
                     now[k][rows] = v[better]
@@ -459,22 +517,11 @@ def _fit(pattern: Pattern, e: dict, u: np.ndarray, iterations, converged) -> Sep
         d, k = z[:, k], k + 1
     else:
         d = np.full(B, float(pattern.d))
-    x0 = np.zeros((B, n))
+    initial = None
     if pattern.initial:
-        theta = z[:, k: k + n]
+        initial = (e["Phi"], z[:, k: k + n], e["g2"] * u[:, :1])
         k += n
-        # c^T Phi^k delta = e_1^T Phi^k theta for all k: delta from the first 2n samples
-        P = _rows(e["Phi"], np.arange(n), 2 * n)                 # (B, n, n, 2n): Phi^k
-        O = np.einsum("bi,bijk->bkj", c, P)                        # c^T Phi^k, (B, 2n, n)
-        F = np.einsum("bjk,bj->bk", P[:, 0], theta)
-        with np.errstate(all="ignore"):
-            G = O.transpose(0, 2, 1) @ O
-            G += (1e-14 * np.einsum("bii->b", G) + 1e-300)[:, None, None] * np.eye(n)
-            good = np.isfinite(G).all(axis=(1, 2)) & np.isfinite(F).all(axis=1)
-            G[~good] = np.eye(n)
-            delta = np.linalg.solve(G, (O.transpose(0, 2, 1) @ F[:, :, None]))[:, :, 0]
-            delta[~good] = np.nan
-        x0 = delta + e["g2"] * u[:, :1]
     y_offset = z[:, k] if pattern.offset else np.zeros(B)
-    return SeparableFit(a=e["a"], c=c, d=d, x0=x0, y_offset=y_offset, cost=e["cost"],
-                        iterations=iterations, converged=np.asarray(converged, dtype=bool))
+    return SeparableFit(a=e["a"], c=c, d=d, y_offset=y_offset, cost=e["cost"],
+                        iterations=iterations, converged=np.asarray(converged, dtype=bool),
+                        initial=initial)

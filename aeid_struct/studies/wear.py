@@ -100,6 +100,10 @@ class WearResult:
         as ``Tracker.push`` takes it.
     engine : str
         The tracker's engine (``"onnx"`` or ``"identifier"``).
+    latency_p95_ms : float
+        The 95th percentile of the update's wall time.
+    config : online.TrackerConfig or None
+        The configuration the tracker used (``Tracker.config``: the smoothing resolved).
     """
 
     t: np.ndarray
@@ -112,6 +116,8 @@ class WearResult:
     rms: dict
     latency_ms: float
     engine: str = "identifier"
+    latency_p95_ms: float = math.nan
+    config: TrackerConfig | None = None
 
     @property
     def delay(self) -> float:
@@ -222,4 +228,5 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
     rms = {p: float(100 * np.sqrt(np.mean((smooth[p][after] / true[p][after] - 1) ** 2)))
            for p in true}
     return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
-                      1e3 * float(np.median(times)), tracker.engine)
+                      1e3 * float(np.median(times)), tracker.engine,
+                      1e3 * float(np.percentile(times, 95)), tracker.config)
