@@ -9,7 +9,8 @@ import scipy.optimize
 
 import aeid_struct as ae
 from aeid_struct.refinement import Pattern, gauss_newton
-from aeid_struct.refinement.batched import _spectrum, evaluate, expm_batch
+from aeid_struct.refinement.batched import _spectrum, evaluate
+from aeid_struct.refinement.powers import expm_batch
 from aeid_struct.training import LegFamily, records
 
 STABLE = Pattern(a=(None, None), c=(None, 0.0), d=0.0)

@@ -483,7 +483,7 @@ def gauss_newton_rows(pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, 
         for i in range(B):
             out[i] = f(alpha[i], y[i], u[i], q)[0]
     fit = batched.SeparableFit(
-        a=out[:, :n], c=out[:, n: 2 * n], d=out[:, 2 * n], x0=out[:, 2 * n + 1: 3 * n + 1],
+        a=out[:, :n], c=out[:, n: 2 * n], d=out[:, 2 * n], initial=out[:, 2 * n + 1: 3 * n + 1],
         y_offset=out[:, 3 * n + 1], cost=out[:, 3 * n + 2],
         iterations=out[:, 3 * n + 3].astype(int), converged=out[:, 3 * n + 4] > 0.5)
     rows = np.flatnonzero(~np.isfinite(out).all(axis=1))
