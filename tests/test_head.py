@@ -22,8 +22,8 @@ def _windows(kind="prbs", count=12, noise=0.0, seed=11):
 
 
 HEADS = {"leg-stable-any": Head(iterations=3, fixed={"c1": 0.0}),
-         "leg-stable-window": Head(iterations=3, fixed={"c1": 0.0}),
-         "leg-unstable-any": Head(iterations=3, fixed={"a1": 0.0, "c1": 0.0})}
+         "leg-stable-window": Head(iterations=5, fixed={"c1": 0.0}),
+         "leg-unstable-any": Head(iterations=4, fixed={"a1": 0.0, "c1": 0.0})}
 
 
 def _load(name):
@@ -52,6 +52,13 @@ def test_head_checks_its_fields():
     assert Head.from_dict(head.to_dict()) == head
     with pytest.raises(ValueError, match="not stored"):
         head.converged().to_dict()
+
+
+def test_shipped_identifiers_carry_the_physics_head():
+    for name, head in HEADS.items():
+        assert ae.load_pretrained(name).head == head
+    for name in ("leg-stable", "leg-unstable", "leg-stable-ccf", "leg-stable-noisy"):
+        assert ae.load_pretrained(name).head is None
 
 
 def test_the_physics_heads_patterns():
