@@ -387,7 +387,7 @@ def test_both_engines_run_the_head_and_agree():
     ident = _with_head(ae.load_pretrained("leg-stable-window"))
     rec = records(ae.LegFamily(subsystem="stable"), 1, steps=500, dt=0.01,
                   excitation_kind="prbs", seed=8, warmup=200, noise=0.01)
-    cfg = TrackerConfig(hop=100, baseline=1)
+    cfg = TrackerConfig(hop=100, baseline=1, iterations=None)     # the head as it is
     a, b = Tracker(ident, cfg, engine="onnx"), Tracker(ident, cfg, engine="identifier")
     ua, ub = a.push(rec.u[0], rec.y[0]), b.push(rec.u[0], rec.y[0])
     # the window ending at sample 299 is the one identify sees alone
@@ -417,3 +417,30 @@ def test_unset_smoothing_follows_whether_the_head_iterates_and_set_values_are_ke
     assert used(Head(iterations=2), median=5) == (5, DEFAULT_SMOOTHING["head"][1])
     assert used(None, smoothing=1.0) == (DEFAULT_SMOOTHING["encoder"][0], 1.0)
     assert DEFAULT_SMOOTHING["head"][0] < DEFAULT_SMOOTHING["encoder"][0]
+
+
+def test_the_tracker_caps_the_head_on_a_copy_and_gives_identify_with_that_head():
+    from aeid_struct.identification import Head
+    from aeid_struct.training import records
+
+    ident = _with_head(ae.load_pretrained("leg-stable-window"))
+    stored = ident.head
+    assert stored.iterations > 1
+    rec = records(ae.LegFamily(subsystem="stable"), 1, steps=300, dt=0.01,
+                  excitation_kind="prbs", seed=9, warmup=200, noise=0.02)
+    for engine in ("identifier", "onnx"):
+        t = Tracker(ident, TrackerConfig(hop=100, baseline=1, iterations=1), engine=engine)
+        (up,) = t.push(rec.u[0], rec.y[0])
+        assert ident.head is stored                            # the caller's identifier
+        engine_head = (t.identifier if t.runner is None else t.runner).head
+        assert engine_head == Head(iterations=1, fixed=stored.fixed)
+        ident.head = Head(iterations=1, fixed=stored.fixed)
+        one = ident.identify(rec.y[0], rec.u[0]).physical
+        ident.head = stored
+        for k in ("k", "d", "m"):
+            assert up.estimate[k] == pytest.approx(one[k], rel=1e-6)
+    assert Tracker(ident, TrackerConfig(iterations=None), engine="identifier").identifier \
+        is ident
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="iterations must be None or an integer >= 0"):
+            TrackerConfig(iterations=bad)

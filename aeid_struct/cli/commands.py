@@ -252,7 +252,7 @@ def run_track(args: argparse.Namespace) -> int:
         config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, median=args.median,
                                threshold=args.threshold,
                                baseline=args.baseline, patience=args.patience,
-                               watch=tuple(args.watch))
+                               watch=tuple(args.watch), iterations=args.iterations)
         result = studies.wear.wear_study(ident, seconds=args.seconds, noise=args.noise,
                                          seed=args.seed, config=config, engine=args.engine)
     except ValueError as err:

@@ -283,7 +283,9 @@ def _add_track(sub, names: str) -> None:
             ("median", int, "window estimates in the running median before the moving average"),
             ("threshold", float, "relative drift that alarms"),
             ("baseline", int, "windows in the reference"),
-            ("patience", int, "windows over the threshold")):
+            ("patience", int, "windows over the threshold"),
+            ("iterations", int, "at most this many iterations of the identifier's separable "
+                                "head per window")):
         trk.add_argument(f"--{name}", type=kind, default=getattr(tracker, name),
                          help=f"{text} (default {by_head.get(name, getattr(tracker, name))})")
     trk.add_argument("--watch", nargs="*", default=["k"],

@@ -9,6 +9,7 @@ docstring).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import statistics
@@ -52,6 +53,13 @@ class TrackerConfig:
         The physical parameters to track (empty: all the estimate has).
     watch : tuple of str
         Those of them whose drift raises the alarm (empty: all tracked ones).
+    iterations : int or None
+        At most this many Gauss-Newton iterations of the identifier's separable head per window
+        (>= 0; the tracker runs a copy of the identifier with the head capped); None: the head
+        as the identifier has it. The default 1: consecutive windows of a stream are the
+        identifier's own kind of record, from which the encoder starts close to the
+        least-squares optimum, and the update keeps within its time budget (more iterations
+        barely move the tracked estimates: ``aeid-struct bench-online``).
 
     Raises
     ------
@@ -67,6 +75,7 @@ class TrackerConfig:
     patience: int = 3
     parameters: tuple[str, ...] = ()
     watch: tuple[str, ...] = ()
+    iterations: int | None = 1
 
     def __post_init__(self) -> None:
         for name in ("hop", "median", "baseline", "patience"):
@@ -75,6 +84,11 @@ class TrackerConfig:
                 continue
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
+        if self.iterations is not None and (not isinstance(self.iterations, int) or isinstance(
+                self.iterations, bool) or self.iterations < 0):
+            raise ValueError(f"iterations must be None or an integer >= 0; got "
+                             f"{self.iterations!r}")
+
         def number(v) -> bool:
             return isinstance(v, (int, float)) and not isinstance(v, bool)
 
@@ -260,7 +274,10 @@ class Tracker:
                 raise ValueError("engine='onnx' needs an Identifier to export; got "
                                  f"{type(identifier).__name__}")
         self.engine = "identifier" if self.runner is None else "onnx"
-        self.config = _resolved(config, identifier if self.runner is None else self.runner)
+        if config.iterations is not None:
+            self.identifier = _capped(self.identifier, config.iterations)
+            self.runner = _capped(self.runner, config.iterations)
+        self.config = _resolved(config, self.identifier if self.runner is None else self.runner)
         self.reset()
 
     def reset(self) -> None:
@@ -391,6 +408,19 @@ class Tracker:
                      else math.nan) for k in s.smoothed}
         return Update(s.samples * self.dt - self.dt, {k: math.nan for k in names},
                       dict(s.smoothed), drift, s.alarm, seconds, error=reason)
+
+
+def _capped(engine, iterations: int):
+    """``engine`` (an identifier, its ONNX runner, or None), or a shallow copy of it whose
+    separable head iterates at most ``iterations`` times: the caller's object is not changed."""
+    head = getattr(engine, "head", None)
+    if head is None or head.iterations <= iterations:
+        return engine
+    from aeid_struct.identification import Head
+
+    capped = copy.copy(engine)
+    capped.head = Head(iterations=iterations, fixed=head.fixed)
+    return capped
 
 
 def _resolved(config: TrackerConfig, engine) -> TrackerConfig:
