@@ -320,11 +320,16 @@ def run_bench_online(args: argparse.Namespace) -> int:
           f"RMS | alarm delay " + ", ".join(f"{d:+.1f} s" for d in t["alarm_delay_s"])
           + f" | flagged {100 * t['flagged_30_percent_beyond_min']:.1f} % with "
           f"{100 * t['false_flags_max']:.1f} % false")
-    out = Path(args.json)
+    _write_json(result, args.json)
+    return 0
+
+
+def _write_json(result: dict, path) -> None:
+    """Write a benchmark's result as JSON (numpy numbers as floats) and say where."""
+    out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2, default=float))
     print(f"wrote {out}")
-    return 0
 
 
 def run_bench(args: argparse.Namespace) -> int:
@@ -374,10 +379,7 @@ def run_bench(args: argparse.Namespace) -> int:
         result["onepass"] = _run_onepass(args)
     if not args.onepass_only:
         result["decoder"] = _run_decoder(args)
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2, default=float))
-    print(f"wrote {out}")
+    _write_json(result, args.json)
     return 0
 
 
