@@ -168,6 +168,21 @@ def test_pattern_and_start_are_checked():
     a, c, u, y, _ = _legs(2, 8)
     with pytest.raises(ValueError, match="alpha0 must have 2 free a_j"):
         gauss_newton(STABLE, a[:, :1], y, u, 0.01, iterations=1)
+    for kwargs, match in ((dict(y=y[0]), "y and u must be"), (dict(u=u[:, :-1]), "y and u must be"),
+                          (dict(dt=0.0), "dt must be a positive"),
+                          (dict(dt=float("nan")), "dt must be a positive"),
+                          (dict(iterations=-1), "iterations must be an integer"),
+                          (dict(iterations=2.0), "iterations must be an integer"),
+                          (dict(tol=1.0), "tol must be None"),
+                          (dict(pattern="ccf"), "pattern must be a refinement.Pattern")):
+        call = dict(pattern=STABLE, alpha0=a, y=y, u=u, dt=0.01, iterations=1) | kwargs
+        with pytest.raises(ValueError, match=match):
+            gauss_newton(call.pop("pattern"), call.pop("alpha0"), call.pop("y"), call.pop("u"),
+                         call.pop("dt"), **call)
+    bad = y.copy()
+    bad[0, 3] = np.inf
+    with pytest.raises(ValueError, match="y and u must be finite"):
+        gauss_newton(STABLE, a, bad, u, 0.01, iterations=1)
 
 
 def test_one_record_alone_is_its_row_of_a_large_batch():

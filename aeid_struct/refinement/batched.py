@@ -375,12 +375,7 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
     Each trial point is evaluated with the Jacobian the next iteration needs if it is accepted;
     a rejected step keeps the point and its Jacobian: ``K`` iterations are ``K + 1`` calls.
     """
-    y = np.ascontiguousarray(y, dtype=np.float64)
-    u = np.ascontiguousarray(u, dtype=np.float64)
-    alpha = np.array(alpha0, dtype=np.float64).reshape(y.shape[0], -1)
-    if alpha.shape[1] != pattern.free_a.size:
-        raise ValueError(f"alpha0 must have {pattern.free_a.size} free a_j per record; got "
-                         f"shape {alpha.shape}")
+    alpha, y, u = _checked(pattern, alpha0, y, u, dt, iterations, tol)
     # The compiled path costs less than numpy's per-operation overhead at any batch size, so it
     # serves every batch; imported here, not at the top, because it builds on this module.
     from aeid_struct.refinement import compiled
@@ -388,6 +383,33 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
         pattern, alpha, y, u, dt, iterations, tol,
         lambda rows: _iterate(pattern, alpha[rows], y[rows], u[rows], dt, iterations, tol))
     return _iterate(pattern, alpha, y, u, dt, iterations, tol) if fit is None else fit
+
+
+def _checked(pattern, alpha0, y, u, dt, iterations, tol):
+    """``gauss_newton``'s arguments as float64 arrays ``alpha (B, nf), y, u (B, N)``, or a
+    ValueError naming the first that is not what it must be."""
+    if not isinstance(pattern, Pattern):
+        raise ValueError(f"pattern must be a refinement.Pattern; got {type(pattern).__name__}")
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    if y.ndim != 2 or y.shape[1] < 2 or u.shape != y.shape:
+        raise ValueError(f"y and u must be (records, samples) arrays of one shape with at least "
+                         f"2 samples; got {y.shape} and {u.shape}")
+    if not (np.isfinite(y).all() and np.isfinite(u).all()):
+        raise ValueError("y and u must be finite")
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (
+            math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive finite number; got {dt!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
+            or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0; got {iterations!r}")
+    if tol is not None and not (isinstance(tol, float) and 0 < tol < 1):
+        raise ValueError(f"tol must be None or a float in (0, 1); got {tol!r}")
+    alpha = np.array(alpha0, dtype=np.float64)
+    if alpha.shape != (y.shape[0], pattern.free_a.size):
+        raise ValueError(f"alpha0 must have {pattern.free_a.size} free a_j per record, shape "
+                         f"{(y.shape[0], pattern.free_a.size)}; got shape {alpha.shape}")
+    return alpha, y, u
 
 
 def _iterate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, dt: float,
