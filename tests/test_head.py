@@ -22,7 +22,7 @@ def _windows(kind="prbs", count=12, noise=0.0, seed=11):
 
 
 HEADS = {"leg-stable-any": Head(iterations=3, fixed={"c1": 0.0}),
-         "leg-stable-window": Head(iterations=5, fixed={"c1": 0.0}),
+         "leg-stable-window": Head(iterations=8, fixed={"c1": 0.0}),
          "leg-unstable-any": Head(iterations=4, fixed={"a1": 0.0, "c1": 0.0})}
 
 
