@@ -61,6 +61,18 @@ def test_shipped_identifiers_carry_the_physics_head():
         assert ae.load_pretrained(name).head is None
 
 
+def test_a_head_set_later_is_checked_where_it_is_given():
+    ident = ae.load_pretrained("leg-stable-any")
+    stored = ident.head
+    with pytest.raises(ValueError, match="head must be an identification.Head or None"):
+        ident.head = {"iterations": 3}
+    with pytest.raises(ValueError, match="not elements"):
+        ident.head = Head(fixed={"zz": 0.0})
+    assert ident.head is stored                        # a refused head changes nothing
+    ident.head = None
+    assert ident.head is None
+
+
 def test_the_physics_heads_patterns():
     stable = _load("leg-stable-any")
     p = pattern_of(stable, stable.head)

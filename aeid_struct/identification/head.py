@@ -17,13 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeid_struct.refinement import Pattern, gauss_newton
+from aeid_struct.refinement import MAX_ITERATIONS, Pattern, gauss_newton
 from aeid_struct.structures import CCF
 
-__all__ = ["Head", "apply_head", "checked_head", "pattern_of"]
+__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "pattern_of"]
 
-#: The most iterations a head may ask for (a fixed cost per record).
-MAX_ITERATIONS = 50
 #: The most records in one ``gauss_newton`` call: its arrays stay in cache, and a batch of any
 #: size reuses the memory of one chunk (which an identifier's load touches once).
 CHUNK = 256
@@ -131,6 +129,21 @@ def checked_head(ident, head) -> Head | None:
         raise ValueError(f"head must be an identification.Head or None; got {head!r}")
     pattern_of(ident, head)            # refuses a structure the head does not serve
     return head
+
+
+class HeadSlot:
+    """An identifier's ``head`` attribute, checked (:func:`checked_head`) whenever it is set,
+    in the constructor or later (``ident.head = Head(...)``), so that a head the identifier
+    cannot carry is refused where it is given, not at the next ``identify``."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.key = f"_{name}"
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else obj.__dict__.get(self.key)
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.key] = checked_head(obj, value)
 
 
 def pattern_of(ident, head: Head) -> Pattern:

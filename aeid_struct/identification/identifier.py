@@ -15,7 +15,7 @@ from aeid_struct.encoder import Encoder
 from aeid_struct.identification import files, forward
 from aeid_struct.identification.estimate import Estimate, Provenance
 from aeid_struct.identification.fast_path import fast_path
-from aeid_struct.identification.head import Head, checked_head
+from aeid_struct.identification.head import Head, HeadSlot
 from aeid_struct.identification.polish import polish
 from aeid_struct.records import check_record
 from aeid_struct.structures import Physical, Structure, System
@@ -169,9 +169,10 @@ class Identifier:
         Records start from rest (the paper), or mid-motion (the initial state is fitted by least
         squares).
     head : Head, optional
-        The separable head after the encoder (``identification.head``); None: the paper's
-        pass, the encoder alone. An attribute that may be set or cleared.
+        The separable head after the encoder; None: the paper's pass, the encoder alone.
     """
+
+    head = HeadSlot()            # may be set or cleared later; checked whenever it is set
 
     def __init__(self, encoder: Encoder, structure: Structure, *, dt,
                  theta_mean: torch.Tensor, theta_scale: torch.Tensor,
@@ -194,7 +195,7 @@ class Identifier:
         self._provenance = None                     # (its sources, Provenance)
         self._params = list(encoder.parameters())   # cached: walking the modules is slow
         self._output_mask = _output_mask(structure)
-        self.head = checked_head(self, head)
+        self.head = head
 
     # -- the record format ---------------------------------------------------------------------
     @property

@@ -8,6 +8,7 @@ Layer: below ``identification`` (an estimate is taken duck-typed and returned th
 from aeid_struct.refinement.batched import Pattern as Pattern
 from aeid_struct.refinement.batched import SeparableFit as SeparableFit
 from aeid_struct.refinement.batched import gauss_newton as gauss_newton
+from aeid_struct.refinement.compiled import MAX_ITERATIONS as MAX_ITERATIONS
 from aeid_struct.refinement.config import SOLVERS as SOLVERS
 from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
@@ -27,6 +28,7 @@ from aeid_struct.refinement.solve import refine_elements as refine_elements
 
 __all__ = [
     "BUCKETS",
+    "MAX_ITERATIONS",
     "CacheInfo",
     "Numeric",
     "Pattern",

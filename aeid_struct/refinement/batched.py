@@ -273,11 +273,10 @@ def _solve(M: np.ndarray, t: np.ndarray):
         Gi = np.linalg.inv(G)
     except np.linalg.LinAlgError:      # a degenerate trial model: minimum-norm solutions
         Gi = np.linalg.pinv(G)
-    tt = t
-    zs = _coefficients(Ms, Gi, tt)
-    r = tt - _combine(Ms, zs)
+    zs = _coefficients(Ms, Gi, t)
+    r = t - _combine(Ms, zs)
     zs += _coefficients(Ms, Gi, r)                    # one step of iterative refinement
-    r = tt - _combine(Ms, zs)
+    r = t - _combine(Ms, zs)
     return zs / scale, r, Ms, Gi, ok
 
 
