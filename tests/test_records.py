@@ -189,3 +189,41 @@ def test_with_delay_sets_and_checks_the_delay():
     np.testing.assert_array_equal(r.with_delay(3).y, Y)
     with pytest.raises(ValueError, match="delay must be >= 0 and < steps = 4; got 7"):
         r.with_delay(7)
+
+
+def test_exact_scale_is_a_power_of_two_only_outside_the_safe_range():
+    from aeid_struct.records import exact_scale
+
+    assert exact_scale(np.array([0.3, -2.0])) == 1.0
+    assert exact_scale(np.zeros(4)) == 1.0
+    for peak in (1e-200, 3e-30, 7e25, 1e300):
+        s = exact_scale(np.array([peak, -peak / 3]))
+        mantissa, _ = np.frexp(s)
+        assert mantissa == 0.5 and 0.5 <= peak / s <= 1.0 if abs(np.log2(peak)) > 64 else s == 1
+
+
+def test_scaled_record_carries_the_same_digits():
+    rng = np.random.default_rng(0)
+    y, u = rng.standard_normal(50) * 1e-200, rng.standard_normal(50) * 1e200
+    rec = Record(y, u, 0.1, y_offset=3e-200)
+    s = rec.scaled(2.0 ** -664, 2.0 ** 665)
+    np.testing.assert_array_equal(s.y * 2.0 ** -664, y)        # exact: only exponents move
+    np.testing.assert_array_equal(s.u * 2.0 ** 665, u)
+    assert s.y_offset * 2.0 ** -664 == 3e-200 and rec.scaled(1.0, 1.0) is rec
+
+
+def test_a_column_is_one_channel_and_several_are_refused():
+    y = np.linspace(0, 1, 20)
+    assert Record(y[:, None], y[::-1, None], 0.1).y.shape == (20,)
+    with pytest.raises(ValueError, match=r"^u has 2 inputs \(shape \(20, 2\)\): several inputs "
+                                         r"are not supported yet; identify one channel"):
+        Record(y, np.stack([y, y], 1), 0.1)
+
+
+def test_require_informative_names_the_constant_signal():
+    y = np.linspace(0, 1, 20)
+    Record(y, y[::-1], 0.1).require_informative()
+    with pytest.raises(ValueError, match=r"^y is constant \(every sample is 2\.5\)"):
+        Record(np.full(20, 2.5), y, 0.1).require_informative()
+    with pytest.raises(ValueError, match=r"^u is constant over the whole record"):
+        Record(y, np.ones(20), 0.1).require_informative()

@@ -23,6 +23,7 @@ from aeid_struct.records.checks import record_problems as record_problems
 from aeid_struct.records.checks import require_finite as require_finite
 from aeid_struct.records.checks import unit_step as unit_step
 from aeid_struct.records.measured import Record as Record
+from aeid_struct.records.measured import exact_scale as exact_scale
 from aeid_struct.records.record import RecordBatch as RecordBatch
 from aeid_struct.records.record import check_record as check_record
 
@@ -36,6 +37,7 @@ __all__ = [
     "check_dt",
     "check_record",
     "check_records",
+    "exact_scale",
     "normalise",
     "overflow_problem",
     "record_problems",

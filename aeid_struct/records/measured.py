@@ -16,10 +16,36 @@ import numpy as np
 
 from aeid_struct.records.checks import as_array, check_dt, require_finite, unit_step
 
-__all__ = ["DETRENDS", "Record"]
+__all__ = ["DETRENDS", "Record", "exact_scale"]
 
 #: What :meth:`Record.detrend` removes.
 DETRENDS = ("mean", "initial", "linear")
+#: Peaks within ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT`` are used as they are: their squares and
+#: the products of the normal equations stay far inside float64 (1e-308 .. 1e308).
+SAFE_EXPONENT = 64
+
+
+def exact_scale(x: np.ndarray) -> float:
+    """A power of two near ``max |x|`` where that peak is outside ``2^-64 .. 2^64`` (else 1).
+
+    Dividing by a power of two is exact in binary floating point (only the exponent changes),
+    so a record scaled by it carries the same digits; a tiny output (1e-200) would otherwise
+    underflow in its squares (1e-400) and a huge one overflow.
+
+    Parameters
+    ----------
+    x : array
+
+    Returns
+    -------
+    float
+        ``2^e``; 1.0 for a peak inside the safe range or an all-zero ``x``.
+    """
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    if peak == 0.0:
+        return 1.0
+    exponent = math.frexp(peak)[1]
+    return math.ldexp(1.0, exponent) if abs(exponent) > SAFE_EXPONENT else 1.0
 
 
 def _number(name: str, value) -> float:
@@ -34,6 +60,13 @@ def _number(name: str, value) -> float:
 def _samples(name: str, value) -> np.ndarray:
     """A read-only ``(steps,)`` float64 copy of ``value``, steps >= 2, finite and real."""
     arr = as_array(name, value)
+    if arr.ndim == 2 and arr.shape[1] == 1:        # a column: one channel
+        arr = arr[:, 0]
+    if arr.ndim == 2 and arr.shape[1] > 1 and arr.shape[0] > arr.shape[1]:
+        what = "outputs" if name == "y" else "inputs"
+        raise ValueError(f"{name} has {arr.shape[1]} {what} (shape {arr.shape}): several "
+                         f"{what} are not supported yet; identify one channel at a time "
+                         f"({name}[:, k])")
     if arr.ndim != 1 or arr.shape[0] < 2:
         raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record); got "
                          f"shape {arr.shape}")
@@ -244,3 +277,40 @@ class Record:
             For a bad ``delay``.
         """
         return self._like(delay=delay)
+
+    def scaled(self, y_scale: float, u_scale: float) -> Record:
+        """The record in other amplitude units: ``y / y_scale`` and ``u / u_scale`` (offsets
+        too); exact for powers of two (:func:`exact_scale`).
+
+        Parameters
+        ----------
+        y_scale, u_scale : float, > 0
+
+        Returns
+        -------
+        Record
+        """
+        if y_scale == 1.0 and u_scale == 1.0:
+            return self
+        return self._like(y=self.y / y_scale, u=self.u / u_scale,
+                          y_offset=self.y_offset / y_scale, u_offset=self.u_offset / u_scale)
+
+    def require_informative(self) -> None:
+        """Refuse a record that says nothing about the system's input-output behaviour: a
+        constant output, or a constant input (with a free initial state and offset, the
+        response to a constant input is indistinguishable from a free response).
+
+        Raises
+        ------
+        ValueError
+            Naming ``y`` or ``u``.
+        """
+        if not np.ptp(self.y) > 0:
+            raise ValueError(f"y is constant (every sample is {self.y[0]:g}): a constant output "
+                             f"says nothing about the system; give a record whose output "
+                             f"responds to the input")
+        if not np.ptp(self.u) > 0:
+            raise ValueError("u is constant over the whole record: with a free initial state "
+                             "and offset, a constant input says nothing about the system (a "
+                             "step response from rest is the leg identifiers' case, "
+                             "ae.load_pretrained); give a record whose input varies")
