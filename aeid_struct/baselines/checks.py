@@ -15,9 +15,9 @@ import time
 import numpy as np
 
 from aeid_struct.identification import Estimate
-from aeid_struct.records import as_array, require_finite, unit_step
+from aeid_struct.records import Record, as_array, require_finite, unit_step
 
-__all__ = ["check_int", "check_record", "estimate", "in_structure", "nan_model",
+__all__ = ["as_measured", "check_int", "check_record", "estimate", "in_structure", "nan_model",
            "only_record", "physical_source"]
 
 
@@ -70,6 +70,26 @@ def check_record(y, u) -> tuple[np.ndarray, np.ndarray]:
     if out[0].shape != out[1].shape:
         raise ValueError(f"u must have the shape of y {out[0].shape}; got {out[1].shape}")
     return out[0], out[1]
+
+
+def as_measured(y):
+    """A measured record given as ``y``: a ``Record`` as it is, a ``(y, u)`` or ``(y, u, dt)``
+    tuple of arrays as a ``Record`` (as ``ae.identify`` and ``ae.compare`` take it); None for
+    anything else (the arrays of a record from rest).
+
+    Parameters
+    ----------
+    y : object
+
+    Returns
+    -------
+    Record or None
+    """
+    if isinstance(y, Record):
+        return y
+    if isinstance(y, tuple) and len(y) in (2, 3) and all(np.ndim(v) >= 1 for v in y[:2]):
+        return Record(*y)
+    return None
 
 
 def only_record(method: str, **given) -> None:

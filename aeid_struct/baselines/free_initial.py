@@ -103,7 +103,8 @@ def n4sid_record(record, *, order: int, feedthrough: bool = False,
     Raises
     ------
     ValueError
-        For a bad ``offset`` or ``block_rows``, or a record too short for them.
+        For a bad ``offset`` or ``block_rows``, a record too short for them, or a constant
+        ``y`` or ``u`` (``Record.require_informative``).
     """
     start = time.perf_counter()
     if offset not in OFFSETS:
@@ -118,6 +119,7 @@ def n4sid_record(record, *, order: int, feedthrough: bool = False,
     if y.shape[0] < need:
         raise ValueError(f"record must have at least {need} samples after the delay for "
                          f"order={order}, block_rows={block_rows}; got {y.shape[0]}")
+    record.require_informative()
     info = {"method": "n4sid", "failed": False, "reason": "", "order": order,
             "block_rows": block_rows, "pre_zeros": 0, "offset": offset, "delay": delay}
     try:
@@ -204,7 +206,8 @@ def least_squares_record(record, *, order: int, feedthrough: bool = False,
     Raises
     ------
     ValueError
-        For a record with fewer fitted samples than parameters.
+        For a record with fewer fitted samples than parameters, or a constant ``y`` or ``u``
+        (``Record.require_informative``).
     """
     start = time.perf_counter()
     y, u, delay = _aligned(record)
@@ -213,6 +216,7 @@ def least_squares_record(record, *, order: int, feedthrough: bool = False,
         raise ValueError(f"record must have at least {3 * order + 3} samples after the delay "
                          f"for order={order} (denominator, numerator, x0, offset); got "
                          f"{y.shape[0]}")
+    record.require_informative()
     info = {"method": "least_squares", "failed": False, "reason": "", "order": order,
             "delay": delay, "start": "n4sid"}
     try:

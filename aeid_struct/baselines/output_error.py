@@ -29,6 +29,7 @@ import numpy as np
 import scipy.optimize
 
 from aeid_struct.baselines.checks import (
+    as_measured,
     check_int,
     check_record,
     estimate,
@@ -40,7 +41,6 @@ from aeid_struct.baselines.free_initial import least_squares_record
 from aeid_struct.baselines.models import bounds, check_structure, finish, free_indices, model_of
 from aeid_struct.baselines.start import start_vector
 from aeid_struct.identification import Estimate
-from aeid_struct.records import Record
 from aeid_struct.simulation import check_dt, simulate_outputs
 
 __all__ = ["JACOBIANS", "SOLVERS", "Problem", "least_squares"]
@@ -210,12 +210,12 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
     ValueError
         For a bad argument, or a record shorter than the number of free elements.
     """
-    if isinstance(y, Record):
+    if as_measured(y) is not None:
         only_record("least_squares", u=u, dt=dt, structure=structure, start=start,
                     inverse=inverse)
         if order is None:
             raise ValueError("order must be given with a Record: least_squares(record, order=n)")
-        return least_squares_record(y, order=check_int("order", order, 1),
+        return least_squares_record(as_measured(y), order=check_int("order", order, 1),
                                     feedthrough=feedthrough,
                                     max_nfev=check_int("max_nfev", max_nfev, 1))
     if order is not None:

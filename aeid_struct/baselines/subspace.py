@@ -42,6 +42,7 @@ import time
 import numpy as np
 
 from aeid_struct.baselines.checks import (
+    as_measured,
     check_int,
     check_record,
     estimate,
@@ -52,7 +53,6 @@ from aeid_struct.baselines.checks import (
 )
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
 from aeid_struct.identification import Estimate
-from aeid_struct.records import Record
 from aeid_struct.simulation import check_dt
 
 __all__ = ["n4sid", "nfoursid_model"]
@@ -111,12 +111,13 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
-    if isinstance(y, Record):
+    if as_measured(y) is not None:
         from aeid_struct.baselines.free_initial import n4sid_record  # it imports this module
 
         only_record("n4sid", u=u, dt=dt, structure=structure, inverse=inverse,
                      pre_zeros=pre_zeros)
-        return n4sid_record(y, order=check_int("order", order, 1), feedthrough=feedthrough,
+        return n4sid_record(as_measured(y), order=check_int("order", order, 1),
+                            feedthrough=feedthrough,
                             block_rows=_check_sizes(order, None, block_rows)[1], offset=offset)
     start = time.perf_counter()
     y, u_in = check_record(y, u)
