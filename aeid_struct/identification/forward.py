@@ -14,7 +14,7 @@ import torch
 from aeid_struct.identification.estimate import Estimate
 from aeid_struct.identification.fast_path import fast_path
 from aeid_struct.identification.head import apply_head
-from aeid_struct.records import RecordBatch, normalise, overflow_problem
+from aeid_struct.records import RecordBatch, RecordError, normalise, overflow_problem
 from aeid_struct.structures import System
 
 __all__ = ["CHUNK", "differentiable", "encode", "estimate_of", "identify_record",
@@ -88,7 +88,19 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
         record.raise_first()
     good = record.good
     with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
-        model = _on_rows(ident, record, good, ident.head if head is None else head)
+        model, missed = _on_rows(ident, record, good, ident.head if head is None else head)
+    if missed.any():
+        out = list(record.problems)
+        used = ident.head if head is None else head
+        for r in np.flatnonzero(missed):
+            out[r] = RecordError(f"head: the separable head found no finite model for record "
+                                 f"{r} with the elements it holds fixed ({used.fixed or 'none'}"
+                                 f" besides the structure's); identify with ident.head = None "
+                                 f"for the encoder's pass", r)
+        record = dataclasses.replace(record, problems=tuple(out))
+        good = good & ~missed
+        if errors == "raise":
+            record.raise_first()
     if record.records == 1:
         record = dataclasses.replace(record, problems=_overflowed(record, good, model))
         if errors == "raise":
@@ -122,8 +134,10 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str) -> E
 def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
     """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False; one
     single record through the batch-1 path (``fast_path``), the others batched; then the
-    ``head``, if any."""
+    ``head``, if any. Returns ``(model, missed)``: ``missed (count,)`` marks the records the
+    head found no finite model for (NaN rows)."""
     ys, us, rows = record.y, record.u, np.flatnonzero(good)
+    missed = np.zeros(good.shape, dtype=bool)
     if not good.all():
         ys, us = [v[rows] for v in ys], [v[rows] for v in us]
     parts = None
@@ -132,9 +146,11 @@ def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
         parts = fast(ys[0][0], us[0][0]) if fast is not None else encode(ident, list(ys),
                                                                              list(us))
         if head is not None:
+            before = np.isfinite(parts[3])
             parts = apply_head(ident, head, list(ys), list(us), parts)
+            missed[rows] = before & ~np.isfinite(parts[3])
     if good.all():
-        return parts
+        return parts, missed
     R, count = record.records, record.count
     n, q = ident.structure.n, len(ident.structure.element_names)
     axis = () if R == 1 else (R,)
@@ -143,7 +159,7 @@ def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
     if parts is not None:
         for whole, part in zip(model, parts, strict=True):
             whole[rows] = part
-    return model
+    return model, missed
 
 
 def encode(ident, ys: list, us: list) -> tuple:

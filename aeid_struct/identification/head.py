@@ -51,11 +51,22 @@ class Head:
                 0 <= self.iterations <= MAX_ITERATIONS):
             raise ValueError(f"head: iterations must be an integer in [0, {MAX_ITERATIONS}]; "
                              f"got {self.iterations!r}")
-        if not isinstance(self.fixed, dict) or not all(
-                isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                and math.isfinite(v) for k, v in self.fixed.items()):
+        def finite(v) -> bool:
+            try:
+                return math.isfinite(float(v))
+            except OverflowError:            # an int beyond float64 (10**400)
+                return False
+
+        if not isinstance(self.fixed, dict):
             raise ValueError(f"head: fixed must be a dict element name -> finite number; got "
-                             f"{self.fixed!r}")
+                             f"{type(self.fixed).__name__}")
+        for k, v in self.fixed.items():
+            if not (isinstance(k, str) and isinstance(v, (int, float))
+                    and not isinstance(v, bool) and finite(v)):
+                shown = (f"an integer of {len(str(abs(v)))} digits" if isinstance(v, int)
+                         and not isinstance(v, bool) else repr(v)[:60])
+                raise ValueError(f"head: fixed must be a dict element name -> finite number "
+                                 f"(float64); got {k!r}: {shown}")
         object.__setattr__(self, "fixed", {k: float(v) for k, v in self.fixed.items()})
         if self.tol is not None and not (isinstance(self.tol, float) and 0 < self.tol < 1):
             raise ValueError(f"head: tol must be None or a float in (0, 1); got {self.tol!r}")
@@ -210,7 +221,8 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
     Returns
     -------
     tuple
-        The same arrays, the head's rows in place of the encoder's.
+        The same arrays, the head's rows in place of the encoder's; NaN rows where the head
+        finds no finite model.
     """
     pattern = _pattern(ident, head)
     A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
@@ -224,6 +236,11 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
         fit = gauss_newton(pattern, a[part][:, pattern.free_a], y[part], u[part], ident.dt,
                            iterations=head.iterations, tol=head.tol)
         ok = np.isfinite(fit.cost)
+        # a record the head cannot fit (a fixed value no finite model takes) gets no model:
+        # the encoder's, returned in its place, would pass for the head's (NaN rows are
+        # reported by the caller)
+        failed = part[~ok]
+        A[failed], c[failed], d[failed], el[failed] = math.nan, math.nan, math.nan, math.nan
         done, n = part[ok], pattern.n
         A[done, -1, :] = -fit.a[ok]
         c[done], d[done] = fit.c[ok], fit.d[ok]
