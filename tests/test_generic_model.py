@@ -70,7 +70,8 @@ def test_config_refuses_bad_fields():
         GenericConfig(order=5)
     with pytest.raises(ValueError, match=r"band must be a \(lo, hi\) pair .* got \(2.0, 1.0\)"):
         GenericConfig(order=2, band=(2.0, 1.0))
-    with pytest.raises(ValueError, match="window must be an integer >= 16"):
+    with pytest.raises(ValueError,
+                       match=r"window must be an integer in \[16, 65536\] \(samples\); got 8"):
         GenericConfig(order=2, window=8)
     with pytest.raises(ValueError, match=r"window \(66\) must be a multiple of pool \(4\)"):
         GenericConfig(order=2, window=66, pool=4)

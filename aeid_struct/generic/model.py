@@ -41,6 +41,12 @@ __all__ = ["GENERIC", "GenericConfig", "GenericIdentifier", "load_generic", "nor
 ORDERS = (1, 2, 3, 4)
 #: The shipped generic identifiers' names (``aeid_struct/pretrained/<name>.aeid``), one per order.
 GENERIC = tuple(f"generic-{n}" for n in ORDERS)
+#: Bounds of a generic identifier's shape: a window of this many samples at most, and an
+#: encoder of at most this many weights (the shipped ones hold ~10^4-10^5); a file or a
+#: command line beyond them asks for memory no machine gives, and is refused before torch
+#: allocates it.
+MAX_WINDOW = 65536
+MAX_WEIGHTS = 50_000_000
 
 
 def _range(name: str, value, what: str) -> tuple[float, float]:
@@ -111,8 +117,9 @@ class GenericConfig:
         if not integer(self.order) or self.order not in ORDERS:
             raise ValueError(f"order must be an integer in 1..4; got {self.order!r}")
         object.__setattr__(self, "order", int(self.order))
-        if not integer(self.window) or self.window < 16:
-            raise ValueError(f"window must be an integer >= 16 (samples); got {self.window!r}")
+        if not integer(self.window) or not 16 <= self.window <= MAX_WINDOW:
+            raise ValueError(f"window must be an integer in [16, {MAX_WINDOW}] (samples); got "
+                             f"{self.window!r}")
         object.__setattr__(self, "band", _range("band", self.band, "frequencies (rad/sample)"))
         object.__setattr__(self, "damping", _range("damping", self.damping, "damping ratios"))
         if not isinstance(self.spectrum, bool):
@@ -125,6 +132,17 @@ class GenericConfig:
             raise ValueError(f"the encoder fields are not a valid encoder: {err}") from None
         if isinstance(enc.pool, int) and self.window % enc.pool:
             raise ValueError(f"window ({self.window}) must be a multiple of pool ({self.pool})")
+        for name in ("width", "depth", "kernel"):
+            if getattr(self, name) > 4096:
+                raise ValueError(f"{name} must be at most 4096; got {getattr(self, name)}")
+        if any(w > 65536 for w in self.dense):
+            raise ValueError(f"dense widths must be at most 65536; got {self.dense}")
+        with torch.device("meta"):       # the shapes only: nothing allocated
+            weights = sum(p.numel() for p in Encoder(enc).parameters())
+        if weights > MAX_WEIGHTS:
+            raise ValueError(f"the encoder of this shape (window {self.window}, width "
+                             f"{self.width}, depth {self.depth}, dense {self.dense}) has "
+                             f"{weights} weights, more than {MAX_WEIGHTS}; choose a smaller one")
 
     def encoder_config(self) -> EncoderConfig:
         """The encoder's configuration: ``window`` samples of two channels (``y``, ``u``) ->
