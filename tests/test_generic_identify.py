@@ -453,3 +453,55 @@ def test_comparison_repr_is_one_line():
     A, b, c = np.array([[0.0, 1.0], [-1.0, -0.5]]), np.array([0.0, 1.0]), np.array([1.0, 0.0])
     text = repr(ae.compare((A, b, c, 0.0), ae.Record(y, u, 0.1)))
     assert text.startswith("Comparison(fit=") and "\n" not in text and "steps=600" in text
+
+
+def test_select_in_blocks_gives_what_one_block_gives(monkeypatch):
+    # a long record is scored in blocks of candidates and delays (memory bounded by
+    # BLOCK_BYTES, not candidates x delays x samples): blocks of one candidate and one delay
+    # give the same costs, choice and projection as one block of all
+    from aeid_struct.generic import windows
+
+    y, u = make_record(delay=2, noise=0.01)
+    den, _ = normalised()
+    dens = np.stack([den * [1, 1.2, 0.8, 1.1], den, den * [1, 0.9, 1.1, 1.0], den * 1.05])
+    whole = windows.select(dens, y, u, range(6))
+    short = windows.select(dens, y, u, range(6), shortlist=2, around=2)
+    monkeypatch.setattr(windows, "BLOCK_BYTES", 1)
+    for got, want in ((windows.select(dens, y, u, range(6)), whole),
+                      (windows.select(dens, y, u, range(6), shortlist=2, around=2), short)):
+        assert (got.index, got.delay) == (want.index, want.delay) == (1, 2)
+        np.testing.assert_allclose(got.costs, want.costs, rtol=1e-12)
+        np.testing.assert_allclose(got.projection.c, want.projection.c, rtol=1e-12)
+        assert got.projection.fit == pytest.approx(want.projection.fit, abs=1e-12)
+
+
+def test_a_record_beyond_the_old_memory_is_identified_in_bounded_memory(monkeypatch):
+    # 300,000 samples: the candidates x delays x samples arrays of the old scoring peaked at
+    # ~6.7 kB per sample; blocked (16 MiB blocks here), the call's own allocations stay a few
+    # hundred bytes per sample (tracemalloc sees numpy's buffers)
+    import tracemalloc
+
+    from aeid_struct.generic import windows
+
+    monkeypatch.setattr(windows, "BLOCK_BYTES", 16 * 2 ** 20)
+    steps = 300_000
+    y, u = make_record(steps=steps, delay=2, noise=0.01)
+    tracemalloc.start()
+    try:
+        est = identify((y, u, DT), 3, refine=False)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(est.A)),
+                               np.sort_complex(np.roots(normalised()[0]) / DT), rtol=5e-3)
+    assert est.delay == 2 and peak < 600 * steps, peak / steps
+
+
+def test_arx_delay_in_blocks_of_rows_gives_what_one_block_gives(monkeypatch):
+    from aeid_struct.generic import delay
+
+    y, u = make_record(delay=4, noise=0.02)
+    whole = [delay.arx_delay(y, u, 3, m) for m in (0, 3, 8, 40)]
+    monkeypatch.setattr(delay, "_BLOCK", 8 * 60 * 7)     # blocks of a few rows
+    assert [delay.arx_delay(y, u, 3, m) for m in (0, 3, 8, 40)] == whole
+    assert whole[2] == whole[3] == 4

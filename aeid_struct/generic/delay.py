@@ -49,29 +49,48 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
         return 0
     n, N = order, y.shape[0]
     k0 = max_delay + n
-    rows = np.arange(k0, N)
-    cols = [y[rows - i] for i in range(1, n + 1)]                 # y lags 1..n
-    cols += [u[rows - j] for j in range(max_delay + n + 1)]       # u lags 0..max_delay + n
-    cols.append(np.ones(rows.shape[0]))
-    Z = np.stack(cols, axis=1)
-    scale = np.abs(Z).max(axis=0)
+    width = 2 * n + max_delay + 2
+    # the lagged signals in blocks of rows (a long record with a long delay range would
+    # otherwise hold N x (max_delay + 2n + 2) numbers at once)
+    step = max(1, _BLOCK // (8 * width))
+    blocks = [np.arange(a, min(N, a + step)) for a in range(k0, N, step)]
+    scale = np.zeros(width)
+    for rows in blocks:
+        scale = np.maximum(scale, np.abs(_lagged(y, u, n, max_delay, rows)).max(axis=0))
     scale = np.where(scale > 0, scale, 1.0)
-    Z = Z / scale
-    target = y[rows]
-    G, g = Z.T @ Z, Z.T @ target
-    idx = np.array([list(range(n)) + list(range(n + D, n + D + n + 1)) + [Z.shape[1] - 1]
+    G, g = np.zeros((width, width)), np.zeros(width)
+    for rows in blocks:
+        Z = _lagged(y, u, n, max_delay, rows) / scale
+        G += Z.T @ Z
+        g += Z.T @ y[rows]
+    idx = np.array([list(range(n)) + list(range(n + D, n + D + n + 1)) + [width - 1]
                     for D in range(max_delay + 1)])
     Gs = G[idx[:, :, None], idx[:, None, :]]
     Gs += 1e-12 * np.trace(Gs, axis1=1, axis2=2)[:, None, None] * np.eye(idx.shape[1])
     z = np.linalg.solve(Gs, g[idx][..., None])[..., 0]
     # residuals explicitly (not y^T y - g^T z, which cancels on a near-exact fit)
     # each delay's coefficients scattered into a row over all columns: one matmul, no gather
-    coef = np.zeros((idx.shape[0], Z.shape[1]))
+    coef = np.zeros((idx.shape[0], width))
     np.put_along_axis(coef, idx, z, axis=1)
-    res = target[None, :] - coef @ Z.T
-    rss = np.sum(res ** 2, axis=1)
+    rss = np.zeros(max_delay + 1)
+    for rows in blocks:
+        res = y[rows][None, :] - coef @ (_lagged(y, u, n, max_delay, rows) / scale).T
+        rss += np.sum(res ** 2, axis=1)
     # the smallest delay within 2 / rows of the least residual (parsimony: generic.windows)
-    return int(np.flatnonzero(rss <= rss.min() * (1.0 + 2.0 / rows.shape[0]))[0])
+    return int(np.flatnonzero(rss <= rss.min() * (1.0 + 2.0 / (N - k0)))[0])
+
+
+#: Bytes of lagged signals :func:`arx_delay` holds at once.
+_BLOCK = 64 * 2 ** 20
+
+
+def _lagged(y: np.ndarray, u: np.ndarray, n: int, max_delay: int,
+            rows: np.ndarray) -> np.ndarray:
+    """The regressors of rows ``rows``: ``y`` lags 1..n, ``u`` lags 0..max_delay + n, 1."""
+    cols = [y[rows - i] for i in range(1, n + 1)]
+    cols += [u[rows - j] for j in range(max_delay + n + 1)]
+    cols.append(np.ones(rows.shape[0]))
+    return np.stack(cols, axis=1)
 
 
 def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay: int, *,

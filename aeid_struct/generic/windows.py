@@ -309,25 +309,24 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
     delays = sorted({int(D) for D in delays})
     D0 = delays[0]
     N = y.shape[0] - D0
-    with np.errstate(all="ignore"):
-        M, Phi, gamma2 = _regressors(dens, u[:N], feedthrough, offset)
-        good = np.flatnonzero(np.isfinite(M).all(axis=(1, 2)))
-    costs = np.full((dens.shape[0], len(delays)), np.inf)
-    if good.size == 0:
+    K, L = dens.shape[0], len(delays)
+    costs = np.full((K, L), np.inf)
+    pool = np.arange(K)
+    if shortlist is not None and L > 1 and K > shortlist:
+        # the candidates at one delay, then the best few at every delay
+        mid = L // 2 if around is None else delays.index(int(around))
+        for part, M, G_all in _blocks(dens, pool, u[:N], feedthrough, offset, 1):
+            costs[part, mid] = _solve_delays(M, G_all, y, [delays[mid]], D0, delays[-1])[0][:, 0]
+        ranked = np.argsort(costs[:, mid], kind="stable")
+        pool = ranked[np.isfinite(costs[ranked, mid])][:shortlist]
+    for part, M, G_all in _blocks(dens, pool, u[:N], feedthrough, offset, L):
+        for js in _delay_blocks(L, part.size, M.shape[1], N):
+            costs[part[:, None], js[None, :]] = _solve_delays(
+                M, G_all, y, [delays[j] for j in js], D0, delays[-1])[0]
+    costs = np.where(np.isfinite(costs), costs, np.inf)
+    if not np.isfinite(costs).any():
         raise ValueError(f"no candidate denominator has a finite response on this record "
                          f"({y.shape[0]} samples)")
-    M = M[good]
-    G_all = M @ M.transpose(0, 2, 1)
-    if shortlist is not None and len(delays) > 1 and good.size > shortlist:
-        # the candidates at one delay, then the best few at every delay
-        mid = len(delays) // 2 if around is None else delays.index(int(around))
-        first = _solve_delays(M, G_all, y, [delays[mid]], D0, delays[-1])[0][:, 0]
-        costs[good, mid] = first
-        top = np.argsort(first)[:shortlist]
-        good, M, G_all = good[top], M[top], G_all[top]
-    cost, Z, fitted, rows = _solve_delays(M, G_all, y, delays, D0)
-    costs[good] = cost
-    costs = np.where(np.isfinite(costs), costs, np.inf)
     k, j = np.unravel_index(np.argmin(costs), costs.shape)
     # Parsimony in the delay: the smallest delay within 2 / N of the best cost (an AIC-like
     # margin). A delay is often barely identifiable (slow dynamics, a staircase input: fits
@@ -335,10 +334,46 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
     # was the largest allowed for true delays 0-5, costing validation fit.
     common = y.shape[0] - max(delays)
     j = int(np.flatnonzero(costs[k] <= costs[k, j] * (1.0 + 2.0 / common))[0])
-    i = int(np.flatnonzero(good == k)[0])
+    # the winner's regressors once more, for its projection (only costs were kept)
+    with np.errstate(all="ignore"):
+        M, Phi, gamma2 = _regressors(dens[k : k + 1], u[:N], feedthrough, offset)
+    G_all = M @ M.transpose(0, 2, 1)
+    _, Z, fitted, rows = _solve_delays(M, G_all, y, [delays[j]], D0, delays[-1])
     return Selection(int(k), delays[j], costs, _projection(
-        Z[i, j], fitted[i, : rows[j], j], M[i], Phi[k], gamma2[k], y, u, delays[j],
+        Z[0, 0], fitted[0, : rows[0], 0], M[0], Phi[0], gamma2[0], y, u, delays[j],
         feedthrough, offset))
+
+
+#: Bytes of working arrays :func:`select` holds at once (regressors, targets and outputs of a
+#: block of candidates and delays): a record of any length is scored in blocks, so that its
+#: memory grows with the record and not with candidates x delays x samples.
+BLOCK_BYTES = 256 * 2 ** 20
+
+
+def _blocks(dens: np.ndarray, pool: np.ndarray, uu: np.ndarray, feedthrough: bool,
+            offset: bool, delays: int):
+    """``(candidates, M, G)`` of the finite candidates of ``pool`` in blocks that fit
+    :data:`BLOCK_BYTES` (with ``delays`` targets each)."""
+    n = dens.shape[1] - 1
+    p = 2 * n + int(feedthrough) + int(offset)
+    per = 8 * uu.shape[0] * (p + n + 2 + 2 * min(delays, 8))
+    size = max(1, BLOCK_BYTES // per)
+    for start in range(0, pool.size, size):
+        part = pool[start : start + size]
+        with np.errstate(all="ignore"):
+            M = _regressors(dens[part], uu, feedthrough, offset)[0]
+            good = np.isfinite(M).all(axis=(1, 2))
+        if good.any():
+            M = M[good]
+            yield part[good], M, M @ M.transpose(0, 2, 1)
+
+
+def _delay_blocks(L: int, K: int, p: int, N: int):
+    """Index blocks of the ``L`` delays whose ``(K, N, block)`` outputs fit
+    :data:`BLOCK_BYTES`."""
+    size = max(1, BLOCK_BYTES // (8 * N * (3 * K + 2)))
+    for start in range(0, L, size):
+        yield np.arange(start, min(L, start + size))
 
 
 def _solve_delays(M: np.ndarray, G_all: np.ndarray, y: np.ndarray, delays: list, D0: int,
