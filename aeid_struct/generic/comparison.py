@@ -12,9 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import control
 import numpy as np
 
-from aeid_struct.generic.one_call import measured
+from aeid_struct.generic.boundary import measured
 from aeid_struct.simulation import fit_initial
 
 __all__ = ["Comparison", "compare"]
@@ -89,20 +90,28 @@ class Comparison:
 
 
 def _model(model):
-    """``A, b, c, d`` and the delay (or None) of an Estimate, a python-control StateSpace or a
-    tuple ``(A, b, c, d)``."""
+    """``A, b, c, d``, the delay (or None) and its sample time (or None) of an Estimate, a
+    continuous-time python-control system or a tuple ``(A, b, c, d)``."""
+    if isinstance(model, control.LTI):
+        if control.isdtime(model, strict=True):
+            raise ValueError(f"estimate_or_model is a discrete-time system (dt = {model.dt}); "
+                             f"compare simulates continuous-time models (the record's input "
+                             f"held between samples): give the continuous model it was "
+                             f"discretised from (e.g. aeid_struct.baselines.to_continuous)")
+        model = control.ss(model) if isinstance(model, control.TransferFunction) else model
     if isinstance(model, (tuple, list)) and len(model) == 4:
         A, b, c, d = model
-        delay = None
+        delay = step = None
     elif all(hasattr(model, k) for k in ("A", "B", "C", "D")):       # control.StateSpace
         A, b, c, d = model.A, model.B, model.C, model.D
-        delay = None
+        delay = step = None
     elif all(hasattr(model, k) for k in ("A", "b", "c", "d")):        # Estimate
         A, b, c, d = model.A, model.b, model.c, model.d
-        delay = getattr(model, "delay", None)
+        delay, step = getattr(model, "delay", None), getattr(model, "dt", None)
     else:
-        raise ValueError(f"estimate_or_model must be an Estimate, a control.StateSpace or a "
-                         f"tuple (A, b, c, d); got {type(model).__name__}")
+        raise ValueError(f"estimate_or_model must be an Estimate, a continuous-time "
+                         f"control.StateSpace or TransferFunction, or a tuple (A, b, c, d); "
+                         f"got {type(model).__name__}")
     A = np.asarray(A, dtype=np.float64)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] < 1:
         raise ValueError(f"A must be a square (n, n) matrix of one model; got shape {A.shape}")
@@ -114,7 +123,20 @@ def _model(model):
                          f"{b.shape[0]}, {c.shape[0]} and {d.shape[0]}")
     if not all(np.isfinite(v).all() for v in (A, b, c, d)):
         raise ValueError("the model (A, b, c, d) must be finite")
-    return A, b, c, float(d[0]), delay
+    return A, b, c, float(d[0]), delay, step
+
+
+def _in_samples(delay: int, step: float | None, dt: float) -> int:
+    """An estimate's delay (samples of its own sample time ``step``) in samples of ``dt``,
+    through seconds; a ValueError where it does not land on a sample."""
+    if step is None or delay == 0 or step == dt:
+        return delay
+    samples = delay * step / dt
+    if abs(samples - round(samples)) > 1e-6 * max(1.0, samples):
+        raise ValueError(f"the estimate's delay ({delay} samples of dt = {step:g}, "
+                         f"{delay * step:g} time units) is {samples:g} samples of this record "
+                         f"(dt = {dt:g}), not a whole number: pass delay= explicitly")
+    return int(round(samples))
 
 
 def compare(estimate_or_model, record, *, delay=None) -> Comparison:
@@ -122,12 +144,14 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
 
     Parameters
     ----------
-    estimate_or_model : Estimate, control.StateSpace or (A, b, c, d)
-        A continuous-time SISO model in the record's time unit.
+    estimate_or_model : Estimate, control.StateSpace, control.TransferFunction or (A, b, c, d)
+        A continuous-time SISO model in the record's time unit (a discrete-time one is
+        refused).
     record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-        As for :func:`~aeid_struct.generic.one_call.measured`.
+        As for :func:`~aeid_struct.generic.boundary.measured`.
     delay : int, optional
-        Input delay in samples; default: the estimate's, else the record's, else 0.
+        Input delay in samples; default: the estimate's (converted through time units to the
+        record's ``dt``), else the record's, else 0.
 
     Returns
     -------
@@ -136,11 +160,13 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
     Raises
     ------
     ValueError
-        For a bad model, record or delay.
+        For a bad model (a discrete-time one included), record or delay, or an estimate's
+        delay that is not a whole number of the record's samples.
     """
-    A, b, c, d, model_delay = _model(estimate_or_model)
+    A, b, c, d, model_delay, step = _model(estimate_or_model)
     data = measured(record, delay)
-    D = data.delay if delay is not None or model_delay is None else model_delay
+    D = (data.delay if delay is not None or model_delay is None else
+         _in_samples(int(model_delay), step, data.dt))
     D = 0 if D is None else int(D)
     if not 0 <= D <= data.steps - 2:
         raise ValueError(f"delay must be in [0, {data.steps - 2}] for this record; got {D}")

@@ -27,10 +27,11 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
 Steiglitz-McBride estimate at the ARX delay (``generic.classical``; ``classical=False`` leaves
 it out), then a fixed number of separable Levenberg-Marquardt iterations (``iterations``,
 default :data:`ITERATIONS`; ``refinement.refine_separable`` with ``max_iter``) from the chosen
-candidate at the chosen delay, for the free CCF and MCF (a structure with fixed elements gets
-the projected candidate); where the delay is unknown, it is re-scanned by projection with the
-iterated poles, and at a better delay as many iterations again. A bounded cost: at most twice
-``iterations`` iterations and one re-scan; no search by refinement, no second start.
+candidate at the chosen delay, for the free CCF and MCF (a structure with fixed elements: the
+iterations run in the free CCF, and the closest model in the structure is returned, its initial
+state, offset and fit its own); where the delay is unknown, it is re-scanned by projection with
+the iterated poles, and at a better delay as many iterations again. A bounded cost: at most
+twice ``iterations`` iterations and one re-scan; no search by refinement, no second start.
 ``iterations=0, classical=False`` is the encoder's pass alone (candidates and projection), as
 before the iterations were added. Why: the iterations close the gap from a good start to the
 output-error optimum (the encoder's poles are near it, not at it, and the projected ``c, d,
@@ -51,12 +52,14 @@ fits are compared instead by the same rule.
 from __future__ import annotations
 
 import functools
+import os
 import time
 from dataclasses import dataclass, replace
 from importlib import import_module
 
 import numpy as np
 
+from aeid_struct.generic.boundary import amplitude_scales, check_grid, measured, unscaled
 from aeid_struct.generic.classical import steiglitz_mcbride
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.polish import (
@@ -89,56 +92,6 @@ METHODS = ("auto", "separable", "casadi")
 #: Levenberg-Marquardt iterations of the one pass (``refine=False``); chosen by
 #: ``aeid-struct bench-generic``: more bought next to nothing in validation fit per iteration.
 ITERATIONS = 3
-
-
-def _delay(name: str, value, steps: int) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (
-            0 <= value <= steps - 2):
-        raise ValueError(f"{name} must be None (unknown) or an integer number of samples in "
-                         f"[0, {steps - 2}]; got {value!r}")
-    return int(value)
-
-
-def measured(record, delay=None) -> Record:
-    """A user's record as a checked :class:`~aeid_struct.records.Record` (checked once: a
-    Record is taken as it is, anything else goes through Record's own checks).
-
-    Parameters
-    ----------
-    record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-        Any object with attributes ``y`` (and optionally ``u``, ``dt``, ``delay``, ``t0``); a
-        lone array is ``y`` with a unit step input and ``dt = 1``.
-    delay : int, optional
-        A known input delay in samples, over the record's own.
-
-    Returns
-    -------
-    Record
-        With the known delay (or None); at least 2 samples are left after it.
-
-    Raises
-    ------
-    ValueError
-        Naming the argument: not real numbers, a wrong shape, a non-finite sample, ``u`` of
-        another length, a bad ``dt`` or ``delay``.
-    """
-    if isinstance(record, Record):
-        rec = record
-    elif hasattr(record, "y"):
-        rec = Record(record.y, getattr(record, "u", None), getattr(record, "dt", 1.0),
-                     delay=getattr(record, "delay", None), t0=getattr(record, "t0", 0.0))
-    elif isinstance(record, (tuple, list)) and len(record) in (2, 3):
-        rec = Record(*record)
-    elif isinstance(record, (tuple, list)):
-        raise ValueError(f"record must be a Record, a (y, u) or (y, u, dt) tuple, or an array "
-                         f"y; got a {type(record).__name__} of {len(record)} items")
-    else:
-        rec = Record(record)
-    known = _delay("record.delay", rec.delay, rec.steps)
-    given = _delay("delay", delay, rec.steps)
-    return rec if given is None or given == known else rec.with_delay(given)
 
 
 @dataclass(frozen=True)
@@ -204,11 +157,28 @@ def _shipped(order: int):
 
 def _identifiers(order, identifier, structure) -> dict:
     """Order -> generic identifier: the given one(s), or the shipped ``generic-n``."""
+    if isinstance(identifier, (str, os.PathLike)):
+        load = import_module("aeid_struct.generic.model").load_generic
+        try:
+            identifier = load(identifier)
+        except ValueError as err:
+            raise ValueError(f"identifier: {err}") from None
     if isinstance(identifier, dict):
         chosen = identifier
     elif identifier is not None:
-        chosen = {int(identifier.config.order): identifier}
+        chosen = {None: identifier}
     else:
+        chosen = {}
+    for key, ident in list(chosen.items()):
+        config = getattr(ident, "config", None)
+        if not (hasattr(ident, "denominators") and hasattr(config, "window")
+                and hasattr(config, "order") and hasattr(config, "band")):
+            raise ValueError(f"identifier must be a generic identifier (ae.load_generic), its "
+                             f"name or file, or a dict order -> identifier; got "
+                             f"{type(ident).__name__}")
+        if key is None:
+            chosen = {int(config.order): ident}
+    if identifier is None:
         orders = ORDERS if order is None else (order,)
         chosen = {n: _shipped(n) for n in orders}
     if order is not None:
@@ -328,8 +298,9 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
             iterations < 0):
         raise ValueError(f"iterations must be an integer >= 0 (Levenberg-Marquardt iterations "
                          f"of the one pass); got {iterations!r}")
-    if not isinstance(classical, (bool, np.bool_)):
-        raise ValueError(f"classical must be True or False; got {classical!r}")
+    for name, value in (("refine", refine), ("classical", classical)):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{name} must be True or False; got {value!r}")
     data = measured(record, delay)
     if isinstance(max_delay, bool) or not isinstance(max_delay, (int, np.integer)) or (
             max_delay < 0):
@@ -339,40 +310,72 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         raise ValueError(f"method='separable' refines the free CCF and MCF only; got "
                          f"structure {structure!r} (use 'auto' or 'casadi')")
     identifiers = _identifiers(order, identifier, structure)
+    data.require_informative()
+    check_grid(data, identifiers, int(max_delay))
+    # Amplitudes far from 1 are rescaled by powers of two (exact): y / sy, u / su. A structure
+    # whose gain elements are fixed (or physical) keeps its gain: sy = su.
+    sy, su = amplitude_scales(data, structure)
+    work = data.scaled(sy, su)
     feedthrough = _feedthrough(structure)
     order_fits = None
     if order is None:
-        order_fits = _select_order(identifiers, data, int(max_delay), feedthrough, refine,
+        order_fits = _select_order(identifiers, work, int(max_delay), feedthrough, refine,
                                    method, int(iterations), bool(classical))
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
-    fit = _encoder_fit(identifiers[order], data.y, data.u, order, data.delay, int(max_delay),
+    fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, int(max_delay),
                        feedthrough, bool(classical) and not refine)
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, _structure(structure, order, fit.den)
     refined = False
     info = {"candidates": fit.candidates, "order_fits": order_fits, "start": fit.start}
+    free = CCF(order, feedthrough=feedthrough)
     if not refine:
-        model, about = _iterate(spec, structure, model, data, int(iterations), int(max_delay))
+        # a structure with fixed elements starts from the free CCF's iterated model (its
+        # delay found with free poles), then takes the closest model in the structure
+        model, about = _iterate(spec if _separable(spec) else None,
+                                structure if _separable(spec) else free, model, work,
+                                int(iterations), int(max_delay))
         info |= about
         if about and spec == "mcf":
             structure = _structure(spec, order, denominator_of(model.A))
-    if refine:
-        better, about = None, {}
-        if method != "casadi" and _separable(spec):
-            better, about = refine_starts(structure, model, data, int(max_delay),
-                                          split=isinstance(spec, MCF),
-                                          classical=bool(classical))
-            if better is not None and spec == "mcf":
-                # the refined poles decide the modal form's real poles and pairs
-                structure = _structure(spec, order, denominator_of(better.A))
-        if better is None:
-            better, casadi_about = refine_casadi(structure, model, data, int(max_delay))
-            about |= casadi_about
+    else:
+        model, structure, refined, about = _refine(spec, structure, model, work, order,
+                                                   feedthrough, int(max_delay), method,
+                                                   bool(classical))
         info |= about
-        if better is not None and better_of([model, better], data.y) is better:
-            model, refined = better, True
-    return model.estimate(structure, data, time.perf_counter() - start, refined, info)
+    est = model.estimate(structure, work, time.perf_counter() - start, refined, info)
+    return unscaled(est, data, sy, su)
+
+
+def _refine(spec, structure: Structure, model: Model, work: Record, order: int,
+            feedthrough: bool, max_delay: int, method: str, classical: bool):
+    """Step 5 of the module docstring: ``(model, structure, refined, info)``."""
+    refined, free = False, CCF(order, feedthrough=feedthrough)
+    better, about = None, {}
+    if method != "casadi" and _separable(spec):
+        better, about = refine_starts(structure, model, work, max_delay,
+                                      split=isinstance(spec, MCF), classical=classical)
+        if better is not None and spec == "mcf":
+            # the refined poles decide the modal form's real poles and pairs
+            structure = _structure(spec, order, denominator_of(better.A))
+    if better is None:
+        start_model = model
+        if work.delay is None and not _separable(spec):
+            # the delay is searched with the free CCF's refinement first: CasADi tries
+            # only D - 1, D, D + 1 around its start's delay, and a start whose poles
+            # absorb a wrong delay was measured to keep it (delay 8 for a true 3)
+            freed, _ = refine_starts(free, model, work, max_delay, classical=classical)
+            start_model = better_of([model, freed], work.y) or model
+        better, casadi_about = refine_casadi(structure, start_model, work, max_delay)
+        about |= casadi_about
+        if better is None:
+            # CasADi did not run (a record beyond its largest bucket) or failed: the
+            # free optimum's delay and poles are still the better start to project
+            model = start_model
+    if better is not None and better_of([model, better], work.y) is better:
+        model, refined = better, True
+    return model, structure, refined, about
 
 
 def _iterate(spec, structure: Structure, model: Model, data: Record, iterations: int,

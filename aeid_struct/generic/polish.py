@@ -16,6 +16,7 @@ from aeid_struct.generic.classical import steiglitz_mcbride
 from aeid_struct.generic.windows import ccf, select
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.refinement import BUCKETS, refine_record, refine_separable
+from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
 __all__ = ["COST_TOL", "Model", "better_of", "classical_start", "common_cost", "controllability",
@@ -87,11 +88,24 @@ class Model:
         """The Estimate in physical time: ``A / dt, b / dt``, the same ``c, d, x0``."""
         dt = data.dt
         A, b, c, d, x0, elements = in_structure(structure, self, dt)
-        info = {**info, "delay": self.delay, "x0": x0, "y_offset": self.y_offset,
-                "fit": self.fit, "y_hat": self.y_hat, "cost": self.cost}
+        y_offset, fit, y_hat, cost = self.y_offset, self.fit, self.y_hat, self.cost
+        if not _free_ccf(structure):
+            # elements_of gives the closest model the structure admits, not this one (a fixed
+            # element the data contradict moves it): the initial state, offset, output and
+            # fit are the returned model's own
+            with np.errstate(all="ignore"):
+                p = fit_initial(A, b, c, d, data.y, data.u, dt, delay=self.delay, offset=True)
+            x0, y_offset, fit, y_hat, cost = p.x0, p.y_offset, p.fit, p.y_hat, p.cost
+        info = {**info, "delay": self.delay, "x0": x0, "y_offset": y_offset,
+                "fit": fit, "y_hat": y_hat, "cost": cost}
         return Estimate(A=A, b=b, c=c, d=d, elements=elements, y=data.y, u=data.u, dt=dt,
                         provenance=Provenance(structure=structure, initial="fitted"),
                         seconds=seconds, refined=refined, info=info)
+
+
+def _free_ccf(structure: Structure) -> bool:
+    """The structure :func:`in_structure` converts exactly: the free CCF with a feedthrough."""
+    return isinstance(structure, CCF) and not structure.fixed_values and structure.feedthrough
 
 
 def in_structure(structure: Structure, m: Model, dt: float):
@@ -100,7 +114,7 @@ def in_structure(structure: Structure, m: Model, dt: float):
     C_n^-1`` from the controllability matrices)."""
     A, b = m.A / dt, m.b / dt
     n = A.shape[0]
-    if isinstance(structure, CCF) and not structure.fixed_values and structure.feedthrough:
+    if _free_ccf(structure):
         # m.A is a CCF in normalised time (the projection's, or refined in CCF): its
         # coefficients in physical time are a_i / dt^(n-i), no torch needed
         den = np.concatenate([[1.0], -m.A[-1, ::-1]]) / dt ** np.arange(n + 1)
