@@ -182,6 +182,45 @@ def _identify_any() -> list[Case]:
                    r"least 256 \(its window\)"),
         Case(area, "record a 4-tuple", lambda x: ae.identify((y, u, DT, 0), order=2),
              match=r"^record must be a Record, a \(y, u\) or \(y, u, dt\) tuple"),
+        Case(area, "tiny output, c1 = 0 fixed (zero gain element)", lambda x: ae.identify(
+            ae.Record(y * 1e-200, u, DT), structure=ae.CCF(2).fixed(c1=0.0)),
+             raises=None, check=lambda e: scaled_exact(e, 1e-200)),
+        Case(area, "tiny output, c0 fixed (gain kept)", lambda x: ae.identify(
+            ae.Record(y * 1e-200, u, DT), structure=ae.CCF(2).fixed(c0=2e-200)),
+             match=r"^y and u: a structure with fixed gain elements .* keeps the record's gain, "
+                   r"and max\|y\| = .* and max\|u\| = 1 are too far apart for float64"),
+        Case(area, "both tiny, c0 fixed (gain kept, scaled alike)", lambda x: ae.identify(
+            ae.Record(y * 1e-200, u * 1e-200, DT), structure=ae.CCF(2).fixed(c0=2.0)),
+             raises=None, check=lambda e: scaled_exact(e, 1.0)),
+        Case(area, "tiny output in the modal form", lambda x: ae.identify(
+            ae.Record(y * 1e-200, u, DT), order=2, structure="mcf"),
+             raises=None, check=lambda e: scaled_exact(e, 1e-200)),
+        Case(area, "tiny output, order selected", lambda x: ae.identify(
+            ae.Record(y * 1e-200, u, DT), refine=False),
+             raises=None, check=lambda e: e.A.shape == (2, 2) and scaled_exact(e, 1e-200)),
+        Case(area, "max_delay a float", lambda x: _identify(order=2, max_delay=3.5),
+             match=r"^max_delay must be an integer >= 0; got 3.5"),
+        Case(area, "negative delay", lambda x: _identify(order=2, delay=-1),
+             match=r"^delay must be None \(unknown\) or an integer number of samples in "
+                   r"\[0, 598\]; got -1"),
+        Case(area, "iterations negative", lambda x: _identify(order=2, iterations=-1),
+             match=r"^iterations must be an integer >= 0"),
+        Case(area, "method unknown", lambda x: _identify(order=2, method="lbfgs"),
+             match=r"^method must be one of 'auto', 'separable', 'casadi'; got 'lbfgs'"),
+        Case(area, "identifier dict with a name", lambda x: _identify(
+            order=2, identifier={2: "generic-2"}),
+             match=r"^identifier must be a generic identifier .*; got str"),
+        Case(area, "record shifted by offsets only (input offset 1e6)", lambda x: ae.identify(
+            ae.Record(y, u + 1e6, DT), order=2),
+             raises=None, check=lambda e: bool(np.allclose(
+                 np.sort_complex(np.linalg.eigvals(e.A)), np.sort_complex(TRUE_POLES),
+                 rtol=1e-3)) and e.delay == DELAY),
+        Case(area, "output level 1e8 above its variation", lambda x: ae.identify(
+            ae.Record(y + 1e8, u, DT), order=2),
+             raises=None, check=lambda e: bool(np.allclose(
+                 np.sort_complex(np.linalg.eigvals(e.A)), np.sort_complex(TRUE_POLES),
+                 rtol=1e-5)) and e.delay == DELAY and bool(np.isclose(e.offset, 1e8 + OFFSET,
+                                                                       rtol=1e-12))),
         Case(area, "MIMO y through identify", lambda x: ae.identify(
             (np.stack([y, y], 1), u, DT), order=2),
              match=r"^y has 2 outputs .*several outputs are not supported yet"),
@@ -229,6 +268,16 @@ def _compare() -> list[Case]:
         Case(area, "continuous StateSpace", lambda x: ae.compare(control.ss(G), rec(),
                                                                  delay=3),
              raises=None, check=lambda c: c.fit > 99.999),
+        Case(area, "tiny record, its own estimate", lambda x: ae.compare(
+            ae.identify(ae.Record(y * 1e-200, u, DT), order=2), ae.Record(y * 1e-200, u, DT)),
+             raises=None, check=lambda c: c.fit > 99.99 and bool(np.isclose(
+                 c.y_offset, OFFSET * 1e-200, rtol=1e-6))),
+        Case(area, "huge input, the true model scaled", lambda x: ae.compare(
+            control.tf([2e-200], [1.0, 2.0, 5.0]), ae.Record(y, u * 1e200, DT), delay=3),
+             raises=None, check=lambda c: c.fit > 99.999),
+        Case(area, "a gain float64 cannot hold on this record", lambda x: ae.compare(
+            control.tf([1e300], [1.0, 2.0, 5.0]), ae.Record(y * 1e-300, u * 1e10, DT)),
+             match=r"^estimate_or_model: its gain .* leaves float64"),
         Case(area, "a string model", lambda x: ae.compare("G", rec()),
              match=r"^estimate_or_model must be an Estimate, a continuous-time "
                    r"control.StateSpace or TransferFunction, or a tuple \(A, b, c, d\); got str"),

@@ -16,6 +16,7 @@ import control
 import numpy as np
 
 from aeid_struct.generic.boundary import measured
+from aeid_struct.records import exact_scale
 from aeid_struct.simulation import fit_initial
 
 __all__ = ["Comparison", "compare"]
@@ -170,7 +171,17 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
     D = 0 if D is None else int(D)
     if not 0 <= D <= data.steps - 2:
         raise ValueError(f"delay must be in [0, {data.steps - 2}] for this record; got {D}")
-    p = fit_initial(A, b, c, d, data.y, data.u, data.dt, delay=D, offset=True)
+    # amplitudes far from 1 compared in units of powers of two (exact; generic.boundary): the
+    # model's gain in those units is (su / sy) c, (su / sy) d
+    sy, su = exact_scale(data.y), exact_scale(data.u)
+    with np.errstate(over="ignore", under="ignore"):
+        cs, ds = c * (su / sy), d * (su / sy)
+    if not (np.all(np.isfinite(cs)) and np.isfinite(ds)) or np.any((c != 0) & (cs == 0)):
+        raise ValueError(f"estimate_or_model: its gain (c, d up to {np.max(np.abs(c)):.3g}, "
+                         f"{abs(d):.3g}) on a record with max|y| = {sy:.3g} and max|u| = "
+                         f"{su:.3g} (powers of two) leaves float64")
+    with np.errstate(all="ignore"):
+        p = fit_initial(A, b, cs, ds, data.y / sy, data.u / su, data.dt, delay=D, offset=True)
     t = data.t0 + data.dt * np.arange(data.steps)
-    return Comparison(fit=float(p.fit), y_hat=p.y_hat, x0=p.x0, y_offset=p.y_offset,
-                      y=data.y, t=t, delay=D)
+    return Comparison(fit=float(p.fit), y_hat=p.y_hat * sy, x0=p.x0 * su,
+                      y_offset=p.y_offset * sy, y=data.y, t=t, delay=D)

@@ -59,7 +59,7 @@ from importlib import import_module
 
 import numpy as np
 
-from aeid_struct.generic.boundary import amplitude_scales, check_grid, measured, unscaled
+from aeid_struct.generic.boundary import Units, check_grid, measured
 from aeid_struct.generic.classical import steiglitz_mcbride
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.polish import (
@@ -312,10 +312,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     identifiers = _identifiers(order, identifier, structure)
     data.require_informative()
     check_grid(data, identifiers, int(max_delay))
-    # Amplitudes far from 1 are rescaled by powers of two (exact): y / sy, u / su. A structure
-    # whose gain elements are fixed (or physical) keeps its gain: sy = su.
-    sy, su = amplitude_scales(data, structure)
-    work = data.scaled(sy, su)
+    # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two
+    # (both exact; generic.boundary.Units); a structure with fixed gain elements keeps its gain
+    units = Units.of(data, structure)
+    work = units.apply(data)
     feedthrough = _feedthrough(structure)
     order_fits = None
     if order is None:
@@ -345,7 +345,7 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
                                                    bool(classical))
         info |= about
     est = model.estimate(structure, work, time.perf_counter() - start, refined, info)
-    return unscaled(est, data, sy, su)
+    return units.restore(est, data)
 
 
 def _refine(spec, structure: Structure, model: Model, work: Record, order: int,
