@@ -55,9 +55,10 @@ def _record(args: argparse.Namespace):
     rec = read_record(args.model, "RECORD", "y")
     if rec.values.ndim != 1:
         raise InputError(f"RECORD file {args.model!r} holds {rec.values.shape[0]} rows of "
-                         f"{rec.values.shape[1]} values; expected one record: name its columns "
-                         "in a header row (e.g. 't,u,y'), or give y alone (one number per line, "
-                         "or a (steps,) .npy) and its input by --u")
+                         f"{rec.values.shape[1]} values; expected one record (several outputs "
+                         "are not supported yet): name its columns in a header row (e.g. "
+                         "'t,u,y'), or give y alone (one number per line, or a (steps,) .npy) "
+                         "and its input by --u")
     u, source = rec.u, "the u column"
     if args.u is not None:
         if len(args.u) != 1:
