@@ -341,8 +341,30 @@ def _head() -> list[Case]:
         u, y = x.u300
         return ident.identify(np.stack([y, y]), np.stack([u, u]), errors="collect")
 
+    def bad_head_file(x):
+        import aeid_struct as ae
+        from aeid_struct.identification import Identifier
+        ident = ae.load_pretrained("leg-stable-any")
+        ident.head = Head(iterations=3, fixed={"a0": 1e308})
+        path = ident.save(x.tmp / "bad-head.aeid")
+        u, y = x.u300
+        return Identifier.load(path).identify(y, u, refine=True)
+
+    def bad_head_onnx(x):
+        import aeid_struct as ae
+        from aeid_struct.online import OnnxIdentifier, to_onnx
+        ident = ae.load_pretrained("leg-stable-any")
+        ident.head = Head(iterations=3, fixed={"a0": 1e308})
+        u, y = x.u300
+        return OnnxIdentifier(to_onnx(ident, x.tmp / "bad-head.onnx"))(y, u)
+
     from aeid_struct.records import RecordError
     return [
+        Case(area, "a0 = 1e308 from an .aeid file", bad_head_file, raises=RecordError,
+             match=r"^head: the separable head found no finite model for record 0 with the "
+                   r"elements it holds fixed \(\{'a0': 1e\+308\} besides"),
+        Case(area, "a0 = 1e308 through ONNX", bad_head_onnx, raises=RecordError,
+             match=r"^head: the separable head found no finite model for record 0"),
         Case(area, "fixed an int beyond float64", lambda x: Head(fixed={"c1": 10 ** 400}),
              match=r"^head: fixed must be a dict element name -> finite number \(float64\); "
                    r"got 'c1': an integer of 401 digits"),

@@ -10,7 +10,8 @@ import scipy.linalg
 
 import aeid_struct as ae
 from aeid_struct.generic import arx_delay, candidates, compare, identify, rescan, scores
-from aeid_struct.generic.windows import Windows, ccf, rescale, scales
+from aeid_struct.generic.scoring import ccf
+from aeid_struct.generic.windows import Windows, rescale, scales
 from aeid_struct.simulation import project
 
 
@@ -421,7 +422,7 @@ def test_order_none_with_refinement_selects_and_refines():
 
 
 def test_select_shortlist_scores_all_at_the_arx_delay_and_the_best_at_all():
-    from aeid_struct.generic.windows import select
+    from aeid_struct.generic.scoring import select
 
     y, u = make_record(delay=0, noise=0.01)
     den, _ = normalised()
@@ -459,7 +460,7 @@ def test_select_in_blocks_gives_what_one_block_gives(monkeypatch):
     # a long record is scored in blocks of candidates and delays (memory bounded by
     # BLOCK_BYTES, not candidates x delays x samples): blocks of one candidate and one delay
     # give the same costs, choice and projection as one block of all
-    from aeid_struct.generic import windows
+    from aeid_struct.generic import scoring as windows
 
     y, u = make_record(delay=2, noise=0.01)
     den, _ = normalised()
@@ -481,9 +482,9 @@ def test_a_record_beyond_the_old_memory_is_identified_in_bounded_memory(monkeypa
     # hundred bytes per sample (tracemalloc sees numpy's buffers)
     import tracemalloc
 
-    from aeid_struct.generic import windows
+    from aeid_struct.generic import scoring
 
-    monkeypatch.setattr(windows, "BLOCK_BYTES", 16 * 2 ** 20)
+    monkeypatch.setattr(scoring, "BLOCK_BYTES", 16 * 2 ** 20)
     steps = 300_000
     y, u = make_record(steps=steps, delay=2, noise=0.01)
     tracemalloc.start()
@@ -505,3 +506,23 @@ def test_arx_delay_in_blocks_of_rows_gives_what_one_block_gives(monkeypatch):
     monkeypatch.setattr(delay, "_BLOCK", 8 * 60 * 7)     # blocks of a few rows
     assert [delay.arx_delay(y, u, 3, m) for m in (0, 3, 8, 40)] == whole
     assert whole[2] == whole[3] == 4
+
+
+def test_select_ranks_on_a_prefix_of_a_long_record_and_scores_the_best_on_all(monkeypatch):
+    # beyond PREFIX samples every candidate is ranked on the first PREFIX samples, the best
+    # PREFIX_SHORTLIST are scored on the whole record; the choice is the exhaustive one's
+    from aeid_struct.generic import scoring
+
+    y, u = make_record(steps=3000, delay=2, noise=0.01)
+    den, _ = normalised()
+    rng = np.random.default_rng(0)
+    dens = np.vstack([den] + [den * (1 + 0.2 * rng.standard_normal(4)) * [0, 1, 1, 1]
+                              + [1, 0, 0, 0] for _ in range(7)])
+    full = scoring.select(dens, y, u, range(5))
+    monkeypatch.setattr(scoring, "PREFIX", 1000)
+    fast = scoring.select(dens, y, u, range(5), shortlist=2, around=2)
+    assert (fast.index, fast.delay) == (full.index, full.delay) == (0, 2)
+    scored = np.isfinite(fast.costs).any(axis=1)
+    assert scored.sum() == scoring.PREFIX_SHORTLIST
+    np.testing.assert_allclose(fast.costs[scored], full.costs[scored], rtol=1e-10)
+    assert fast.projection.fit == pytest.approx(full.projection.fit, abs=1e-10)

@@ -33,10 +33,10 @@ from aeid_struct.generic.poles import denominator as denominator
 from aeid_struct.generic.poles import factors as factors
 from aeid_struct.generic.poles import poles_of as poles_of
 from aeid_struct.generic.poles import raw_of as raw_of
+from aeid_struct.generic.scoring import scores as scores
+from aeid_struct.generic.scoring import solution as solution
 from aeid_struct.generic.windows import Windows as Windows
 from aeid_struct.generic.windows import candidates as candidates
-from aeid_struct.generic.windows import scores as scores
-from aeid_struct.generic.windows import solution as solution
 
 __all__ = [
     "Comparison",

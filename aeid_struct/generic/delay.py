@@ -14,7 +14,7 @@ least residual on noise-free data. All ``D`` share one Gram matrix of the lagged
 
 *Re-scan* (:func:`rescan`): equation error is biased by noise, so ``D`` is re-scanned over
 ``D_arx - width .. D_arx + width`` by the model of a record (output error with ``c, d, x_0``
-and the offset projected, :func:`~aeid_struct.generic.windows.select`): the rule is the least
+and the offset projected, :func:`~aeid_struct.generic.scoring.select`): the rule is the least
 mean squared residual per FITTED sample (a longer delay fits ``steps - D`` samples, so the
 mean, not the sum, compares them); ties go to the smaller delay. ``identify`` does this jointly
 with the choice of the candidate denominator (every candidate at every delay of the range, one
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aeid_struct.generic.windows import select
+from aeid_struct.generic.scoring import select
 
 __all__ = ["arx_delay", "rescan"]
 
@@ -76,7 +76,7 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
     for rows in blocks:
         res = y[rows][None, :] - coef @ (_lagged(y, u, n, max_delay, rows) / scale).T
         rss += np.sum(res ** 2, axis=1)
-    # the smallest delay within 2 / rows of the least residual (parsimony: generic.windows)
+    # the smallest delay within 2 / rows of the least residual (parsimony: generic.scoring)
     return int(np.flatnonzero(rss <= rss.min() * (1.0 + 2.0 / (N - k0)))[0])
 
 

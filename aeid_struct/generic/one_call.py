@@ -14,7 +14,7 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
    (:func:`~aeid_struct.generic.windows.candidates`);
 4. the best candidate and delay by whole-record projection: every candidate at the ARX delay,
    the :data:`SHORTLIST` best of them also at ``D_arx - 1`` and ``D_arx + 1``
-   (:func:`~aeid_struct.generic.windows.select`; only the known delay where it is known);
+   (:func:`~aeid_struct.generic.scoring.select`; only the known delay where it is known);
 5. unless ``refine=False``, output-error refinement over the whole record, kept if its mean
    squared residual is lower. The free CCF (the default) and MCF: separable least squares
    (``refinement.refine_separable``: only the denominator iterated, ``c, d, x_0`` and the
@@ -70,7 +70,8 @@ from aeid_struct.generic.polish import (
     refine_free,
     refine_starts,
 )
-from aeid_struct.generic.windows import candidates, select
+from aeid_struct.generic.scoring import select
+from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial

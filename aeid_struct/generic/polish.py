@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from aeid_struct.generic.classical import steiglitz_mcbride
-from aeid_struct.generic.windows import ccf, select
+from aeid_struct.generic.scoring import ccf, select
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.refinement import BUCKETS, refine_record, refine_separable
 from aeid_struct.simulation import fit_initial
@@ -286,7 +286,7 @@ def better_of(models, y: np.ndarray) -> Model | None:
     (an unstable one wins only where its cost is below 0.99 times every stable one's: a
     slightly unstable pole fits an estimation record about as well and ruins any longer
     prediction) and, among those within ``2 / N`` of the least cost, the shortest delay (the
-    parsimony of the delay's selection, ``generic.windows.select``); costs on the samples every
+    parsimony of the delay's selection, ``generic.scoring.select``); costs on the samples every
     model fits (:func:`common_cost`).
 
     Parameters

@@ -14,6 +14,7 @@ from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
 from aeid_struct.identification.files import writable_file as writable_file
 from aeid_struct.identification.head import Head as Head
 from aeid_struct.identification.head import apply_head as apply_head
+from aeid_struct.identification.head import head_failure as head_failure
 from aeid_struct.identification.head import pattern_of as pattern_of
 from aeid_struct.identification.identifier import ERROR_MODES as ERROR_MODES
 from aeid_struct.identification.identifier import INITIAL_STATES as INITIAL_STATES
@@ -39,6 +40,7 @@ __all__ = [
     "RecordBatch",
     "SCALE_MODES",
     "apply_head",
+    "head_failure",
     "excess",
     "inverse_of_models",
     "load_pretrained",

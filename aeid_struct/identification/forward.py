@@ -13,8 +13,8 @@ import torch
 
 from aeid_struct.identification.estimate import Estimate
 from aeid_struct.identification.fast_path import fast_path
-from aeid_struct.identification.head import apply_head
-from aeid_struct.records import RecordBatch, RecordError, normalise, overflow_problem
+from aeid_struct.identification.head import apply_head, head_failure
+from aeid_struct.records import RecordBatch, normalise, overflow_problem
 from aeid_struct.structures import System
 
 __all__ = ["CHUNK", "differentiable", "encode", "estimate_of", "identify_record",
@@ -93,10 +93,7 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
         out = list(record.problems)
         used = ident.head if head is None else head
         for r in np.flatnonzero(missed):
-            out[r] = RecordError(f"head: the separable head found no finite model for record "
-                                 f"{r} with the elements it holds fixed ({used.fixed or 'none'}"
-                                 f" besides the structure's); identify with ident.head = None "
-                                 f"for the encoder's pass", r)
+            out[r] = head_failure(int(r), used)
         record = dataclasses.replace(record, problems=tuple(out))
         good = good & ~missed
         if errors == "raise":

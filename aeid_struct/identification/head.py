@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aeid_struct.records import RecordError
 from aeid_struct.refinement import MAX_ITERATIONS, Pattern, gauss_newton
 from aeid_struct.structures import CCF
 
-__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "pattern_of"]
+__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "head_failure", "pattern_of"]
 
 #: The most records in one ``gauss_newton`` call: its arrays stay in cache, and a batch of any
 #: size reuses the memory of one chunk (which an identifier's load touches once).
@@ -204,6 +205,26 @@ def _pattern(ident, head: Head) -> Pattern:
             _PATTERNS.clear()
         hit = _PATTERNS[key] = (ident.structure, pattern_of(ident, head))
     return hit[1]
+
+
+def head_failure(record: int, head: Head) -> RecordError:
+    """The error of a record the head found no finite model for (:func:`apply_head`'s NaN
+    rows), naming the head's fixed elements.
+
+    Parameters
+    ----------
+    record : int
+        The record's index in its batch.
+    head : Head
+
+    Returns
+    -------
+    RecordError
+    """
+    return RecordError(f"head: the separable head found no finite model for record {record} "
+                       f"with the elements it holds fixed ({head.fixed or 'none'} besides the "
+                       f"structure's); identify with ident.head = None for the encoder's pass",
+                       record)
 
 
 def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:

@@ -281,11 +281,15 @@ class OnnxIdentifier:
                 c, d = c * gain[:, None], d * gain
                 el = np.where(scaled, el * gain[:, None], el)
         if self.head is not None:     # after the graph, as Identifier.identify runs it
-            from aeid_struct.identification import apply_head
+            from aeid_struct.identification import apply_head, head_failure
 
+            before = np.isfinite(d.reshape(len(d), -1)).all(axis=1)
             with np.errstate(over="ignore", invalid="ignore"):
                 A, b, c, d, el = apply_head(self, self.head, [checked.y], [checked.u],
                                             (A, b, c, d, el))
+            missed = before & ~np.isfinite(d.reshape(len(d), -1)).all(axis=1)
+            if missed.any():
+                raise head_failure(int(np.argmax(missed)), self.head)
         finite = np.isfinite(c).all(axis=1) & np.isfinite(d.reshape(len(d), -1)).all(axis=1)
         if not finite.all():          # as Identifier.identify refuses it (identify._overflowed)
             r = int(np.argmin(finite))
