@@ -9,7 +9,10 @@ Why an exact rescaling: the model of a record is linear in its amplitudes. With 
 ``x_s``, offset ``o_s`` is the model ``(A, b, (sy / su) c_s, (sy / su) d_s)`` of the record with
 state ``su x_s`` and offset ``sy o_s``; powers of two change only exponents, so the scaled record
 carries the measured digits, and an output of 1e-200 (whose squares underflow) or 1e200 (whose
-squares overflow) is identified as exactly as one of 1.
+squares overflow) is identified as exactly as one of 1. Why a level is removed: with a free
+initial state and offset, an input level ``u_l`` is absorbed exactly (``x = x_w + x_ss``,
+``x_ss = -A^-1 b u_l``), and an input of 1e6 +- 1 would otherwise leave its variation in the last
+six digits of every regressor.
 """
 
 from __future__ import annotations
@@ -96,8 +99,8 @@ def check_grid(data: Record, identifiers: dict, max_delay: int) -> None:
                          f"samples) after the delay: at most {room} for this record of "
                          f"{data.steps} samples; got {max_delay}")
     n = max(identifiers)
-    lo, hi = (min(float(i.config.band[k]) for i in identifiers.values()) if k == 0 else
-              max(float(i.config.band[k]) for i in identifiers.values()) for k in (0, 1))
+    lo = min(float(i.config.band[0]) for i in identifiers.values())
+    hi = max(float(i.config.band[1]) for i in identifiers.values())
     # the CCF's coefficients in the user's time unit are products of up to n poles |p| / dt
     top, bottom = n * np.log10(hi / data.dt), n * np.log10(lo / data.dt)
     if top > 300 or bottom < -300:
