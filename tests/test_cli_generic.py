@@ -218,3 +218,15 @@ def test_generic_identify_errors_are_one_line(tmp_path, capsys, argv, match):
     filled = [re.sub(r"\{([^}]+)\}", lambda hit: files[hit.group(1)], a) for a in argv]
     line = _refused(["identify", *filled], capsys)
     assert re.search(match, line), line
+
+
+def test_transfer_function_against_scipy_and_at_a_tiny_gain():
+    rng = np.random.default_rng(3)
+    A, b, c, d = rng.standard_normal((4, 4)), rng.standard_normal(4), rng.standard_normal(4), 0.7
+    num, den = transfer_function(A, b, c, d)
+    ref_num, ref_den = scipy.signal.ss2tf(A, b[:, None], c[None], [[d]])
+    np.testing.assert_allclose(num, ref_num[0], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(den, ref_den, rtol=1e-12)
+    # 2e-200 / (s^2 + 2 s + 5): linear in c, no cancellation against the denominator
+    num, den = transfer_function([[0.0, 1.0], [-5.0, -2.0]], [0.0, 1.0], [2e-200, 0.0], 0.0)
+    assert num.tolist() == [0.0, 0.0, 2e-200] and den.tolist() == [1.0, 2.0, 5.0]

@@ -26,9 +26,11 @@ MAX_DELAY = 10
 def transfer_function(A, b, c, d) -> tuple[np.ndarray, np.ndarray]:
     """Numerator and denominator of ``G(s) = c^T (sI - A)^-1 b + d`` (descending powers of s).
 
-    ``det(sI - A + b c^T) = det(sI - A) (1 + c^T (sI - A)^-1 b)`` (the matrix determinant
-    lemma), so the numerator is ``det(sI - A + b c^T) + (d - 1) det(sI - A)``: two
-    characteristic polynomials, no inverse.
+    Faddeev-LeVerrier: ``adj(sI - A) = sum_k N_k s^(n-1-k)`` with ``N_0 = I`` and ``N_k = A
+    N_(k-1) + a_k I`` (``a`` the characteristic polynomial's coefficients), so the numerator's
+    coefficients are ``d a_k + c^T N_(k-1) b``: linear in ``c`` and ``d``. (The determinant
+    lemma's ``det(sI - A + b c^T) + (d - 1) det(sI - A)`` cancels to nothing where ``c`` is
+    small beside ``A``, a gain of 1e-200 printed as a zero numerator.)
 
     Parameters
     ----------
@@ -44,7 +46,11 @@ def transfer_function(A, b, c, d) -> tuple[np.ndarray, np.ndarray]:
     A = np.asarray(A, dtype=np.float64)
     b, c = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (b, c))
     den = np.poly(A)
-    num = np.poly(A - np.outer(b, c)) + (float(d) - 1.0) * den
+    n = A.shape[0]
+    num, N = float(d) * den, np.eye(n)
+    for k in range(1, n + 1):
+        num[k] += c @ N @ b
+        N = A @ N + den[k] * np.eye(n)
     return num, den
 
 
