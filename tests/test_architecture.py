@@ -320,3 +320,60 @@ def test_private_name_check_finds_what_it_should(tmp_path, name, source, expecte
     file.write_text(source, encoding="utf-8")
     uses = _private_uses(name, file)
     assert [use.split(": ", 1)[1] for use in uses] == expected
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """Module -> the modules it imports, every import counted (inside functions too, and
+    ``import_module("...")`` with a literal name); packages' ``__init__`` files left out (they
+    re-export, and an edge through one is an edge to what it re-exports)."""
+    modules = {n for n, p in SOURCES.items() if p.name != "__init__.py"}
+    graph = {}
+    for name in modules:
+        targets = {t for t, _ in _imports(name, SOURCES[name])}
+        tree = ast.parse(SOURCES[name].read_text(encoding="utf-8"))
+        targets |= {node.args[0].value for node in ast.walk(tree)
+                    if isinstance(node, ast.Call) and node.args
+                    and getattr(node.func, "id", getattr(node.func, "attr", None)) ==
+                    "import_module" and isinstance(node.args[0], ast.Constant)}
+        graph[name] = {t for t in targets if t in modules and t != name}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while not component or component[-1] != v:
+                component.append(stack.pop())
+                on.discard(component[-1])
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_cycle_between_modules():
+    # not even between two files of one package, nor through an import inside a function: two
+    # files that import each other are one concept split badly (STYLE.md, rule 14)
+    cycles = _cycles(_module_graph())
+    assert not cycles, "import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_cycle_check_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []

@@ -35,7 +35,7 @@ import scipy.optimize
 
 from aeid_struct.baselines.checks import estimate, nan_model
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
-from aeid_struct.baselines.subspace import nfoursid_model
+from aeid_struct.baselines.subspace_step import nfoursid_model
 from aeid_struct.simulation import fit_initial, project
 
 __all__ = ["OFFSETS", "POOR_FIT", "least_squares_record", "n4sid_record"]

@@ -52,10 +52,12 @@ from aeid_struct.baselines.checks import (
     physical_source,
 )
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
+from aeid_struct.baselines.free_initial import n4sid_record
+from aeid_struct.baselines.subspace_step import nfoursid_model
 from aeid_struct.identification import Estimate
 from aeid_struct.simulation import check_dt
 
-__all__ = ["n4sid", "nfoursid_model"]
+__all__ = ["n4sid"]
 
 
 def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inverse=None,
@@ -112,8 +114,6 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
     if as_measured(y) is not None:
-        from aeid_struct.baselines.free_initial import n4sid_record  # it imports this module
-
         only_record("n4sid", u=u, dt=dt, structure=structure, inverse=inverse,
                      pre_zeros=pre_zeros)
         return n4sid_record(as_measured(y), order=check_int("order", order, 1),
@@ -211,25 +211,3 @@ def _sizes(steps: int, m: int, order: int, block_rows, pre_zeros) -> tuple[int, 
                          f"block_rows={block_rows}, pre_zeros={pre_zeros} and {m} input "
                          f"channel(s); got {steps}")
     return block_rows, pre_zeros
-
-
-def nfoursid_model(y, channels, order, block_rows, pre_zeros):
-    """nfoursid on zero-padded channels: ``Phi (n, n), B (n, m), C (1, n), D (1, m)``, and the
-    leading singular values of its ``R32`` decomposition (order selection)."""
-    import pandas as pd
-    from nfoursid.nfoursid import NFourSID
-
-    pad = np.zeros(pre_zeros)
-    names = [f"u{j}" for j in range(len(channels))]
-    frame = pd.DataFrame({**{nm: np.concatenate([pad, ch]) for nm, ch in zip(names, channels,
-                                                                            strict=True)},
-                          "y": np.concatenate([pad, y])})
-    model = NFourSID(frame, output_columns=["y"], input_columns=names, num_block_rows=block_rows)
-    model.subspace_identification()
-    ss, _ = model.system_identification(rank=order)
-    sv = np.diag(model.R32_decomposition.eigenvalues)[: 2 * order + 2].copy()
-    Phi, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.a, ss.b, ss.c, ss.d))
-    for name, m in (("A", Phi), ("B", B), ("C", C), ("D", D)):
-        if not np.all(np.isfinite(m)):
-            raise ValueError(f"identified {name} is not finite")
-    return Phi, B, C, D, sv

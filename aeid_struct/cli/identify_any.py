@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from aeid_struct.cli.errors import InputError
-from aeid_struct.cli.identify import plain, write_json
+from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import read_record
 
 #: ``--max-delay`` when it is not given (``aeid_struct.identify``'s default).

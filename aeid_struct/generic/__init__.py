@@ -17,14 +17,14 @@ from aeid_struct.generic.comparison import compare as compare
 from aeid_struct.generic.delay import arx_delay as arx_delay
 from aeid_struct.generic.delay import rescan as rescan
 from aeid_struct.generic.files import FORMAT as FORMAT
-from aeid_struct.generic.files import read_generic as read_generic
-from aeid_struct.generic.files import save_generic as save_generic
 from aeid_struct.generic.model import GENERIC as GENERIC
 from aeid_struct.generic.model import ORDERS as ORDERS
 from aeid_struct.generic.model import GenericConfig as GenericConfig
 from aeid_struct.generic.model import GenericIdentifier as GenericIdentifier
 from aeid_struct.generic.model import load_generic as load_generic
 from aeid_struct.generic.model import normalise_windows as normalise_windows
+from aeid_struct.generic.model import read_generic as read_generic
+from aeid_struct.generic.model import save_generic as save_generic
 from aeid_struct.generic.model import spectra as spectra
 from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.generic.one_call import identify as identify

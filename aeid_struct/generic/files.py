@@ -15,22 +15,23 @@ from pathlib import Path
 import torch
 
 from aeid_struct.encoder import Encoder
-from aeid_struct.generic.model import GenericConfig, GenericIdentifier
+from aeid_struct.generic.config import GenericConfig
 from aeid_struct.identification import writable_file
 
-__all__ = ["FORMAT", "read_generic", "save_generic"]
+__all__ = ["FORMAT", "read", "write"]
 
 #: The format written and read.
 FORMAT = "aeid-struct/generic/1"
 _HEADER = ("format", "config", "meta")
 
 
-def save_generic(ident: GenericIdentifier, path) -> Path:
-    """Write ``ident`` to ``path`` (safetensors: weights + JSON header).
+def write(ident, path) -> Path:
+    """Write a generic identifier ``ident`` to ``path`` (safetensors: weights + JSON header).
 
     Parameters
     ----------
     ident : GenericIdentifier
+        Checked by the caller (``generic.model.save_generic``).
     path : str or PathLike
 
     Returns
@@ -44,8 +45,6 @@ def save_generic(ident: GenericIdentifier, path) -> Path:
     """
     from safetensors.torch import save_file
 
-    if not isinstance(ident, GenericIdentifier):
-        raise ValueError(f"ident must be a GenericIdentifier; got {type(ident).__name__}")
     path = writable_file(path)
     head = {"format": FORMAT, "config": ident.config.to_dict(), "meta": ident.meta}
     try:
@@ -109,17 +108,19 @@ def _encoder(config: GenericConfig, tensors: dict, source: str) -> Encoder:
     return encoder
 
 
-def read_generic(path) -> GenericIdentifier:
-    """Read a generic identifier file written by :func:`save_generic`.
+def read(cls, path):
+    """Read a generic identifier file written by :func:`write` as a ``cls`` (the generic
+    identifier class, ``generic.model.GenericIdentifier``: ``cls(config, encoder, meta=...)``).
 
     Parameters
     ----------
+    cls : type
     path : str or PathLike
         An existing file.
 
     Returns
     -------
-    GenericIdentifier
+    cls
 
     Raises
     ------
@@ -144,4 +145,4 @@ def read_generic(path) -> GenericIdentifier:
         raise ValueError(f"{source} cannot be read as safetensors with a JSON header: "
                          f"{err}") from None
     config = _config(head, source)
-    return GenericIdentifier(config, _encoder(config, tensors, source), meta=head["meta"])
+    return cls(config, _encoder(config, tensors, source), meta=head["meta"])

@@ -143,7 +143,7 @@ def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
     return y, 0.5 + torch.rand(1, ident.steps, generator=g)
 
 
-def warm(ident) -> None:
+def warm(ident, chunk: int) -> None:
     """Identify a made-up record twice, so that the first call on a user's record costs what
     the next ones do.
 
@@ -151,7 +151,7 @@ def warm(ident) -> None:
     freezing and the agreement check with the eager pass, whose first torch operations
     initialise their kernels), TorchScript optimises a frozen graph only after its first
     profiling run, a separable head's first FFTs and solves initialise scipy's and LAPACK's,
-    and the first batched call takes its memory (a chunk's activations, ``forward.CHUNK``)
+    and the first batched call takes its memory (a chunk's activations, ``chunk`` records)
     from the system page by page. An identifier file's ``load`` runs this once (a record
     twice, then one chunk of a batch), so that none of it falls on the first identification.
     Best effort: a failure is left to that first call to report.
@@ -159,17 +159,17 @@ def warm(ident) -> None:
     Parameters
     ----------
     ident : Identifier
+    chunk : int
+        Records in one chunk of a batched call (``forward.CHUNK``).
     """
     if ident.records > 1:
         return
-    from aeid_struct.identification.forward import CHUNK
-
     y, u = (t.numpy()[0].astype(np.float64) for t in _example(ident))
     try:
         for _ in range(2):
             ident.identify(y, u if ident.inputs else None, errors="collect")
         # one chunk of a batch: the memory every batched call reuses, touched here
-        ys = y * np.linspace(1.0, 2.0, CHUNK)[:, None]
+        ys = y * np.linspace(1.0, 2.0, chunk)[:, None]
         ident.identify(ys, u if ident.inputs else None, errors="collect")
     except Exception:  # noqa: S110 - warming only; the first real call raises it again
         pass

@@ -19,6 +19,7 @@ import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.identification.fast_path import warm
+from aeid_struct.identification.forward import CHUNK
 from aeid_struct.identification.head import Head
 from aeid_struct.structures import Structure, check_maps, from_entry, to_entry
 
@@ -278,7 +279,7 @@ def load(cls, path, *, maps: dict | None = None, trust: bool = False):
     if head["format"] == FORMAT_1:
         source += f" (format {FORMAT_1!r}, which stored CasADi maps as code)"
     ident = from_parts(cls, head, tensors, source=source, maps=maps, trust=trust)
-    warm(ident)            # the first identification as fast as the next (fast_path.warm)
+    warm(ident, CHUNK)     # the first identification as fast as the next (fast_path.warm)
     return ident
 
 

@@ -7,12 +7,12 @@ Layer: below ``identification`` (an estimate is taken duck-typed and returned th
 
 from aeid_struct.refinement.batched import Pattern as Pattern
 from aeid_struct.refinement.batched import SeparableFit as SeparableFit
-from aeid_struct.refinement.batched import gauss_newton as gauss_newton
 from aeid_struct.refinement.compiled import MAX_ITERATIONS as MAX_ITERATIONS
 from aeid_struct.refinement.config import SOLVERS as SOLVERS
 from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
 from aeid_struct.refinement.config import RefineResult as RefineResult
+from aeid_struct.refinement.levenberg import gauss_newton as gauss_newton
 from aeid_struct.refinement.nlp import Numeric as Numeric
 from aeid_struct.refinement.nlp import cache_info as cache_info
 from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate

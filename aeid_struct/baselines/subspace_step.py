@@ -1,0 +1,31 @@
+"""The subspace step both forms of :func:`~aeid_struct.baselines.n4sid` share: nfoursid's
+PO-MOESP/N4SID on given input channels, the discrete-time model and its singular values (the
+record from rest in ``subspace``, the record not at rest in ``free_initial``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["nfoursid_model"]
+
+
+def nfoursid_model(y, channels, order, block_rows, pre_zeros):
+    """nfoursid on zero-padded channels: ``Phi (n, n), B (n, m), C (1, n), D (1, m)``, and the
+    leading singular values of its ``R32`` decomposition (order selection)."""
+    import pandas as pd
+    from nfoursid.nfoursid import NFourSID
+
+    pad = np.zeros(pre_zeros)
+    names = [f"u{j}" for j in range(len(channels))]
+    frame = pd.DataFrame({**{nm: np.concatenate([pad, ch]) for nm, ch in zip(names, channels,
+                                                                            strict=True)},
+                          "y": np.concatenate([pad, y])})
+    model = NFourSID(frame, output_columns=["y"], input_columns=names, num_block_rows=block_rows)
+    model.subspace_identification()
+    ss, _ = model.system_identification(rank=order)
+    sv = np.diag(model.R32_decomposition.eigenvalues)[: 2 * order + 2].copy()
+    Phi, B, C, D = (np.asarray(m, dtype=np.float64) for m in (ss.a, ss.b, ss.c, ss.d))
+    for name, m in (("A", Phi), ("B", B), ("C", C), ("D", D)):
+        if not np.all(np.isfinite(m)):
+            raise ValueError(f"identified {name} is not finite")
+    return Phi, B, C, D, sv
