@@ -36,7 +36,7 @@ def test_windows_come_every_hop_in_stream_order_whatever_the_chunking():
     stream = np.arange(60.0)
     updates = []
     for chunk in np.array_split(stream, [3, 4, 25, 26, 41]):     # uneven chunks, one empty
-        updates += tracker.push(chunk, chunk)
+        updates += tracker.feed(chunk, chunk)
     # first window when 20 samples are in, then one per 7 samples: ends at 19, 26, .., 54
     ends = [19, 26, 33, 40, 47, 54]
     assert [round(up.t / 0.01) for up in updates] == ends
@@ -52,7 +52,7 @@ def test_smoothing_reference_and_alarm_follow_their_definitions():
     tracker = Tracker(stub, cfg)
     # k = 25 for 4 windows, then it drops to 20 (a 20 % fall)
     k = np.concatenate([np.full(80, 25.0), np.full(120, 20.0)])
-    updates = tracker.push(np.ones_like(k), k)
+    updates = tracker.feed(k, np.ones_like(k))
     raw = [up.estimate["k"] for up in updates]
     assert raw == [25.0] * 4 + [20.0] * 6
     s, smoothed = None, []
@@ -69,7 +69,7 @@ def test_smoothing_reference_and_alarm_follow_their_definitions():
     alarms = [up.alarm for up in updates]
     assert alarms == [False] * (first + 1) + [True] * (len(updates) - first - 1)
     tracker.reset()
-    assert not tracker.push(np.ones(20), np.full(20, 25.0))[0].alarm
+    assert not tracker.feed(np.full(20, 25.0), np.ones(20))[0].alarm
 
 
 def test_tracker_refuses_identifiers_from_rest_and_bad_samples():
@@ -79,14 +79,14 @@ def test_tracker_refuses_identifiers_from_rest_and_bad_samples():
         Tracker(ident)
     tracker = Tracker(_Stub())
     with pytest.raises(ValueError, match=r"u and y must be 1-D sample arrays of one length"):
-        tracker.push(np.ones(3), np.ones(4))
+        tracker.feed(np.ones(4), np.ones(3))
     with pytest.raises(ValueError, match=r"u and y must be finite; got nan in y at sample 1 of "
                                          r"the chunk \(no sample of it was consumed\)"):
-        tracker.push(np.ones(3), np.array([1.0, np.nan, 1.0]))
+        tracker.feed(np.array([1.0, np.nan, 1.0]), np.ones(3))
     with pytest.raises(ValueError, match=r"u must be real; got a complex array"):
-        tracker.push(np.ones(3) * 1j, np.ones(3))
+        tracker.feed(np.ones(3), np.ones(3) * 1j)
     with pytest.raises(ValueError, match=r"y must be real; got a complex array"):
-        tracker.push(np.ones(3), np.ones(3) + 1e-3j)
+        tracker.feed(np.ones(3) + 1e-3j, np.ones(3))
     assert tracker._s.samples == 0                 # a refused chunk consumes nothing
     with pytest.raises(ValueError, match=r"smoothing must be in \(0, 1\]; got 0"):
         TrackerConfig(smoothing=0)
@@ -164,7 +164,7 @@ def test_only_watched_parameters_raise_the_alarm():
                         watch=("m",))
     tracker = Tracker(_Stub(), cfg)
     k = np.concatenate([np.full(20, 25.0), np.full(60, 10.0)])    # k collapses, m stays
-    assert not any(up.alarm for up in tracker.push(np.ones_like(k), k))
+    assert not any(up.alarm for up in tracker.feed(k, np.ones_like(k)))
     with pytest.raises(ValueError, match=r"watch must name tracked parameters"):
         TrackerConfig(parameters=("k",), watch=("d",))
 
@@ -194,7 +194,7 @@ def test_onnx_and_identifier_engines_give_the_same_updates():
     a = Tracker(ident, cfg, engine="onnx")
     b = Tracker(ident, cfg, engine="identifier")
     assert (a.engine, b.engine) == ("onnx", "identifier")
-    ua, ub = a.push(rec.u[0], rec.y[0]), b.push(rec.u[0], rec.y[0])
+    ua, ub = a.feed(rec.y[0], rec.u[0]), b.feed(rec.y[0], rec.u[0])
     assert len(ua) == len(ub) == 4
     for x, y in zip(ua, ub, strict=True):
         for k in ("k", "d", "m"):
@@ -222,7 +222,7 @@ def test_shipped_window_identifier_follows_a_step_change_in_k():
     y = wearing_leg(k, np.full(N, 3.0), np.full(N, 1.0), u, dt)
     y = y + 0.01 * np.abs(y).max() * rng.normal(size=N)
     tracker = Tracker(ident, TrackerConfig(hop=50, watch=("k",)))
-    updates = tracker.push(u, y)
+    updates = tracker.feed(y, u)
     ts = np.array([up.t for up in updates])
     smooth = np.array([up.smoothed["k"] for up in updates])
     alarm = np.array([up.alarm for up in updates])
@@ -239,16 +239,16 @@ def test_running_median_before_the_moving_average_and_bounded_memory():
     cfg = TrackerConfig(hop=20, smoothing=0.5, median=3, baseline=2, parameters=("k",))
     tracker = Tracker(stub, cfg)
     k = np.repeat([25.0, 25.0, 40.0, 25.0, 20.0, 20.0, 20.0], 20)   # one outlier window
-    raw = [up.estimate["k"] for up in tracker.push(np.ones_like(k), k)]
+    raw = [up.estimate["k"] for up in tracker.feed(k, np.ones_like(k))]
     assert raw == [25.0, 25.0, 40.0, 25.0, 20.0, 20.0, 20.0]
     smoothed, s = [], None
     for j in range(len(raw)):
         q = float(np.median(raw[max(0, j - 2): j + 1]))
         s = q if s is None else s + 0.5 * (q - s)
         smoothed.append(s)
-    assert [up.smoothed["k"] for up in tracker.push(np.ones(0), np.ones(0))] == []
+    assert [up.smoothed["k"] for up in tracker.feed(np.ones(0), np.ones(0))] == []
     tracker.reset()
-    got = [up.smoothed["k"] for up in tracker.push(np.ones_like(k), k)]
+    got = [up.smoothed["k"] for up in tracker.feed(k, np.ones_like(k))]
     assert got == pytest.approx(smoothed)
     assert max(got) == 25.0                       # the outlier never reaches the average
     assert len(tracker._s.history) == 3           # only the median's windows are kept
@@ -275,7 +275,7 @@ def test_both_engines_skip_and_report_the_same_bad_windows_and_consume_every_sam
     u, y = _leg_stream(2, 400)
     answers = []
     for tracker in engines:
-        bad = tracker.push(rest_u, rest_y)
+        bad = tracker.feed(rest_y, rest_u)
         assert tracker._s.samples == 400
         # windows end at samples 299, 349, 399: all three refused, same message
         assert [round(up.t / 0.01) for up in bad] == [299, 349, 399]
@@ -285,7 +285,7 @@ def test_both_engines_skip_and_report_the_same_bad_windows_and_consume_every_sam
             assert up.estimate == {} and up.smoothed == {} and not up.alarm
         # the force starts: windows from 449 on hold some of it and are identified; from the
         # first window that is all motion on (699), the leg's k
-        good = tracker.push(u, y)
+        good = tracker.feed(y, u)
         assert [round(up.t / 0.01) for up in good] == list(range(449, 800, 50))
         assert all(up.error is None for up in good)
         assert good[-1].estimate["k"] == pytest.approx(25.0, rel=0.05)
@@ -310,7 +310,7 @@ def test_a_refused_window_leaves_the_tracking_state_as_it_was():
     cfg = TrackerConfig(hop=20, smoothing=0.5, median=1, baseline=1, parameters=("k",))
     tracker = Tracker(_NanStub(), cfg)
     k = np.concatenate([np.full(40, 25.0), np.full(20, -1.0), np.full(20, 20.0)])
-    ups = tracker.push(np.ones_like(k), k)
+    ups = tracker.feed(k, np.ones_like(k))
     assert [up.error for up in ups] == [None, None, "the window's estimate is not finite: "
                                                     "k = nan", None]
     assert math.isnan(ups[2].estimate["k"])
@@ -336,14 +336,14 @@ def test_an_engine_failure_says_how_many_samples_were_consumed():
     with pytest.raises(PushError, match=r"engine lost \(the window ending at sample 39 of this "
                                         r"chunk failed: 40 of its 100 samples were consumed, "
                                         r"2 update\(s\) before it") as caught:
-        tracker.push(stream, stream)
+        tracker.feed(stream, stream)
     err = caught.value
     assert isinstance(err, ValueError) and isinstance(err.__cause__, RuntimeError)
     assert err.consumed == 40 and [round(up.t / 0.01) for up in err.updates] == [19, 29]
     # the caller pushes the rest; only the failed window (39) is missing against a tracker
     # that never failed
-    rest = tracker.push(stream[err.consumed:], stream[err.consumed:])
-    whole = Tracker(_Stub(), cfg).push(stream, stream)
+    rest = tracker.feed(stream[err.consumed:], stream[err.consumed:])
+    whole = Tracker(_Stub(), cfg).feed(stream, stream)
     assert [round(up.t / 0.01) for up in err.updates + rest] == \
         [round(up.t / 0.01) for up in whole if round(up.t / 0.01) != 39]
     assert [up.estimate["k"] for up in rest] == [up.estimate["k"] for up in whole[3:]]
@@ -389,7 +389,7 @@ def test_both_engines_run_the_head_and_agree():
                   excitation_kind="prbs", seed=8, warmup=200, noise=0.01)
     cfg = TrackerConfig(hop=100, baseline=1, iterations=None)     # the head as it is
     a, b = Tracker(ident, cfg, engine="onnx"), Tracker(ident, cfg, engine="identifier")
-    ua, ub = a.push(rec.u[0], rec.y[0]), b.push(rec.u[0], rec.y[0])
+    ua, ub = a.feed(rec.y[0], rec.u[0]), b.feed(rec.y[0], rec.u[0])
     # the window ending at sample 299 is the one identify sees alone
     est = ident.identify(rec.y[0][:300], rec.u[0][:300]).physical
     ident.head = None
@@ -430,7 +430,7 @@ def test_the_tracker_caps_the_head_on_a_copy_and_gives_identify_with_that_head()
                   excitation_kind="prbs", seed=9, warmup=200, noise=0.02)
     for engine in ("identifier", "onnx"):
         t = Tracker(ident, TrackerConfig(hop=100, baseline=1, iterations=1), engine=engine)
-        (up,) = t.push(rec.u[0], rec.y[0])
+        (up,) = t.feed(rec.y[0], rec.u[0])
         assert ident.head is stored                            # the caller's identifier
         engine_head = (t.identifier if t.runner is None else t.runner).head
         assert engine_head == Head(iterations=1, fixed=stored.fixed)
@@ -444,3 +444,17 @@ def test_the_tracker_caps_the_head_on_a_copy_and_gives_identify_with_that_head()
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="iterations must be None or an integer >= 0"):
             TrackerConfig(iterations=bad)
+
+
+def test_push_is_feed_with_the_old_argument_order_and_warns():
+    k = np.linspace(20.0, 25.0, 100)
+    a, b = _Stub(), _Stub()
+    with pytest.warns(DeprecationWarning, match=r"Tracker.push\(u, y\) is deprecated: call "
+                                                r"Tracker.feed\(y, u\)"):
+        old = Tracker(a, TrackerConfig(hop=20)).push(np.ones_like(k), k)
+    new = Tracker(b, TrackerConfig(hop=20)).feed(k, np.ones_like(k))
+    assert [u.estimate for u in old] == [u.estimate for u in new] and len(new) == 5
+    for (ua, ya), (ub, yb) in zip(a.windows, b.windows, strict=True):   # (u, y) as identified
+        np.testing.assert_array_equal(ub, ua)
+        np.testing.assert_array_equal(ya, yb)
+        np.testing.assert_array_equal(ua, np.ones(20))

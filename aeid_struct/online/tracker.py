@@ -14,6 +14,7 @@ import dataclasses
 import math
 import statistics
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -285,12 +286,27 @@ class Tracker:
         self._s = _State(np.zeros(self.steps), np.zeros(self.steps))
 
     def push(self, u, y) -> list[Update]:
-        """Feed samples of the stream, in order.
+        """Deprecated: :meth:`feed` ``(y, u)``, the order every other call of the library uses.
 
         Parameters
         ----------
         u, y : (k,) array_like
-            Any number of input and output samples.
+
+        Returns
+        -------
+        list of Update
+        """
+        warnings.warn("Tracker.push(u, y) is deprecated: call Tracker.feed(y, u) (outputs first, "
+                      "as everywhere else in aeid_struct)", DeprecationWarning, stacklevel=2)
+        return self.feed(y, u)
+
+    def feed(self, y, u) -> list[Update]:
+        """Feed samples of the stream, in order.
+
+        Parameters
+        ----------
+        y, u : (k,) array_like
+            Any number of output and input samples.
 
         Returns
         -------

@@ -156,7 +156,7 @@ def _track(tracker: Tracker, u: np.ndarray, y: np.ndarray, hop: int):
     try:
         for i in range(0, len(u), hop):
             t0 = time.perf_counter()
-            got = tracker.push(u[i: i + hop], y[i: i + hop])
+            got = tracker.feed(y[i: i + hop], u[i: i + hop])
             if got:
                 times.append((time.perf_counter() - t0) / len(got))
             updates += got
