@@ -199,7 +199,14 @@ def _identify_any() -> list[Case]:
             ae.Record(y * 1e-200, u, DT), refine=False),
              raises=None, check=lambda e: e.A.shape == (2, 2) and scaled_exact(e, 1e-200)),
         Case(area, "max_delay a float", lambda x: _identify(order=2, max_delay=3.5),
-             match=r"^max_delay must be an integer >= 0; got 3.5"),
+             match=r"^max_delay must be None or an integer >= 0; got 3.5"),
+        Case(area, "300 samples, default max_delay", lambda x: ae.identify(
+            ae.Record(y[:300], u[:300], DT), order=2),
+             raises=None, check=lambda e: exact(e) and e.info["max_delay"] == 10),
+        Case(area, "exactly the window, default max_delay", lambda x: ae.identify(
+            ae.Record(y[:256], u[:256], DT), order=2),
+             raises=None, check=lambda e: e.info["max_delay"] == 0 and honest(
+                 e, ae.Record(y[:256], u[:256], DT))),
         Case(area, "negative delay", lambda x: _identify(order=2, delay=-1),
              match=r"^delay must be None \(unknown\) or an integer number of samples in "
                    r"\[0, 598\]; got -1"),

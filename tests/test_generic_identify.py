@@ -272,7 +272,7 @@ def test_identify_mcf_structure_is_the_same_model():
     ({"order": 0}, r"order must be None \(selected\) or an integer >= 1; got 0"),
     ({"order": 3, "structure": "ssf"}, r"structure must be 'ccf', 'mcf' or a Structure"),
     ({"order": 2, "structure": ae.CCF(3)}, r"order must match the structure's order 3"),
-    ({"order": 3, "max_delay": -1}, r"max_delay must be an integer >= 0; got -1"),
+    ({"order": 3, "max_delay": -1}, r"max_delay must be None or an integer >= 0; got -1"),
     ({"order": 3, "delay": 1.5}, r"delay must be None \(unknown\) or an integer"),
     ({"order": 2}, r"identifier must be a generic identifier of order 2"),
 ])

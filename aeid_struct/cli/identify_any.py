@@ -19,9 +19,6 @@ from aeid_struct.cli.errors import InputError
 from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import read_record
 
-#: ``--max-delay`` when it is not given (``aeid_struct.identify``'s default).
-MAX_DELAY = 10
-
 
 def transfer_function(A, b, c, d) -> tuple[np.ndarray, np.ndarray]:
     """Numerator and denominator of ``G(s) = c^T (sI - A)^-1 b + d`` (descending powers of s).
@@ -137,10 +134,9 @@ def run_identify_any(args: argparse.Namespace) -> int:
     import aeid_struct as ae
 
     order = None if args.order == "auto" else int(args.order)
-    max_delay = MAX_DELAY if args.max_delay is None else int(args.max_delay)
     try:
         est = ae.identify(record, order=order, structure=args.structure, refine=not args.no_refine,
-                          delay=args.delay, max_delay=max_delay)
+                          delay=args.delay, max_delay=args.max_delay)
     except ValueError as err:   # the record's content, its length, a missing generic file
         raise InputError(f"identify {args.model} --order {args.order}: {err}") from None
     figure = None
@@ -153,7 +149,7 @@ def run_identify_any(args: argparse.Namespace) -> int:
             raise InputError(f"--figure {args.figure!r}: cannot write "
                              f"({err.strerror or err})") from None
         figure = {"path": args.figure, "fit_percent": cmp.fit}
-    summary = _summary(est, record, args, source, max_delay, figure)
+    summary = _summary(est, record, args, source, est.info["max_delay"], figure)
     _print(summary, est)
     if args.json:
         write_json(args.json, plain(summary))

@@ -79,9 +79,11 @@ def measured(record, delay=None) -> Record:
     return rec if given is None or given == known else rec.with_delay(given)
 
 
-def check_grid(data: Record, identifiers: dict, max_delay: int) -> None:
-    """Refuse a known delay or ``max_delay`` that leaves less than an identifier's window, and
-    a sample time whose de-normalised model cannot be represented in float64."""
+def check_grid(data: Record, identifiers: dict, max_delay: int | None, default: int) -> int:
+    """Refuse a record shorter than an identifier's window, a known delay or a given
+    ``max_delay`` that leaves less than the window, and a sample time whose de-normalised model
+    cannot be represented in float64; return the largest delay to consider (``max_delay``, or
+    ``default`` capped by what the record leaves when it is None)."""
     window = max(int(i.config.window) for i in identifiers.values())
     if data.steps < window:
         raise ValueError(f"the record has {data.steps} samples; the generic identifier"
@@ -94,6 +96,8 @@ def check_grid(data: Record, identifiers: dict, max_delay: int) -> None:
         raise ValueError(f"delay must leave at least the identifier's window ({window} samples) "
                          f"after it: at most {room} for this record of {data.steps} samples; "
                          f"got {data.delay}")
+    if max_delay is None:
+        max_delay = min(default, room)
     if data.delay is None and max_delay > room:
         raise ValueError(f"max_delay must leave at least the identifier's window ({window} "
                          f"samples) after the delay: at most {room} for this record of "
@@ -110,6 +114,7 @@ def check_grid(data: Record, identifiers: dict, max_delay: int) -> None:
                          f"dt) make CCF coefficients near 1e{exponent:.0f}; give the record in "
                          f"another time unit (dt between about 1e-{300 // n - 1} and "
                          f"1e{300 // n - 3})")
+    return int(max_delay)
 
 
 #: A level is removed where it exceeds this many times the signal's peak-to-peak variation.

@@ -77,7 +77,7 @@ from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["ESTIMATION_SHARE", "ITERATIONS", "METHODS", "ORDER_TOLERANCE", "identify",
+__all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE", "identify",
            "measured"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``).
@@ -88,6 +88,8 @@ ESTIMATION_SHARE = 0.7
 SHORTLIST = 2
 #: Orders tried by ``order=None`` (those of the shipped generic identifiers).
 ORDERS = (1, 2, 3, 4)
+#: The largest delay considered by default (capped by what the record leaves after the window).
+MAX_DELAY = 10
 #: Refinement methods of :func:`identify`.
 METHODS = ("auto", "separable", "casadi")
 #: Levenberg-Marquardt iterations of the one pass (``refine=False``); chosen by
@@ -236,7 +238,7 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
     return fits
 
 
-def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=10,
+def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=None,
              identifier=None, method="auto", iterations=ITERATIONS,
              classical=True) -> Estimate:
     """Identify a continuous-time model of a measured record in one call (see the module
@@ -259,8 +261,9 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         delay); False: the one pass (module docstring).
     delay : int, optional
         A known input delay in samples (over the record's); None: the record's, else estimated.
-    max_delay : int, >= 0
-        Largest delay considered when it is estimated.
+    max_delay : int, >= 0, optional
+        Largest delay considered when it is estimated; it must leave the identifier's window
+        after it. None: :data:`MAX_DELAY`, capped by what the record leaves.
     identifier : generic identifier or dict order -> identifier, optional
         Default: the shipped ``generic-n`` (``load_generic``).
     method : {"auto", "separable", "casadi"}
@@ -303,16 +306,16 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{name} must be True or False; got {value!r}")
     data = measured(record, delay)
-    if isinstance(max_delay, bool) or not isinstance(max_delay, (int, np.integer)) or (
-            max_delay < 0):
-        raise ValueError(f"max_delay must be an integer >= 0; got {max_delay!r}")
+    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
+            max_delay, (int, np.integer)) or max_delay < 0):
+        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
     order = _check_order(order, structure)
     if method == "separable" and not _separable(structure):
         raise ValueError(f"method='separable' refines the free CCF and MCF only; got "
                          f"structure {structure!r} (use 'auto' or 'casadi')")
     identifiers = _identifiers(order, identifier, structure)
     data.require_informative()
-    check_grid(data, identifiers, int(max_delay))
+    max_delay = check_grid(data, identifiers, max_delay, MAX_DELAY)
     # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two
     # (both exact; generic.boundary.Units); a structure with fixed gain elements keeps its gain
     units = Units.of(data, structure)
@@ -329,7 +332,8 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, _structure(structure, order, fit.den)
     refined = False
-    info = {"candidates": fit.candidates, "order_fits": order_fits, "start": fit.start}
+    info = {"candidates": fit.candidates, "order_fits": order_fits, "start": fit.start,
+            "max_delay": max_delay}
     free = CCF(order, feedthrough=feedthrough)
     if not refine:
         # a structure with fixed elements starts from the free CCF's iterated model (its
