@@ -68,6 +68,17 @@ def scaled_exact(est, gain: float) -> bool:
             and bool(np.isclose(dc, 0.4 * gain, rtol=1e-4)))
 
 
+def dc_exact(est, gain: float, rtol: float) -> bool:
+    """A baseline's estimate: poles -1 +- 2j and DC gain ``0.4 gain`` to ``rtol``, fit above
+    99.99 % (the record given without its delay)."""
+    A, b, c, d = (np.asarray(v, dtype=np.float64) for v in (est.A, est.b, est.c, est.d))
+    poles = np.sort_complex(np.linalg.eigvals(A))
+    dc = float(d - c @ np.linalg.solve(A, b))
+    return (not est.info["failed"] and est.info["fit"] > 99.99
+            and bool(np.allclose(poles, np.sort_complex(TRUE_POLES), rtol=rtol))
+            and bool(np.isclose(dc, 0.4 * gain, rtol=rtol)))
+
+
 def _identify(**kw):
     import aeid_struct as ae
     return ae.identify(rec(), **kw)
@@ -187,7 +198,7 @@ def _identify_any() -> list[Case]:
              raises=None, check=lambda e: scaled_exact(e, 1e-200)),
         Case(area, "tiny output, c0 fixed (gain kept)", lambda x: ae.identify(
             ae.Record(y * 1e-200, u, DT), structure=ae.CCF(2).fixed(c0=2e-200)),
-             match=r"^y and u: a structure with fixed gain elements .* keeps the record's gain, "
+             match=r"^y and u: a structure with fixed gain elements keeps the record's gain, "
                    r"and max\|y\| = .* and max\|u\| = 1 are too far apart for float64"),
         Case(area, "both tiny, c0 fixed (gain kept, scaled alike)", lambda x: ae.identify(
             ae.Record(y * 1e-200, u * 1e-200, DT), structure=ae.CCF(2).fixed(c0=2.0)),
@@ -324,6 +335,18 @@ def _baselines_record() -> list[Case]:
         Case(area, "n4sid constant output", lambda x: ae.baselines.n4sid(
             ae.Record(np.zeros(N), u, DT), order=2),
              match=r"^y is constant \(every sample is 0\)"),
+        Case(area, "n4sid, tiny output 1e-200", lambda x: ae.baselines.n4sid(
+            ae.Record(y[DELAY:] * 1e-200, u[:-DELAY], DT), order=2),
+             raises=None, check=lambda e: dc_exact(e, 1e-200, 1e-8)),
+        Case(area, "least squares, huge output 1e200", lambda x: ae.baselines.least_squares(
+            ae.Record(y[DELAY:] * 1e200, u[:-DELAY], DT), order=2),
+             raises=None, check=lambda e: dc_exact(e, 1e200, 1e-10)),
+        Case(area, "least squares, output 1e-30", lambda x: ae.baselines.least_squares(
+            ae.Record(y[DELAY:] * 1e-30, u[:-DELAY], DT), order=2),
+             raises=None, check=lambda e: dc_exact(e, 1e-30, 1e-10)),
+        Case(area, "n4sid, input level 1e6 +- 1", lambda x: ae.baselines.n4sid(
+            ae.Record(y[DELAY:], u[:-DELAY] + 1e6, DT), order=2),
+             raises=None, check=lambda e: dc_exact(e, 1.0, 1e-8)),
         Case(area, "n4sid tuple with u beside it", lambda x: ae.baselines.n4sid(
             (y, u, DT), u, order=2),
              match=r"^u must not be given with a Record"),

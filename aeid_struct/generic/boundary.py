@@ -1,8 +1,8 @@
 """The boundary of :func:`~aeid_struct.generic.identify` and
 :func:`~aeid_struct.generic.compare`: a user's record, delay and sample time checked once
-(:func:`measured`, :func:`check_grid`), and the units the record is identified in
-(:class:`Units`: a level far above the signal's variation removed, amplitudes brought near 1 by
-powers of two) and the estimate taken back to the user's.
+(:func:`measured`, :func:`check_grid`), and the estimate of a record identified in other units
+(``records.Units``: a level far above the signal's variation removed, amplitudes brought near 1
+by powers of two) taken back to the user's (:func:`restore`).
 
 Why an exact rescaling: the model of a record is linear in its amplitudes. With ``y = sy y_s``,
 ``u = su u_s`` and ``x = su x_s``, a model ``(A, b, c_s, d_s)`` of the scaled record with state
@@ -18,15 +18,14 @@ six digits of every regressor.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
 
 from aeid_struct.identification import Estimate
-from aeid_struct.records import SAFE_EXPONENT, Record, exact_scale
+from aeid_struct.records import Record, Units
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["LEVEL", "Units", "check_grid", "measured"]
+__all__ = ["check_grid", "keeps_gain", "measured", "restore"]
 
 
 def _delay(name: str, value, steps: int) -> int | None:
@@ -117,136 +116,59 @@ def check_grid(data: Record, identifiers: dict, max_delay: int | None, default: 
     return int(max_delay)
 
 
-#: A level is removed where it exceeds this many times the signal's peak-to-peak variation.
-LEVEL = 4.0
+def keeps_gain(structure) -> bool:
+    """Whether ``structure`` fixes a gain element at a value other than 0 (or is physical):
+    its records keep their gain (``Units.of(..., keep_gain=True)``), since a gain change would
+    move that value.
 
-
-@dataclass(frozen=True)
-class Units:
-    """The units a record is identified in: ``y_work = (y - y_level) / sy`` and ``u_work = (u
-    - u_level) / su`` (module docstring).
-
-    Levels far above a signal's variation (an input of 1e6 +- 1) are removed first: a constant
-    input level is absorbed exactly by the initial state and the offset (``x = x_w + x_ss``,
-    ``x_ss = -A^-1 b u_level``), and without it the regressors cancel in the last digits. Then
-    peaks outside ``2^-64 .. 2^64`` are scaled by powers of two.
-
-    Attributes
+    Parameters
     ----------
-    sy, su : float
-        Powers of two.
-    y_level, u_level : float
-        Removed levels (0 where the level is not far above the variation).
+    structure : None, str or Structure
+
+    Returns
+    -------
+    bool
     """
+    if not isinstance(structure, Structure):
+        return False
+    if not isinstance(structure, (CCF, MCF)):
+        return True
+    return any((k == "d" or k.startswith("c")) and v != 0
+               for k, v in structure.fixed_values.items())
 
-    sy: float = 1.0
-    su: float = 1.0
-    y_level: float = 0.0
-    u_level: float = 0.0
 
-    @classmethod
-    def of(cls, data: Record, structure) -> Units:
-        """The units of ``data`` for ``structure``: ``sy = su`` where the structure fixes a
-        gain element at a value other than 0 (or is physical), whose value a gain change would
-        move.
+def restore(units: Units, est: Estimate, data: Record) -> Estimate:
+    """The estimate of ``units.apply(data)`` for ``data`` itself (``Units.linear``: ``c, d``,
+    the state, the offset; the output ``Units.output``; the squared error times ``sy^2``).
 
-        Parameters
-        ----------
-        data : Record
-        structure : None, str or Structure
+    Parameters
+    ----------
+    units : Units
+    est : Estimate
+        Of the record in these units.
+    data : Record
+        The user's record.
 
-        Returns
-        -------
-        Units
+    Returns
+    -------
+    Estimate
 
-        Raises
-        ------
-        ValueError
-            Naming ``y`` and ``u``, where such a structure meets a record whose output and
-            input are too far apart in magnitude for float64.
-        """
-        def level(x):
-            m = float(np.mean(x))
-            return m if abs(m) > LEVEL * float(np.ptp(x)) else 0.0
-
-        y_level, u_level = level(data.y), level(data.u)
-        y, u = data.y - y_level, data.u - u_level
-        sy, su = exact_scale(y), exact_scale(u)
-        fixed = getattr(structure, "fixed_values", {}) if isinstance(structure, Structure) else {}
-        keeps_gain = isinstance(structure, Structure) and (
-            not isinstance(structure, (CCF, MCF)) or any(
-                (k == "d" or k.startswith("c")) and v != 0 for k, v in fixed.items()))
-        if keeps_gain and sy != su:
-            sy = su = exact_scale(np.concatenate([y, u]))
-            if min(float(np.max(np.abs(v))) / sy for v in (y, u)) < 2.0 ** -SAFE_EXPONENT:
-                raise ValueError(f"y and u: a structure with fixed gain elements "
-                                 f"({structure!r}) keeps the record's gain, and max|y| = "
-                                 f"{np.max(np.abs(data.y)):.3g} and max|u| = "
-                                 f"{np.max(np.abs(data.u)):.3g} are too far apart for float64; "
-                                 f"give y and u in units nearer to each other")
-        return cls(sy, su, y_level, u_level)
-
-    def apply(self, data: Record) -> Record:
-        """The record in these units.
-
-        Parameters
-        ----------
-        data : Record
-
-        Returns
-        -------
-        Record
-        """
-        if self == Units():
-            return data
-        return dataclasses.replace(data, y=data.y - self.y_level, u=data.u - self.u_level,
-                                   y_offset=data.y_offset + self.y_level,
-                                   u_offset=data.u_offset + self.u_level).scaled(self.sy, self.su)
-
-    def restore(self, est: Estimate, data: Record) -> Estimate:
-        """The estimate of ``self.apply(data)`` for ``data`` itself: ``c, d`` times ``sy /
-        su``, the state times ``su`` plus ``x_ss``, the offset ``sy o_w + y_level - c^T x_ss -
-        d u_level``, the output times ``sy`` plus ``y_level``, the squared error times
-        ``sy^2``.
-
-        Parameters
-        ----------
-        est : Estimate
-            Of the record in these units.
-        data : Record
-            The user's record.
-
-        Returns
-        -------
-        Estimate
-
-        Raises
-        ------
-        ValueError
-            Where that model leaves float64.
-        """
-        if self == Units():
-            return est
-        sy, su = self.sy, self.su
-        g = sy / su
-        with np.errstate(over="ignore", under="ignore"):
-            c, d = est.c * g, est.d * g
-        lost = np.any((est.c != 0) & (c == 0)) or (est.d != 0 and d == 0)
-        if not (np.isfinite(g) and g > 0 and np.all(np.isfinite(c)) and np.isfinite(d)) or lost:
-            raise ValueError(f"y and u: the gain of this record (max|y| ~ 2^{np.log2(sy):.0f}, "
-                             f"max|u| ~ 2^{np.log2(su):.0f}) makes a model that float64 cannot "
-                             f"hold; give y and u in units nearer to each other")
-        x_ss = (-np.linalg.solve(est.A, est.b) * self.u_level if self.u_level
-                else np.zeros_like(est.b))
-        elements = {k: v * g if (k == "d" or k.startswith("c")) else v
-                    for k, v in est.elements.items()}
-        info = dict(est.info)
-        info["x0"] = np.asarray(info["x0"]) * su + x_ss
-        info["y_offset"] = (float(info["y_offset"]) * sy + self.y_level - float(c @ x_ss)
-                            - d * self.u_level)
-        info["y_hat"] = np.asarray(info["y_hat"]) * sy + self.y_level
-        info["cost"] = float(info["cost"]) * sy * sy
-        info["units"] = dataclasses.asdict(self)
-        return Estimate(A=est.A, b=est.b, c=c, d=d, elements=elements, y=data.y, u=data.u,
-                        dt=data.dt, provenance=est.provenance, seconds=est.seconds,
-                        refined=est.refined, info=info)
+    Raises
+    ------
+    ValueError
+        Where that model leaves float64.
+    """
+    if units.identity:
+        return est
+    c, d, x0, y_offset = units.linear(est.A, est.b, est.c, est.d, est.info["x0"],
+                                      est.info["y_offset"])
+    g = units.sy / units.su
+    elements = {k: v * g if (k == "d" or k.startswith("c")) else v
+                for k, v in est.elements.items()}
+    info = {**est.info, "x0": x0, "y_offset": y_offset,
+            "y_hat": units.output(np.asarray(est.info["y_hat"])),
+            "cost": float(est.info["cost"]) * units.sy * units.sy,
+            "units": dataclasses.asdict(units)}
+    return Estimate(A=est.A, b=est.b, c=c, d=d, elements=elements, y=data.y, u=data.u,
+                    dt=data.dt, provenance=est.provenance, seconds=est.seconds,
+                    refined=est.refined, info=info)

@@ -59,7 +59,7 @@ from importlib import import_module
 
 import numpy as np
 
-from aeid_struct.generic.boundary import Units, check_grid, measured
+from aeid_struct.generic.boundary import check_grid, keeps_gain, measured, restore
 from aeid_struct.generic.classical import steiglitz_mcbride
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.polish import (
@@ -73,7 +73,7 @@ from aeid_struct.generic.polish import (
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
-from aeid_struct.records import Record
+from aeid_struct.records import Record, Units
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
@@ -317,8 +317,8 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     data.require_informative()
     max_delay = check_grid(data, identifiers, max_delay, MAX_DELAY)
     # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two
-    # (both exact; generic.boundary.Units); a structure with fixed gain elements keeps its gain
-    units = Units.of(data, structure)
+    # (both exact; records.Units); a structure with fixed gain elements keeps its gain
+    units = Units.of(data, keeps_gain(structure))
     work = units.apply(data)
     feedthrough = _feedthrough(structure)
     order_fits = None
@@ -350,7 +350,7 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
                                                    bool(classical))
         info |= about
     est = model.estimate(structure, work, time.perf_counter() - start, refined, info)
-    return units.restore(est, data)
+    return restore(units, est, data)
 
 
 def _refine(spec, structure: Structure, model: Model, work: Record, order: int,

@@ -27,6 +27,7 @@ from aeid_struct.records.measured import Record as Record
 from aeid_struct.records.measured import exact_scale as exact_scale
 from aeid_struct.records.record import RecordBatch as RecordBatch
 from aeid_struct.records.record import check_record as check_record
+from aeid_struct.records.units import Units as Units
 
 __all__ = [
     "SAFE_EXPONENT",
@@ -34,6 +35,7 @@ __all__ = [
     "Record",
     "RecordBatch",
     "RecordError",
+    "Units",
     "as_array",
     "as_records",
     "check_dt",
