@@ -82,27 +82,10 @@ def _subspace(y, u, dt, order, block_rows, offset, feedthrough):
 
 def n4sid_record(record, *, order: int, feedthrough: bool = False,
                  block_rows: int | None = None, offset: str = "channel"):
-    """n4sid on a record not at rest, in the record's working units (``records.Units``: a
-    level far above the variation removed, peaks far from 1 scaled by powers of two, the model
-    taken back exactly); see :func:`_n4sid` for the method.
-
-    Parameters
-    ----------
-    record : Record
-    order : int >= 1
-    feedthrough : bool
-    block_rows : int > order, optional
-    offset : {"channel", "mean"}
-
-    Returns
-    -------
-    Estimate
-
-    Raises
-    ------
-    ValueError
-        As :func:`_n4sid`, or for a model of this record that float64 cannot hold.
-    """
+    """n4sid on a record not at rest (:func:`_n4sid`: parameters, returns, raises), in the
+    record's working units (``records.Units``: a level far above the variation removed, peaks
+    far from 1 scaled by powers of two, the model taken back exactly; a ValueError where that
+    model leaves float64)."""
     units = Units.of(record)
     return _restored(_n4sid(units.apply(record), order=order, feedthrough=feedthrough,
                             block_rows=block_rows, offset=offset), record, units)
@@ -214,25 +197,8 @@ def _fit_poles(y, u, dt, alpha0, feedthrough, max_nfev):
 
 def least_squares_record(record, *, order: int, feedthrough: bool = False,
                          max_nfev: int = 400):
-    """Output-error least squares in CCF on a record not at rest, in the record's working units
-    (as :func:`n4sid_record`); see :func:`_least_squares` for the method.
-
-    Parameters
-    ----------
-    record : Record
-    order : int >= 1
-    feedthrough : bool
-    max_nfev : int >= 1
-
-    Returns
-    -------
-    Estimate
-
-    Raises
-    ------
-    ValueError
-        As :func:`_least_squares`, or for a model of this record that float64 cannot hold.
-    """
+    """Output-error least squares in CCF on a record not at rest (:func:`_least_squares`:
+    parameters, returns, raises), in the record's working units (as :func:`n4sid_record`)."""
     units = Units.of(record)
     return _restored(_least_squares(units.apply(record), order=order, feedthrough=feedthrough,
                                     max_nfev=max_nfev), record, units)
@@ -246,15 +212,9 @@ def _restored(est, record, units):
     y, u, _ = _aligned(record)
     if est.info.get("failed"):
         return dataclasses.replace(est, y=np.array(y), u=np.array(u))
-    c, d, x0, y_offset = units.linear(est.A, est.b, est.c, est.d, est.info["x0"],
-                                      est.info["y_offset"])
-    g = units.sy / units.su
-    elements = {k: v * g if (k == "d" or k.startswith("c")) else v
-                for k, v in est.elements.items()}
-    info = {**est.info, "x0": x0, "y_offset": y_offset, "units": dataclasses.asdict(units),
-            "cost": float(est.info["cost"]) * units.sy * units.sy}
+    c, d, elements, info = units.estimate(est.A, est.b, est.c, est.d, est.elements, est.info)
     return dataclasses.replace(est, c=c, d=np.float64(d), elements=elements, info=info,
-                               y=y - y_offset, u=np.array(u))
+                               y=y - info["y_offset"], u=np.array(u))
 
 
 def _least_squares(record, *, order: int, feedthrough: bool = False, max_nfev: int = 400):

@@ -4,20 +4,9 @@
 (``records.Units``: a level far above the signal's variation removed, amplitudes brought near 1
 by powers of two) taken back to the user's (:func:`restore`).
 
-Why an exact rescaling: the model of a record is linear in its amplitudes. With ``y = sy y_s``,
-``u = su u_s`` and ``x = su x_s``, a model ``(A, b, c_s, d_s)`` of the scaled record with state
-``x_s``, offset ``o_s`` is the model ``(A, b, (sy / su) c_s, (sy / su) d_s)`` of the record with
-state ``su x_s`` and offset ``sy o_s``; powers of two change only exponents, so the scaled record
-carries the measured digits, and an output of 1e-200 (whose squares underflow) or 1e200 (whose
-squares overflow) is identified as exactly as one of 1. Why a level is removed: with a free
-initial state and offset, an input level ``u_l`` is absorbed exactly (``x = x_w + x_ss``,
-``x_ss = -A^-1 b u_l``), and an input of 1e6 +- 1 would otherwise leave its variation in the last
-six digits of every regressor.
 """
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 
@@ -138,8 +127,8 @@ def keeps_gain(structure) -> bool:
 
 
 def restore(units: Units, est: Estimate, data: Record) -> Estimate:
-    """The estimate of ``units.apply(data)`` for ``data`` itself (``Units.linear``: ``c, d``,
-    the state, the offset; the output ``Units.output``; the squared error times ``sy^2``).
+    """The estimate of ``units.apply(data)`` for ``data`` itself (``Units.estimate``; why the
+    units are exact: ``records.units``).
 
     Parameters
     ----------
@@ -160,15 +149,7 @@ def restore(units: Units, est: Estimate, data: Record) -> Estimate:
     """
     if units.identity:
         return est
-    c, d, x0, y_offset = units.linear(est.A, est.b, est.c, est.d, est.info["x0"],
-                                      est.info["y_offset"])
-    g = units.sy / units.su
-    elements = {k: v * g if (k == "d" or k.startswith("c")) else v
-                for k, v in est.elements.items()}
-    info = {**est.info, "x0": x0, "y_offset": y_offset,
-            "y_hat": units.output(np.asarray(est.info["y_hat"])),
-            "cost": float(est.info["cost"]) * units.sy * units.sy,
-            "units": dataclasses.asdict(units)}
+    c, d, elements, info = units.estimate(est.A, est.b, est.c, est.d, est.elements, est.info)
     return Estimate(A=est.A, b=est.b, c=c, d=d, elements=elements, y=data.y, u=data.u,
                     dt=data.dt, provenance=est.provenance, seconds=est.seconds,
                     refined=est.refined, info=info)

@@ -26,23 +26,8 @@ _HEADER = ("format", "config", "meta")
 
 
 def write(ident, path) -> Path:
-    """Write a generic identifier ``ident`` to ``path`` (safetensors: weights + JSON header).
-
-    Parameters
-    ----------
-    ident : GenericIdentifier
-        Checked by the caller (``generic.model.save_generic``).
-    path : str or PathLike
-
-    Returns
-    -------
-    pathlib.Path
-
-    Raises
-    ------
-    ValueError
-        ``path`` cannot be written (a directory, below a file), or ``ident.meta`` is not JSON.
-    """
+    """:func:`~aeid_struct.generic.save_generic`'s file (its parameters, returns and errors;
+    ``ident`` checked by it)."""
     from safetensors.torch import save_file
 
     path = writable_file(path)
@@ -109,25 +94,9 @@ def _encoder(config: GenericConfig, tensors: dict, source: str) -> Encoder:
 
 
 def read(cls, path):
-    """Read a generic identifier file written by :func:`write` as a ``cls`` (the generic
-    identifier class, ``generic.model.GenericIdentifier``: ``cls(config, encoder, meta=...)``).
-
-    Parameters
-    ----------
-    cls : type
-    path : str or PathLike
-        An existing file.
-
-    Returns
-    -------
-    cls
-
-    Raises
-    ------
-    ValueError
-        Naming ``path`` and what is wrong: not a file, not safetensors, a header that is not
-        this format's, a weight of the wrong name, shape, dtype or value.
-    """
+    """:func:`~aeid_struct.generic.read_generic`'s reading (its parameters, returns and
+    errors), the identifier built as ``cls(config, encoder, meta=...)``: the class is handed in
+    (``generic.model`` imports this module, not the other way round)."""
     from safetensors import safe_open
 
     if not isinstance(path, (str, os.PathLike)) or not str(path):

@@ -142,6 +142,37 @@ class Units:
         y_offset = float(y_offset) * sy + self.y_level - float(c @ x_ss) - d * self.u_level
         return c, d, x0, y_offset
 
+    def estimate(self, A, b, c, d, elements: dict, info: dict):
+        """An estimate's parts in the record's units: :meth:`linear`'s ``c, d``, the elements
+        ``c_i, d`` times ``sy / su``, and the ``info`` entries ``x0``, ``y_offset``, ``y_hat``
+        (where present) and ``cost`` (times ``sy^2``), with ``units`` added.
+
+        Parameters
+        ----------
+        A : (n, n) array
+        b, c : (n,) arrays
+        d : float
+        elements : dict name -> float
+        info : dict
+            With ``x0``, ``y_offset`` and ``cost``.
+
+        Returns
+        -------
+        c : (n,) array
+        d : float
+        elements : dict
+        info : dict
+        """
+        c, d, x0, y_offset = self.linear(A, b, c, d, info["x0"], info["y_offset"])
+        g = self.sy / self.su
+        elements = {k: v * g if (k == "d" or k.startswith("c")) else v
+                    for k, v in elements.items()}
+        info = {**info, "x0": x0, "y_offset": y_offset, "units": dataclasses.asdict(self),
+                "cost": float(info["cost"]) * self.sy * self.sy}
+        if "y_hat" in info:
+            info["y_hat"] = self.output(np.asarray(info["y_hat"]))
+        return c, d, elements, info
+
     def output(self, y_w: np.ndarray) -> np.ndarray:
         """An output in these units in the record's: ``sy y_w + y_level``.
 
