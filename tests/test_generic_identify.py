@@ -526,3 +526,26 @@ def test_select_ranks_on_a_prefix_of_a_long_record_and_scores_the_best_on_all(mo
     assert scored.sum() == scoring.PREFIX_SHORTLIST
     np.testing.assert_allclose(fast.costs[scored], full.costs[scored], rtol=1e-10)
     assert fast.projection.fit == pytest.approx(full.projection.fit, abs=1e-10)
+
+
+def test_free_ccf_in_physical_time_is_exact_for_a_stiff_model():
+    # a pole at -1e5 per sample beside slow ones: the controllability matrices are singular to
+    # working precision, the diagonal state scaling z_i = dt^(n-i) x_i is not; the physical
+    # model's frequency response at s equals the normalised one's at s dt, and so does x0's
+    # free response
+    from aeid_struct.generic.polish import Model, in_structure
+
+    dt, n = 0.3, 4
+    poles = np.array([-1.0e5, -0.013, -0.009 + 0.7j, -0.009 - 0.7j])
+    A_n, b_n = ccf(np.real(np.poly(poles)))
+    c_n, x0_n = np.array([0.2, -1.5, 0.7, 3e-6]), np.array([1e-4, -4e-6, 9e-8, 4e-4])
+    m = Model(A_n, b_n, c_n, 0.25, x0_n, 0.0, 0, np.zeros(3), 90.0, 1.0)
+    A, b, c, d, x0, _ = in_structure(ae.CCF(n, feedthrough=True), m, dt)
+    for s in (0.01j, 0.5j, 3.0 + 1.0j):
+        G = c @ np.linalg.solve(s * np.eye(n) - A, b) + d
+        G_n = c_n @ np.linalg.solve(s * dt * np.eye(n) - A_n, b_n) + 0.25
+        assert G == pytest.approx(G_n, rel=1e-9)
+        # free response c^T (sI - A)^-1 x0 in physical time = dt times the normalised one
+        F = c @ np.linalg.solve(s * np.eye(n) - A, x0)
+        F_n = c_n @ np.linalg.solve(s * dt * np.eye(n) - A_n, x0_n)
+        assert F == pytest.approx(dt * F_n, rel=1e-9)
