@@ -296,6 +296,13 @@ def _compare() -> list[Case]:
         Case(area, "a gain float64 cannot hold on this record", lambda x: ae.compare(
             control.tf([1e300], [1.0, 2.0, 5.0]), ae.Record(y * 1e-300, u * 1e10, DT)),
              match=r"^estimate_or_model: its gain .* leaves float64"),
+        Case(area, "input level 1e6 +- 1, the true model", lambda x: ae.compare(
+            G, ae.Record(y, u + 1e6, DT), delay=3),
+             raises=None, check=lambda c: c.fit > 99.99999 and bool(np.isclose(
+                 c.y_offset, OFFSET - 0.4e6, rtol=1e-9))),
+        Case(area, "an integrator on an input level (no level removed)", lambda x: ae.compare(
+            control.tf([1.0], [1.0, 0.0]), ae.Record(np.cumsum(u) * DT, u + 10.0, DT)),
+             raises=None, check=lambda c: np.isfinite(c.fit)),
         Case(area, "a string model", lambda x: ae.compare("G", rec()),
              match=r"^estimate_or_model must be an Estimate, a continuous-time "
                    r"control.StateSpace or TransferFunction, or a tuple \(A, b, c, d\); got str"),

@@ -10,13 +10,14 @@ system, any record"), ``x_0`` (the state at sample ``D``) and ``y_offset`` minim
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import control
 import numpy as np
 
 from aeid_struct.generic.boundary import measured
-from aeid_struct.records import exact_scale
+from aeid_struct.records import Units
 from aeid_struct.simulation import fit_initial
 
 __all__ = ["Comparison", "compare"]
@@ -171,17 +172,22 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
     D = 0 if D is None else int(D)
     if not 0 <= D <= data.steps - 2:
         raise ValueError(f"delay must be in [0, {data.steps - 2}] for this record; got {D}")
-    # amplitudes far from 1 compared in units of powers of two (exact; generic.boundary): the
-    # model's gain in those units is (su / sy) c, (su / sy) d
-    sy, su = exact_scale(data.y), exact_scale(data.u)
+    # compared in the record's working units (records.Units: exact); an input level is
+    # absorbed by x0 and the offset only where A is invertible (not by an integrator)
+    units = Units.of(data)
+    if units.u_level and not np.linalg.cond(A) < 1e12:
+        units = dataclasses.replace(units, u_level=0.0)
+    work = units.apply(data)
+    g = units.su / units.sy
     with np.errstate(over="ignore", under="ignore"):
-        cs, ds = c * (su / sy), d * (su / sy)
+        cs, ds = c * g, d * g
     if not (np.all(np.isfinite(cs)) and np.isfinite(ds)) or np.any((c != 0) & (cs == 0)):
         raise ValueError(f"estimate_or_model: its gain (c, d up to {np.max(np.abs(c)):.3g}, "
-                         f"{abs(d):.3g}) on a record with max|y| = {sy:.3g} and max|u| = "
-                         f"{su:.3g} (powers of two) leaves float64")
+                         f"{abs(d):.3g}) on a record with max|y| = {units.sy:.3g} and max|u| = "
+                         f"{units.su:.3g} (powers of two) leaves float64")
     with np.errstate(all="ignore"):
-        p = fit_initial(A, b, cs, ds, data.y / sy, data.u / su, data.dt, delay=D, offset=True)
+        p = fit_initial(A, b, cs, ds, work.y, work.u, data.dt, delay=D, offset=True)
+    _, _, x0, y_offset = units.linear(A, b, cs, ds, p.x0, p.y_offset)
     t = data.t0 + data.dt * np.arange(data.steps)
-    return Comparison(fit=float(p.fit), y_hat=p.y_hat * sy, x0=p.x0 * su,
-                      y_offset=p.y_offset * sy, y=data.y, t=t, delay=D)
+    return Comparison(fit=float(p.fit), y_hat=units.output(p.y_hat), x0=x0,
+                      y_offset=y_offset, y=data.y, t=t, delay=D)
