@@ -549,3 +549,26 @@ def test_free_ccf_in_physical_time_is_exact_for_a_stiff_model():
         F = c @ np.linalg.solve(s * np.eye(n) - A, x0)
         F_n = c_n @ np.linalg.solve(s * dt * np.eye(n) - A_n, x0_n)
         assert F == pytest.approx(dt * F_n, rel=1e-9)
+
+
+def test_reported_fit_is_the_returned_models_own_on_the_sweeps_hard_records():
+    # the records of a sweep over orders, noise, lengths, dt and units where the reported fit
+    # was not the returned model's: a stiff refined order-4 model (pole at -1e5 per sample) and
+    # a slow one on an input level of 1e4; each estimate's fit is ae.compare's
+    from aeid_struct.training import GenericFamily
+
+    rng = np.random.default_rng(11)
+    made = {}
+    for order in (1, 2, 3, 4):
+        for noise in (0.0, 0.1, 0.3):
+            fam = GenericFamily(order=order, max_delay=5, noise=(noise, noise), offset=20.0)
+            for steps in (256, 400, 3000):
+                made[(order, noise, steps)] = fam.records(3, steps, rng)
+    stiff = made[(4, 0.1, 400)]
+    slow = made[(4, 0.3, 3000)]
+    cases = [(ae.Record(stiff.y[1], stiff.u[1], 0.3), dict(refine=True)),
+             (ae.Record(slow.y[1], slow.u[1] + 1e4, 0.3), dict(refine=False, structure="mcf"))]
+    for rec, kw in cases:
+        est = identify(rec, 4, **kw)
+        assert est.fit == pytest.approx(compare(est, rec).fit, abs=1e-3)
+        assert est.fit > 60
