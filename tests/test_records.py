@@ -202,14 +202,22 @@ def test_exact_scale_is_a_power_of_two_only_outside_the_safe_range():
         assert mantissa == 0.5 and 0.5 <= peak / s <= 1.0 if abs(np.log2(peak)) > 64 else s == 1
 
 
-def test_scaled_record_carries_the_same_digits():
+def test_units_carry_the_same_digits_and_the_removed_level():
+    from aeid_struct.records import Units, exact_scale
+
     rng = np.random.default_rng(0)
-    y, u = rng.standard_normal(50) * 1e-200, rng.standard_normal(50) * 1e200
+    y, u = rng.standard_normal(50) * 1e-200, rng.standard_normal(50) * 1e200 + 1e205
     rec = Record(y, u, 0.1, y_offset=3e-200)
-    s = rec.scaled(2.0 ** -664, 2.0 ** 665)
-    np.testing.assert_array_equal(s.y * 2.0 ** -664, y)        # exact: only exponents move
-    np.testing.assert_array_equal(s.u * 2.0 ** 665, u)
-    assert s.y_offset * 2.0 ** -664 == 3e-200 and rec.scaled(1.0, 1.0) is rec
+    units = Units.of(rec)
+    # the output's mean is within its variation (kept), the input's level far above it
+    assert units.y_level == 0.0 and units.u_level == np.mean(u)
+    assert units.sy == exact_scale(y) < 1e-190 and units.su == exact_scale(u - np.mean(u))
+    s = units.apply(rec)
+    np.testing.assert_array_equal(s.y * units.sy, y)             # exact: only exponents move
+    np.testing.assert_array_equal(s.u * units.su, u - units.u_level)
+    assert s.y_offset * units.sy == 3e-200 and s.u_offset * units.su == units.u_level
+    ordinary = Record(np.linspace(0, 1, 9), np.arange(9.0), 1.0)
+    assert Units.of(ordinary).identity and Units.of(ordinary).apply(ordinary) is ordinary
 
 
 def test_a_column_is_one_channel_and_several_are_refused():

@@ -210,12 +210,13 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
     ValueError
         For a bad argument, or a record shorter than the number of free elements.
     """
-    if as_measured(y) is not None:
+    measured = as_measured(y)
+    if measured is not None:
         only_record("least_squares", u=u, dt=dt, structure=structure, start=start,
                     inverse=inverse)
         if order is None:
             raise ValueError("order must be given with a Record: least_squares(record, order=n)")
-        return least_squares_record(as_measured(y), order=check_int("order", order, 1),
+        return least_squares_record(measured, order=check_int("order", order, 1),
                                     feedthrough=feedthrough,
                                     max_nfev=check_int("max_nfev", max_nfev, 1))
     if order is not None:

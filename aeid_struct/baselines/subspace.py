@@ -113,10 +113,11 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
-    if as_measured(y) is not None:
+    measured = as_measured(y)
+    if measured is not None:
         only_record("n4sid", u=u, dt=dt, structure=structure, inverse=inverse,
                      pre_zeros=pre_zeros)
-        return n4sid_record(as_measured(y), order=check_int("order", order, 1),
+        return n4sid_record(measured, order=check_int("order", order, 1),
                             feedthrough=feedthrough,
                             block_rows=_check_sizes(order, None, block_rows)[1], offset=offset)
     start = time.perf_counter()

@@ -54,9 +54,10 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
     # otherwise hold N x (max_delay + 2n + 2) numbers at once)
     step = max(1, _BLOCK // (8 * width))
     blocks = [np.arange(a, min(N, a + step)) for a in range(k0, N, step)]
-    scale = np.zeros(width)
-    for rows in blocks:
-        scale = np.maximum(scale, np.abs(_lagged(y, u, n, max_delay, rows)).max(axis=0))
+    # each column's largest magnitude from the lagged slices themselves (no matrix built)
+    scale = np.array([np.abs(y[k0 - i: N - i]).max() for i in range(1, n + 1)]
+                     + [np.abs(u[k0 - j: N - j]).max() for j in range(max_delay + n + 1)]
+                     + [1.0])
     scale = np.where(scale > 0, scale, 1.0)
     G, g = np.zeros((width, width)), np.zeros(width)
     for rows in blocks:
@@ -74,8 +75,9 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
     np.put_along_axis(coef, idx, z, axis=1)
     rss = np.zeros(max_delay + 1)
     for rows in blocks:
-        res = y[rows][None, :] - coef @ (_lagged(y, u, n, max_delay, rows) / scale).T
-        rss += np.sum(res ** 2, axis=1)
+        # one block (every record up to ~250k samples here): its lagged matrix is still Z
+        lagged = Z if len(blocks) == 1 else _lagged(y, u, n, max_delay, rows) / scale
+        rss += np.sum((y[rows][None, :] - coef @ lagged.T) ** 2, axis=1)
     # the smallest delay within 2 / rows of the least residual (parsimony: generic.scoring)
     return int(np.flatnonzero(rss <= rss.min() * (1.0 + 2.0 / (N - k0)))[0])
 

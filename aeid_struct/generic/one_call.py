@@ -122,11 +122,8 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
     if dens.shape[1] != order + 1:
         raise ValueError(f"identifier must give denominators of order {order} ((K, "
                          f"{order + 1}) arrays); got shape {dens.shape}")
-    if len(dens) == 0 and not np.ptp(u) > 0:
-        raise ValueError("u is constant over the whole record: with a free initial state and "
-                         "offset, a constant input says nothing about the system (a step "
-                         "response from rest is the leg identifiers' case, ae.load_pretrained); "
-                         "give a record whose input varies")
+    if len(dens) == 0:
+        Record(y, u).require_informative()     # the one message for a constant y or u
     sm = steiglitz_mcbride(y, u, order, D0) if classical else None
     if len(dens) == 0 and sm is None:
         raise ValueError(f"the generic identifier of order {order} found no usable model in "
@@ -158,32 +155,32 @@ def _shipped(order: int):
     return import_module("aeid_struct.generic.model").load_generic(f"generic-{order}")
 
 
+def _generic(ident):
+    """``ident`` if it has what a generic identifier offers, else a ValueError naming it."""
+    config = getattr(ident, "config", None)
+    if not (hasattr(ident, "denominators") and all(
+            hasattr(config, k) for k in ("window", "order", "band"))):
+        raise ValueError(f"identifier must be a generic identifier (ae.load_generic), its "
+                         f"name or file, or a dict order -> identifier; got "
+                         f"{type(ident).__name__}")
+    return ident
+
+
 def _identifiers(order, identifier, structure) -> dict:
-    """Order -> generic identifier: the given one(s), or the shipped ``generic-n``."""
+    """Order -> generic identifier: the given one(s) (an identifier, its shipped name or file,
+    or a dict order -> identifier), or the shipped ``generic-n``."""
     if isinstance(identifier, (str, os.PathLike)):
         load = import_module("aeid_struct.generic.model").load_generic
         try:
             identifier = load(identifier)
         except ValueError as err:
             raise ValueError(f"identifier: {err}") from None
-    if isinstance(identifier, dict):
-        chosen = identifier
-    elif identifier is not None:
-        chosen = {None: identifier}
-    else:
-        chosen = {}
-    for key, ident in list(chosen.items()):
-        config = getattr(ident, "config", None)
-        if not (hasattr(ident, "denominators") and hasattr(config, "window")
-                and hasattr(config, "order") and hasattr(config, "band")):
-            raise ValueError(f"identifier must be a generic identifier (ae.load_generic), its "
-                             f"name or file, or a dict order -> identifier; got "
-                             f"{type(ident).__name__}")
-        if key is None:
-            chosen = {int(config.order): ident}
     if identifier is None:
-        orders = ORDERS if order is None else (order,)
-        chosen = {n: _shipped(n) for n in orders}
+        chosen = {n: _shipped(n) for n in (ORDERS if order is None else (order,))}
+    elif isinstance(identifier, dict):
+        chosen = {n: _generic(ident) for n, ident in identifier.items()}
+    else:
+        chosen = {int(_generic(identifier).config.order): identifier}
     if order is not None:
         if order not in chosen:
             raise ValueError(f"identifier must be a generic identifier of order {order} (or "
@@ -323,11 +320,11 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     feedthrough = _feedthrough(structure)
     order_fits = None
     if order is None:
-        order_fits = _select_order(identifiers, work, int(max_delay), feedthrough, refine,
+        order_fits = _select_order(identifiers, work, max_delay, feedthrough, refine,
                                    method, int(iterations), bool(classical))
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
-    fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, int(max_delay),
+    fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, max_delay,
                        feedthrough, bool(classical) and not refine)
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, _structure(structure, order, fit.den)
@@ -340,13 +337,13 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         # delay found with free poles), then takes the closest model in the structure
         model, about = _iterate(spec if _separable(spec) else None,
                                 structure if _separable(spec) else free, model, work,
-                                int(iterations), int(max_delay))
+                                int(iterations), max_delay)
         info |= about
         if about and spec == "mcf":
             structure = _structure(spec, order, denominator_of(model.A))
     else:
         model, structure, refined, about = _refine(spec, structure, model, work, order,
-                                                   feedthrough, int(max_delay), method,
+                                                   feedthrough, max_delay, method,
                                                    bool(classical))
         info |= about
     est = model.estimate(structure, work, time.perf_counter() - start, refined, info)

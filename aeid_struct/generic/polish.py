@@ -110,8 +110,9 @@ def _free_ccf(structure: Structure) -> bool:
 
 def in_structure(structure: Structure, m: Model, dt: float):
     """``A, b, c, d, x0, elements`` of the physical-time model ``(A_n / dt, b_n / dt, c, d)``
-    in ``structure``'s realisation (the state transformed with it: ``x = T x_n``, ``T = C_s
-    C_n^-1`` from the controllability matrices)."""
+    in ``structure``'s realisation (the state transformed with it, ``x = T x_n``: for the free
+    CCF the exact diagonal ``T = diag(dt^(n-i))``, else ``T = C_s C_n^-1`` from the
+    controllability matrices)."""
     A, b = m.A / dt, m.b / dt
     n = A.shape[0]
     if _free_ccf(structure):

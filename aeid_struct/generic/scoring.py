@@ -187,7 +187,7 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         # the candidates at one delay, then the best few at every delay
         mid = L // 2 if around is None else delays.index(int(around))
         P = PREFIX if prefix else N
-        for part, M, G_all in _blocks(dens, pool, u[:P], feedthrough, offset, 1):
+        for part, M, G_all, *_ in _blocks(dens, pool, u[:P], feedthrough, offset, 1):
             costs[part, mid] = _solve_delays(M, G_all, y[: D0 + P], [delays[mid]], D0,
                                              delays[-1])[0][:, 0]
         ranked = np.argsort(costs[:, mid], kind="stable")
@@ -195,8 +195,10 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
             : max(shortlist, PREFIX_SHORTLIST) if prefix else shortlist]
         if prefix:       # costs on the prefix do not compare with the whole record's
             costs[:, mid] = np.inf
-    for part, M, G_all in _blocks(dens, pool, u[:N], feedthrough, offset, L):
-        for js in _delay_blocks(L, part.size, M.shape[1], N):
+    last = None
+    for last in _blocks(dens, pool, u[:N], feedthrough, offset, L):
+        part, M, G_all = last[:3]
+        for js in _delay_blocks(L, part.size, N):
             costs[part[:, None], js[None, :]] = _solve_delays(
                 M, G_all, y, [delays[j] for j in js], D0, delays[-1])[0]
     costs = np.where(np.isfinite(costs), costs, np.inf)
@@ -210,10 +212,15 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
     # was the largest allowed for true delays 0-5, costing validation fit.
     common = y.shape[0] - max(delays)
     j = int(np.flatnonzero(costs[k] <= costs[k, j] * (1.0 + 2.0 / common))[0])
-    # the winner's regressors once more, for its projection (only costs were kept)
-    with np.errstate(all="ignore"):
-        M, Phi, gamma2 = _regressors(dens[k : k + 1], u[:N], feedthrough, offset)
-    G_all = M @ M.transpose(0, 2, 1)
+    # the winner's regressors for its projection: from the last block where it is there (a
+    # record of ordinary length is one block), else built once more (only costs were kept)
+    if last is not None and k in last[0]:
+        i = int(np.flatnonzero(last[0] == k)[0])
+        M, G_all, Phi, gamma2 = (v[i : i + 1] for v in last[1:])
+    else:
+        with np.errstate(all="ignore"):
+            M, Phi, gamma2 = _regressors(dens[k : k + 1], u[:N], feedthrough, offset)
+        G_all = M @ M.transpose(0, 2, 1)
     _, Z, fitted, rows = _solve_delays(M, G_all, y, [delays[j]], D0, delays[-1])
     return Selection(int(k), delays[j], costs, _projection(
         Z[0, 0], fitted[0, : rows[0], 0], M[0], Phi[0], gamma2[0], y, u, delays[j],
@@ -233,8 +240,8 @@ BLOCK_BYTES = 256 * 2 ** 20
 
 def _blocks(dens: np.ndarray, pool: np.ndarray, uu: np.ndarray, feedthrough: bool,
             offset: bool, delays: int):
-    """``(candidates, M, G)`` of the finite candidates of ``pool`` in blocks that fit
-    :data:`BLOCK_BYTES` (with ``delays`` targets each)."""
+    """``(candidates, M, G, Phi, gamma2)`` of the finite candidates of ``pool`` in blocks
+    that fit :data:`BLOCK_BYTES` (with ``delays`` targets each)."""
     n = dens.shape[1] - 1
     p = 2 * n + int(feedthrough) + int(offset)
     per = 8 * uu.shape[0] * (p + n + 2 + 2 * min(delays, 8))
@@ -242,14 +249,14 @@ def _blocks(dens: np.ndarray, pool: np.ndarray, uu: np.ndarray, feedthrough: boo
     for start in range(0, pool.size, size):
         part = pool[start : start + size]
         with np.errstate(all="ignore"):
-            M = _regressors(dens[part], uu, feedthrough, offset)[0]
+            M, Phi, gamma2 = _regressors(dens[part], uu, feedthrough, offset)
             good = np.isfinite(M).all(axis=(1, 2))
         if good.any():
             M = M[good]
-            yield part[good], M, M @ M.transpose(0, 2, 1)
+            yield part[good], M, M @ M.transpose(0, 2, 1), Phi[good], gamma2[good]
 
 
-def _delay_blocks(L: int, K: int, p: int, N: int):
+def _delay_blocks(L: int, K: int, N: int):
     """Index blocks of the ``L`` delays whose ``(K, N, block)`` outputs fit
     :data:`BLOCK_BYTES`."""
     size = max(1, BLOCK_BYTES // (8 * N * (3 * K + 2)))

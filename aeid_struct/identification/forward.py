@@ -143,9 +143,7 @@ def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
         parts = fast(ys[0][0], us[0][0]) if fast is not None else encode(ident, list(ys),
                                                                              list(us))
         if head is not None:
-            before = np.isfinite(parts[2]).all(axis=-1) & np.isfinite(parts[3])
-            parts = apply_head(ident, head, list(ys), list(us), parts)
-            missed[rows] = before & ~np.isfinite(parts[3])
+            parts, missed[rows] = apply_head(ident, head, list(ys), list(us), parts)
     if good.all():
         return parts, missed
     R, count = record.records, record.count

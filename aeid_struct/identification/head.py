@@ -241,18 +241,24 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
 
     Returns
     -------
-    tuple
+    model : tuple
         The same arrays, the head's rows in place of the encoder's; NaN rows where the head
         finds no finite model.
+    failed : (count,) bool array
+        Those rows (:func:`head_failure` says why to the caller's user).
     """
     pattern = _pattern(ident, head)
     A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
     y = ys[0]
     u = np.ones_like(y) if us[0] is None else np.broadcast_to(us[0], y.shape)
     a = -A[:, -1, :]
-    rows = np.flatnonzero(np.isfinite(a).all(axis=1))
+    # rows whose encoder model overflowed (a record of 1e308) are left to the caller's overflow
+    # rule: the head would fail on them for the record's scale, not for its fixed elements
+    rows = np.flatnonzero(np.isfinite(a).all(axis=1) & np.isfinite(c).all(axis=1)
+                          & np.isfinite(d))
+    failed = np.zeros(A.shape[0], dtype=bool)
     if rows.size == 0:
-        return A, b, c, d, el
+        return (A, b, c, d, el), failed
     for part in np.array_split(rows, -(-rows.size // CHUNK)):
         fit = gauss_newton(pattern, a[part][:, pattern.free_a], y[part], u[part], ident.dt,
                            iterations=head.iterations, tol=head.tol)
@@ -260,8 +266,9 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
         # a record the head cannot fit (a fixed value no finite model takes) gets no model:
         # the encoder's, returned in its place, would pass for the head's (NaN rows are
         # reported by the caller)
-        failed = part[~ok]
-        A[failed], c[failed], d[failed], el[failed] = math.nan, math.nan, math.nan, math.nan
+        bad = part[~ok]
+        failed[bad] = True
+        A[bad], c[bad], d[bad], el[bad] = math.nan, math.nan, math.nan, math.nan
         done, n = part[ok], pattern.n
         A[done, -1, :] = -fit.a[ok]
         c[done], d[done] = fit.c[ok], fit.d[ok]
@@ -269,4 +276,4 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
                   **{f"c{j}": fit.c[ok, j] for j in range(n)}, "d": fit.d[ok]}
         for i, name in enumerate(ident.structure.element_names):
             el[done, i] = values[name]
-    return A, b, c, d, el
+    return (A, b, c, d, el), failed

@@ -283,12 +283,9 @@ class OnnxIdentifier:
         if self.head is not None:     # after the graph, as Identifier.identify runs it
             from aeid_struct.identification import apply_head, head_failure
 
-            before = np.isfinite(c).all(axis=1) & np.isfinite(d.reshape(len(d), -1)).all(axis=1)
             with np.errstate(over="ignore", invalid="ignore"):
-                A, b, c, d, el = apply_head(self, self.head, [checked.y], [checked.u],
-                                            (A, b, c, d, el))
-            # the head's own failures (an overflowing encoder model is refused below)
-            missed = before & ~np.isfinite(d.reshape(len(d), -1)).all(axis=1)
+                (A, b, c, d, el), missed = apply_head(self, self.head, [checked.y],
+                                                      [checked.u], (A, b, c, d, el))
             if missed.any():
                 raise head_failure(int(np.argmax(missed)), self.head)
         finite = np.isfinite(c).all(axis=1) & np.isfinite(d.reshape(len(d), -1)).all(axis=1)

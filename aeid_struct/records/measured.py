@@ -278,23 +278,6 @@ class Record:
         """
         return self._like(delay=delay)
 
-    def scaled(self, y_scale: float, u_scale: float) -> Record:
-        """The record in other amplitude units: ``y / y_scale`` and ``u / u_scale`` (offsets
-        too); exact for powers of two (:func:`exact_scale`).
-
-        Parameters
-        ----------
-        y_scale, u_scale : float, > 0
-
-        Returns
-        -------
-        Record
-        """
-        if y_scale == 1.0 and u_scale == 1.0:
-            return self
-        return self._like(y=self.y / y_scale, u=self.u / u_scale,
-                          y_offset=self.y_offset / y_scale, u_offset=self.u_offset / u_scale)
-
     def require_informative(self) -> None:
         """Refuse a record that says nothing about the system's input-output behaviour: a
         constant output, or a constant input (with a free initial state and offset, the

@@ -100,9 +100,12 @@ class Units:
         """
         if self.identity:
             return data
-        return dataclasses.replace(data, y=data.y - self.y_level, u=data.u - self.u_level,
-                                   y_offset=data.y_offset + self.y_level,
-                                   u_offset=data.u_offset + self.u_level).scaled(self.sy, self.su)
+        # the measured signals are y + y_offset: the removed level joins the offset, and both
+        # are in the new amplitude unit
+        return dataclasses.replace(
+            data, y=(data.y - self.y_level) / self.sy, u=(data.u - self.u_level) / self.su,
+            y_offset=(data.y_offset + self.y_level) / self.sy,
+            u_offset=(data.u_offset + self.u_level) / self.su)
 
     def linear(self, A, b, c, d, x0, y_offset):
         """A model's linear parts in the record's units: ``c, d`` times ``sy / su``, the state
