@@ -70,8 +70,28 @@ def measured(record, delay=None) -> Record:
 def check_grid(data: Record, identifiers: dict, max_delay: int | None, default: int) -> int:
     """Refuse a record shorter than an identifier's window, a known delay or a given
     ``max_delay`` that leaves less than the window, and a sample time whose de-normalised model
-    cannot be represented in float64; return the largest delay to consider (``max_delay``, or
-    ``default`` capped by what the record leaves when it is None)."""
+    cannot be represented in float64; return the largest delay to consider.
+
+    Parameters
+    ----------
+    data : Record
+        Checked (:func:`measured`), with its known delay or None.
+    identifiers : dict order -> generic identifier
+        Their ``config.window`` (samples) and ``config.band`` (``|p| dt``, rad/sample).
+    max_delay : int or None
+        The user's; None: ``default`` capped by what the record leaves after the window.
+    default : int
+
+    Returns
+    -------
+    int
+        The largest delay to consider.
+
+    Raises
+    ------
+    ValueError
+        Naming the record's length, ``delay``, ``max_delay`` or ``dt``.
+    """
     window = max(int(i.config.window) for i in identifiers.values())
     if data.steps < window:
         raise ValueError(f"the record has {data.steps} samples; the generic identifier"
