@@ -90,10 +90,11 @@ def _record() -> list[Case]:
     y, u = data()
     return [
         Case(area, "several outputs", lambda x: ae.Record(np.stack([y, y, y], 1), u, DT),
-             match=r"^y has 3 outputs \(shape \(600, 3\)\): several outputs are not supported "
-                   r"yet; identify one channel at a time"),
-        Case(area, "several inputs", lambda x: ae.Record(y, np.stack([u, u], 1), DT),
-             match=r"^u has 2 inputs \(shape \(600, 2\)\): several inputs are not supported"),
+             raises=None, check=lambda r: (r.outputs, r.inputs, r.Y.shape) == (3, 1, (N, 3))),
+        Case(area, "several inputs through n4sid", lambda x: ae.baselines.n4sid(
+            ae.Record(y, np.stack([u, u], 1), DT), order=2),
+             match=r"^n4sid identifies one output from one input; the record has 1 outputs "
+                   r"and 2 inputs"),
         Case(area, "a column y is one output", lambda x: ae.Record(y[:, None], u, DT),
              raises=None, check=lambda r: r.y.shape == (N,) and bool(np.all(r.y == y))),
         Case(area, "dt zero", lambda x: ae.Record(y, u, 0.0),
@@ -241,7 +242,8 @@ def _identify_any() -> list[Case]:
                                                                        rtol=1e-12))),
         Case(area, "MIMO y through identify", lambda x: ae.identify(
             (np.stack([y, y], 1), u, DT), order=2),
-             match=r"^y has 2 outputs .*several outputs are not supported yet"),
+             match=r"^ae.identify identifies one output from one input; the record has 2 "
+                   r"outputs and 1 inputs .*record.channel\(output, input\)"),
     ]
 
 

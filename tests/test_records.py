@@ -55,7 +55,7 @@ def test_steps_time_axis_len_and_repr():
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
-    ({"y": [1.0]}, r"y must have shape \(steps,\) with steps >= 2.*\(1,\)"),
+    ({"y": [1.0]}, r"y must have shape \(steps,\) or \(steps, outputs\) with steps >= 2.*\(1,\)"),
     ({"y": np.ones((2, 3))}, r"y must have shape \(steps,\).*\(2, 3\)"),
     ({"y": [1.0, np.nan, 2.0]}, "y must be finite; got nan at sample 1"),
     ({"y": [1.0 + 1j, 2.0]}, "y must be real; got a complex array"),
@@ -220,12 +220,51 @@ def test_units_carry_the_same_digits_and_the_removed_level():
     assert Units.of(ordinary).identity and Units.of(ordinary).apply(ordinary) is ordinary
 
 
-def test_a_column_is_one_channel_and_several_are_refused():
+def test_a_column_is_one_channel_and_several_channels_are_kept():
     y = np.linspace(0, 1, 20)
     assert Record(y[:, None], y[::-1, None], 0.1).y.shape == (20,)
-    with pytest.raises(ValueError, match=r"^u has 2 inputs \(shape \(20, 2\)\): several inputs "
-                                         r"are not supported yet; identify one channel"):
-        Record(y, np.stack([y, y], 1), 0.1)
+    rec = Record(np.stack([y, y**2], 1), np.stack([y[::-1], np.sin(y), y], 1), 0.1,
+                 y_offset=[1.0, 2.0], u_offset=0.5)
+    assert (rec.outputs, rec.inputs, rec.Y.shape, rec.U.shape) == (2, 3, (20, 2), (20, 3))
+    np.testing.assert_array_equal(rec.u_offset, [0.5, 0.5, 0.5])
+    one = rec.channel(1, 1)
+    assert (one.outputs, one.inputs, one.y_offset, one.u_offset) == (1, 1, 2.0, 0.5)
+    np.testing.assert_array_equal(one.y, y**2)
+    np.testing.assert_array_equal(one.u, np.sin(y))
+    with pytest.raises(ValueError, match=r"^input must be an integer in \[0, 3\) \(the record "
+                                         r"has 3 inputs\); got 3"):
+        rec.channel(0, 3)
+    with pytest.raises(ValueError, match=r"^y must have shape \(steps,\) or \(steps, outputs\) "
+                                         r"with more samples than outputs; got shape \(2, 20\)"):
+        Record(np.stack([y, y]), None, 0.1)
+    with pytest.raises(ValueError, match=r"^y_offset must be a number or a \(2,\) array"):
+        Record(np.stack([y, y], 1), y, 0.1, y_offset=[1.0, 2.0, 3.0])
+
+
+def test_detrend_works_per_channel():
+    k = np.arange(50.0)
+    y = np.stack([3.0 + 0.5 * k + np.sin(k), -2.0 + np.cos(k)], 1)
+    u = np.stack([np.sin(0.3 * k) + 4.0, np.cos(0.2 * k)], 1)
+    rec = Record(y, u, 0.1)
+    for kind in ("mean", "initial", "linear"):
+        many = rec.detrend(kind)
+        for i in range(2):
+            one = rec.channel(i, i).detrend(kind)
+            np.testing.assert_allclose(many.Y[:, i], one.y, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(many.U[:, i], one.u, rtol=0, atol=1e-12)
+            assert many.y_offset[i] == pytest.approx(one.y_offset, abs=1e-12)
+            assert many.u_offset[i] == pytest.approx(one.u_offset, abs=1e-12)
+
+
+def test_identifiers_of_one_channel_refuse_several_by_name():
+    y = np.random.default_rng(0).normal(size=(60, 2))
+    rec = Record(y, y[:, 0], 0.1)
+    with pytest.raises(ValueError, match=r"^ae.identify identifies one output from one input; "
+                                         r"the record has 2 outputs and 1 inputs"):
+        ae.identify(rec, order=2)
+    rec.channel(1).require_siso("x")
+    with pytest.raises(ValueError, match=r"^y is constant \(output 1\)"):
+        Record(np.stack([y[:, 0], np.ones(60)], 1), y[:, 1], 0.1).require_informative()
 
 
 def test_require_informative_names_the_constant_signal():

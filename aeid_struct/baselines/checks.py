@@ -72,7 +72,7 @@ def check_record(y, u) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
-def as_measured(y):
+def as_measured(y, what: str):
     """A measured record given as ``y``: a ``Record`` as it is, a ``(y, u)`` or ``(y, u, dt)``
     tuple of arrays as a ``Record`` (as ``ae.identify`` and ``ae.compare`` take it); None for
     anything else (the arrays of a record from rest).
@@ -80,16 +80,19 @@ def as_measured(y):
     Parameters
     ----------
     y : object
+    what : str
+        The method, named where a record of several outputs or inputs is refused.
 
     Returns
     -------
     Record or None
     """
-    if isinstance(y, Record):
-        return y
     if isinstance(y, tuple) and len(y) in (2, 3) and all(np.ndim(v) >= 1 for v in y[:2]):
-        return Record(*y)
-    return None
+        y = Record(*y)
+    if not isinstance(y, Record):
+        return None
+    y.require_siso(what)
+    return y
 
 
 def only_record(method: str, **given) -> None:

@@ -210,7 +210,7 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
     ValueError
         For a bad argument, or a record shorter than the number of free elements.
     """
-    measured = as_measured(y)
+    measured = as_measured(y, "least_squares")
     if measured is not None:
         only_record("least_squares", u=u, dt=dt, structure=structure, start=start,
                     inverse=inverse)

@@ -113,7 +113,7 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
-    measured = as_measured(y)
+    measured = as_measured(y, "n4sid")
     if measured is not None:
         only_record("n4sid", u=u, dt=dt, structure=structure, inverse=inverse,
                      pre_zeros=pre_zeros)

@@ -27,7 +27,7 @@ def _delay(name: str, value, steps: int) -> int | None:
     return int(value)
 
 
-def measured(record, delay=None) -> Record:
+def measured(record, delay=None, *, what: str = "ae.identify") -> Record:
     """A user's record as a checked :class:`~aeid_struct.records.Record` (checked once: a
     Record is taken as it is, anything else goes through Record's own checks).
 
@@ -38,6 +38,8 @@ def measured(record, delay=None) -> Record:
         lone array is ``y`` with a unit step input and ``dt = 1``.
     delay : int, optional
         A known input delay in samples, over the record's own.
+    what : str
+        The entry point, named where a record of several channels is refused.
 
     Returns
     -------
@@ -48,7 +50,7 @@ def measured(record, delay=None) -> Record:
     ------
     ValueError
         Naming the argument: not real numbers, a wrong shape, a non-finite sample, ``u`` of
-        another length, a bad ``dt`` or ``delay``.
+        another length, a bad ``dt`` or ``delay``; a record of several outputs or inputs.
     """
     if isinstance(record, Record):
         rec = record
@@ -62,6 +64,7 @@ def measured(record, delay=None) -> Record:
                          f"y; got a {type(record).__name__} of {len(record)} items")
     else:
         rec = Record(record)
+    rec.require_siso(what)
     known = _delay("record.delay", rec.delay, rec.steps)
     given = _delay("delay", delay, rec.steps)
     return rec if given is None or given == known else rec.with_delay(given)

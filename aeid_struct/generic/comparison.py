@@ -166,7 +166,7 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
         delay that is not a whole number of the record's samples.
     """
     A, b, c, d, model_delay, step = _model(estimate_or_model)
-    data = measured(record, delay)
+    data = measured(record, delay, what="ae.compare")
     D = (data.delay if delay is not None or model_delay is None else
          _in_samples(int(model_delay), step, data.dt))
     D = 0 if D is None else int(D)

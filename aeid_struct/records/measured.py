@@ -58,33 +58,56 @@ def _number(name: str, value) -> float:
 
 
 def _samples(name: str, value) -> np.ndarray:
-    """A read-only ``(steps,)`` float64 copy of ``value``, steps >= 2, finite and real."""
+    """A read-only float64 copy of ``value``: ``(steps,)`` for one channel (a column too),
+    ``(steps, channels)`` for several; steps >= 2 and more samples than channels, finite, real."""
     arr = as_array(name, value)
     if arr.ndim == 2 and arr.shape[1] == 1:        # a column: one channel
         arr = arr[:, 0]
-    if arr.ndim == 2 and arr.shape[1] > 1 and arr.shape[0] > arr.shape[1]:
-        what = "outputs" if name == "y" else "inputs"
-        raise ValueError(f"{name} has {arr.shape[1]} {what} (shape {arr.shape}): several "
-                         f"{what} are not supported yet; identify one channel at a time "
-                         f"({name}[:, k])")
-    if arr.ndim != 1 or arr.shape[0] < 2:
-        raise ValueError(f"{name} must have shape (steps,) with steps >= 2 (one record); got "
-                         f"shape {arr.shape}")
+    what = "outputs" if name == "y" else "inputs"
+    if arr.ndim == 2 and not arr.shape[0] > arr.shape[1] >= 2:
+        raise ValueError(f"{name} must have shape (steps,) or (steps, {what}) with more samples "
+                         f"than {what}; got shape {arr.shape} (a transposed record? pass "
+                         f"{name}.T)")
+    if arr.ndim not in (1, 2) or arr.shape[0] < 2:
+        raise ValueError(f"{name} must have shape (steps,) or (steps, {what}) with steps >= 2 "
+                         f"(one record); got shape {arr.shape}")
     require_finite(name, arr)
     arr = np.array(arr, dtype=np.float64)          # our own copy: the caller's may change
     arr.flags.writeable = False
     return arr
 
 
+def _offset(name: str, value, channels: int):
+    """An offset: a finite float for one channel, a read-only ``(channels,)`` array for
+    several (a scalar is broadcast)."""
+    if channels == 1:
+        return _number(name, value)
+    if np.ndim(value) == 0:
+        value = np.full(channels, _number(name, value))
+    arr = as_array(name, value)
+    if arr.shape != (channels,):
+        raise ValueError(f"{name} must be a number or a ({channels},) array (one per channel); "
+                         f"got shape {arr.shape}")
+    require_finite(name, arr)
+    arr = np.array(arr, dtype=np.float64)
+    arr.flags.writeable = False
+    return arr
+
+
 @dataclass(frozen=True, eq=False)
 class Record:
-    """A measured SISO record ``(y, u)`` on the grid ``t_k = t0 + k dt``, checked once.
+    """A measured record ``(y, u)`` on the grid ``t_k = t0 + k dt``, checked once.
+
+    One output and one input are ``(steps,)`` arrays (a ``(steps, 1)`` column is the same);
+    ``p`` outputs are ``(steps, p)`` and ``m`` inputs ``(steps, m)``. :attr:`Y` and :attr:`U`
+    are always two-dimensional; :meth:`channel` picks one output and one input. Several
+    experiments of one system are a list of records.
 
     Parameters
     ----------
-    y : (steps,) array_like, steps >= 2
+    y : (steps,) or (steps, p) array_like, steps >= 2
         Measured output (real, finite); stored as a read-only float64 array.
-    u : (steps,) array_like, optional
+    u : (steps,) or (steps, m) array_like, optional
         Input (real, finite), as long as ``y``; None is a unit step (``records.unit_step``).
     dt : float, > 0
         Sample time.
@@ -94,7 +117,7 @@ class Record:
         Shown in ``repr`` and carried by :meth:`split`.
     t0 : float
         Time of the first sample.
-    y_offset, u_offset : float
+    y_offset, u_offset : float, or (p,) / (m,) array for several channels
         Offsets already removed from ``y`` and ``u`` (:meth:`detrend` adds to them): the
         measured signals are ``y + y_offset`` and ``u + u_offset``.
 
@@ -118,7 +141,7 @@ class Record:
     def __post_init__(self) -> None:
         y = _samples("y", self.y)
         u = _samples("u", unit_step(y.shape[0]) if self.u is None else self.u)
-        if u.shape != y.shape:
+        if u.shape[0] != y.shape[0]:
             raise ValueError(f"u must have as many samples as y ({y.shape[0]}); got "
                              f"{u.shape[0]}")
         delay = self.delay
@@ -132,7 +155,9 @@ class Record:
         if not isinstance(self.name, str):
             raise ValueError(f"name must be a str; got {type(self.name).__name__}")
         values = {"y": y, "u": u, "dt": check_dt(self.dt), "delay": delay,
-                  **{k: _number(k, getattr(self, k)) for k in ("t0", "y_offset", "u_offset")}}
+                  "t0": _number("t0", self.t0),
+                  "y_offset": _offset("y_offset", self.y_offset, _width(y)),
+                  "u_offset": _offset("u_offset", self.u_offset, _width(u))}
         for key, value in values.items():
             object.__setattr__(self, key, value)
 
@@ -140,6 +165,72 @@ class Record:
     def steps(self) -> int:
         """Samples in the record."""
         return self.y.shape[0]
+
+    @property
+    def outputs(self) -> int:
+        """``p``, the number of outputs."""
+        return _width(self.y)
+
+    @property
+    def inputs(self) -> int:
+        """``m``, the number of inputs."""
+        return _width(self.u)
+
+    @property
+    def Y(self) -> np.ndarray:
+        """``(steps, p)`` outputs (a view of ``y``)."""
+        return self.y.reshape(self.steps, -1)
+
+    @property
+    def U(self) -> np.ndarray:
+        """``(steps, m)`` inputs (a view of ``u``)."""
+        return self.u.reshape(self.steps, -1)
+
+    def channel(self, output: int = 0, input: int = 0) -> Record:  # noqa: A002 (the maths' name)
+        """The one-output, one-input record of output ``output`` and input ``input``.
+
+        Parameters
+        ----------
+        output : int in [0, p)
+        input : int in [0, m)
+
+        Returns
+        -------
+        Record
+            With that channel's offsets, the same ``dt``, ``delay``, ``t0`` and name.
+
+        Raises
+        ------
+        ValueError
+            For an index outside the record's channels.
+        """
+        for what, k, count in (("output", output, self.outputs), ("input", input, self.inputs)):
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not (
+                    0 <= k < count):
+                raise ValueError(f"{what} must be an integer in [0, {count}) (the record has "
+                                 f"{count} {what}s); got {k!r}")
+        return self._like(y=self.Y[:, output], u=self.U[:, input],
+                          y_offset=float(np.ravel(self.y_offset)[output]),
+                          u_offset=float(np.ravel(self.u_offset)[input]))
+
+    def require_siso(self, what: str) -> None:
+        """Refuse a record with several outputs or inputs where ``what`` identifies one output
+        from one input.
+
+        Parameters
+        ----------
+        what : str
+            The entry point, named in the message.
+
+        Raises
+        ------
+        ValueError
+        """
+        if self.outputs > 1 or self.inputs > 1:
+            raise ValueError(f"{what} identifies one output from one input; the record has "
+                             f"{self.outputs} outputs and {self.inputs} inputs (y "
+                             f"{self.y.shape}, u {self.u.shape}): identify one channel at a "
+                             f"time with record.channel(output, input)")
 
     @property
     def t(self) -> np.ndarray:
@@ -150,8 +241,13 @@ class Record:
         return self.steps
 
     def __repr__(self) -> str:
-        return (f"Record(name={self.name!r}, steps={self.steps}, dt={self.dt:g}, "
-                f"delay={self.delay}, y_offset={self.y_offset:g}, u_offset={self.u_offset:g})")
+        channels = "" if self.outputs == self.inputs == 1 else \
+            f"outputs={self.outputs}, inputs={self.inputs}, "
+        offsets = ", ".join(f"{k}={np.array2string(np.asarray(v), precision=6)}"
+                            if np.ndim(v) else f"{k}={v:g}"
+                            for k, v in (("y_offset", self.y_offset), ("u_offset", self.u_offset)))
+        return (f"Record(name={self.name!r}, steps={self.steps}, {channels}dt={self.dt:g}, "
+                f"delay={self.delay}, {offsets})")
 
     def _like(self, **changes) -> Record:
         """A Record with ``changes``, the rest kept (checked again: a split part may be short)."""
@@ -181,16 +277,15 @@ class Record:
         if kind not in DETRENDS:
             raise ValueError(f"kind must be one of {DETRENDS}; got {kind!r}")
         if kind == "initial":
-            y_trend, u_level = np.full(self.steps, self.y[0]), self.u[0]
+            y_trend, u_level = np.broadcast_to(self.y[0], self.y.shape), self.u[0]
         elif kind == "mean":
-            y_trend, u_level = np.full(self.steps, self.y.mean()), self.u.mean()
-        else:
+            y_trend, u_level = np.broadcast_to(self.y.mean(0), self.y.shape), self.u.mean(0)
+        else:                  # per output channel (lstsq solves every column at once)
             k = np.arange(self.steps, dtype=np.float64)
             line = np.linalg.lstsq(np.stack([np.ones_like(k), k], 1), self.y, rcond=None)[0]
-            y_trend, u_level = line[0] + line[1] * k, self.u.mean()
+            y_trend, u_level = line[0] + np.multiply.outer(k, line[1]), self.u.mean(0)
         return self._like(y=self.y - y_trend, u=self.u - u_level,
-                          y_offset=self.y_offset + float(y_trend[0]),
-                          u_offset=self.u_offset + float(u_level))
+                          y_offset=self.y_offset + y_trend[0], u_offset=self.u_offset + u_level)
 
     def split(self, fraction: float = 0.5, *, at: int | None = None) -> tuple[Record, Record]:
         """An estimation part and a validation part (the validation part's ``t0`` continues
@@ -288,12 +383,21 @@ class Record:
         ValueError
             Naming ``y`` or ``u``.
         """
-        if not np.ptp(self.y) > 0:
-            raise ValueError(f"y is constant (every sample is {self.y[0]:g}): a constant output "
-                             f"says nothing about the system; give a record whose output "
-                             f"responds to the input")
-        if not np.ptp(self.u) > 0:
-            raise ValueError("u is constant over the whole record: with a free initial state "
-                             "and offset, a constant input says nothing about the system (a "
+        flat = np.flatnonzero(~(np.ptp(self.Y, axis=0) > 0))
+        if flat.size:
+            which = "" if self.outputs == 1 else f" (output {flat[0]})"
+            raise ValueError(f"y is constant{which} (every sample is {self.Y[0, flat[0]]:g}): "
+                             f"a constant output says nothing about the system; give a record "
+                             f"whose output responds to the input")
+        flat = np.flatnonzero(~(np.ptp(self.U, axis=0) > 0))
+        if flat.size:
+            which = "" if self.inputs == 1 else f" (input {flat[0]})"
+            raise ValueError(f"u is constant{which} over the whole record: with a free initial "
+                             "state and offset, a constant input says nothing about the system (a "
                              "step response from rest is the leg identifiers' case, "
                              "ae.load_pretrained); give a record whose input varies")
+
+
+def _width(x: np.ndarray) -> int:
+    """Channels of a ``(steps,)`` or ``(steps, channels)`` array."""
+    return 1 if x.ndim == 1 else x.shape[1]
