@@ -908,7 +908,8 @@ def _refine() -> list[Case]:
         Case(area, "y of 1 sample", lambda x: refine(x.est, x.y300[5:6], None, 0.01),
              match=r"y must .*samples"),
         Case(area, "estimate without a structure",
-             lambda x: refine(dataclasses.replace(x.est, structure=None), x.y300, None, 0.01),
+             lambda x: refine(dataclasses.replace(x.est, provenance=dataclasses.replace(
+                 x.est.provenance, structure=None)), x.y300, None, 0.01),
              match=r"structure must be given"),
         Case(area, "y batch for a single estimate",
              lambda x: refine(x.est, np.stack([x.y300] * 2), None, 0.01), match=r"y must"),

@@ -17,7 +17,8 @@ import aeid_struct as ae
 from aeid_struct import baselines as bl
 from aeid_struct.baselines.models import free_indices, model_of
 from aeid_struct.baselines.output_error import Problem
-from aeid_struct.identification import Estimate
+from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.records import Record, RecordBatch
 from aeid_struct.simulation import simulate_outputs
 from aeid_struct.training import LegFamily
 from symbolic import leg
@@ -321,8 +322,9 @@ def test_generic_start_is_exact_when_the_poles_are_right():
 # Failure rule and arguments
 # ---------------------------------------------------------------------------------------------
 def _estimate(A, b, c, d, y, dt, **info):
-    return Estimate(np.asarray(A, float), np.asarray(b, float), np.asarray(c, float), d, {},
-                    y, np.ones_like(y), dt, 0.0, False, info, leg.stable_inverse())
+    return Estimate(A=np.asarray(A, float), b=np.asarray(b, float), c=np.asarray(c, float),
+                    d=d, elements={}, record=Record(y, np.ones_like(y), dt), info=info,
+                    provenance=Provenance(inverse=leg.stable_inverse()))
 
 
 def test_failure_rule():
@@ -343,8 +345,9 @@ def test_failure_rule():
 
 def test_failed_on_a_batched_estimate():
     A, b, c, dt, y = _leg("stable")
-    est = Estimate(np.stack([A, A]), np.stack([b, b]), np.stack([c, 2 * c]), np.zeros(2), {},
-                   np.stack([y, y]), np.ones((2, y.shape[0])), dt)
+    est = Estimate(A=np.stack([A, A]), b=np.stack([b, b]), c=np.stack([c, 2 * c]),
+                   d=np.zeros(2), elements={}, record=RecordBatch.of(
+                       np.stack([y, y]), np.ones((2, y.shape[0])), dt, batched=True))
     np.testing.assert_array_equal(bl.failed(est, truth_y=np.stack([y, y])), [False, True])
 
 

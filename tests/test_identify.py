@@ -253,7 +253,8 @@ def test_standalone_refine_uses_the_estimates_structure():
     polished = refine(est)                          # no further argument needed
     assert polished.refined and polished.info["loss"] <= polished.info["loss_start"]
     np.testing.assert_allclose(polished.A, [[0.0, 1.0], [-20.0, -3.0]], rtol=1e-6, atol=1e-8)
-    bare = ae.Estimate(est.A, est.b, est.c, est.d, est.elements, y, np.ones(60), 0.05)
+    bare = ae.Estimate(A=est.A, b=est.b, c=est.c, d=est.d, elements=est.elements,
+                       record=ae.Record(y, np.ones(60), 0.05))
     with pytest.raises(ValueError, match="structure must be given: this estimate does not"):
         refine(bare)
 
@@ -317,13 +318,23 @@ def test_an_estimate_refers_to_its_identifiers_provenance():
     # keywords build it; the old positional form and the old keywords give the same estimate
     kw = Estimate(A=one.A, b=one.b, c=one.c, d=one.d, elements=one.elements, record=one.record,
                   provenance=one.provenance)
-    old = Estimate(one.A, one.b, one.c, one.d, one.elements, y, np.ones(60), 0.05, 0.0, False,
-                   {}, ident.inverse, structure=ident.structure)
+    with pytest.warns(DeprecationWarning, match=r"positionally is deprecated: construct it "
+                                                r"with keywords"):
+        old = Estimate(one.A, one.b, one.c, one.d, one.elements, y, np.ones(60), 0.05, 0.0,
+                       False, {}, ident.inverse, structure=ident.structure)
+    # the model in the shapes of several channels: B (n, m), C (p, n), D (p, m)
+    assert (one.B.shape, one.C.shape, one.D.shape) == ((2, 1), (1, 2), (1, 1))
+    assert two.B.shape == (2, 2, 1) and two.D.shape == (2, 1, 1)
+    np.testing.assert_array_equal(one.C[0], one.c)
+    ss = one.to_control()
+    np.testing.assert_array_equal(ss.B, one.B)
+    np.testing.assert_array_equal(ss.C, one.C)
     for e in (kw, old):
         assert e.fit == pytest.approx(one.fit, rel=1e-12)
         assert e.physical["k"] == pytest.approx(one.physical["k"], rel=1e-12)
         assert e.structure is ident.structure and e.dt == 0.05 and not e.batched
-    bare = dataclasses.replace(one, structure=None)
+    with pytest.warns(DeprecationWarning, match=r"keywords \['structure'\] are deprecated"):
+        bare = dataclasses.replace(one, structure=None)
     assert bare.structure is None and one.structure is ident.structure
     assert bare.record is one.record
     with pytest.raises(TypeError, match=r"unexpected keyword arguments \['shape'\]"):

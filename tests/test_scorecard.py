@@ -11,6 +11,8 @@ import aeid_struct as ae
 from aeid_struct import training as data
 from aeid_struct.evaluation import Score, pool, score, table, training_summary, training_table
 from aeid_struct.evaluation import scorecard as scorecard
+from aeid_struct.identification import Provenance
+from aeid_struct.records import RecordBatch
 from aeid_struct.studies import leg_paper as study
 from symbolic import leg
 
@@ -26,7 +28,9 @@ class _Given:
     def identify(self, y, u=None, *, refine=False):
         self.calls.append(refine)
         A, b, c, d = self.model
-        return ae.Estimate(A, b, c, d, {}, y, u, self.dt, _inverse=self.inverse)
+        return ae.Estimate(A=A, b=b, c=c, d=d, elements={},
+                           record=RecordBatch.of(y, u, self.dt, batched=np.ndim(y) == 2),
+                           provenance=Provenance(inverse=self.inverse))
 
 
 def _leg_records(count=6, noise=0.0):

@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from aeid_struct.identification import Estimate
-from aeid_struct.records import Record, as_array, require_finite, unit_step
+from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.records import Record, RecordBatch, as_array, require_finite, unit_step
 
 __all__ = ["as_measured", "check_int", "check_record", "estimate", "in_structure", "nan_model",
            "only_record", "physical_source"]
@@ -173,9 +173,10 @@ def estimate(model, elements, y, u, dt, start, info, source) -> Estimate:
     """
     A, b, c, d = model
     info = {**info, "seconds": time.perf_counter() - start}
-    return Estimate(np.asarray(A, dtype=np.float64), np.asarray(b, dtype=np.float64),
-                    np.asarray(c, dtype=np.float64), float(d), dict(elements), y, u, dt,
-                    info["seconds"], False, info, source)
+    return Estimate(A=np.asarray(A, dtype=np.float64), b=np.asarray(b, dtype=np.float64),
+                    c=np.asarray(c, dtype=np.float64), d=float(d), elements=dict(elements),
+                    record=RecordBatch.of(y, u, dt, batched=False),
+                    provenance=Provenance(inverse=source), seconds=info["seconds"], info=info)
 
 
 def nan_model(n: int):

@@ -6,14 +6,15 @@ The methods themselves: :func:`~aeid_struct.baselines.n4sid`,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.identification import Estimate
-from aeid_struct.records import as_array, unit_step
+from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.records import RecordBatch, as_array, unit_step
 from aeid_struct.simulation import check_dt
 
 __all__ = ["Classical"]
@@ -111,16 +112,19 @@ def _stack(parts: list[Estimate], Y, U, dt: float, seconds: float, refined: bool
         stack(lambda p: p.c, (n,))
     d = stack(lambda p: p.d, ())
     elements = {k: stack(lambda p, k=k: p.elements.get(k, math.nan), ()) for k in names}
-    source = next((p._inverse for p in parts if p._inverse is not None), None)
+    source = next((p.provenance.inverse for p in parts if p.provenance.inverse is not None),
+                  None)
     info = {"method": parts[0].info.get("method", ""), "records": [p.info for p in parts],
             "failed": np.array([bool(p.info.get("failed")) for p in parts])}
-    return Estimate(A, b, c, d, elements, Y, U, dt, seconds, bool(refined), info, source,
-                    structure=parts[0].structure)
+    return Estimate(A=A, b=b, c=c, d=d, elements=elements,
+                    record=RecordBatch.of(Y, U, dt, batched=True),
+                    provenance=Provenance(structure=parts[0].structure, inverse=source),
+                    seconds=seconds, refined=bool(refined), info=info)
 
 
 def _single(est: Estimate) -> Estimate:
     """The one record of a batch-1 estimate, unbatched."""
-    return Estimate(est.A[0], est.b[0], est.c[0], float(est.d[0]),
-                    {k: float(v[0]) for k, v in est.elements.items()}, est.y[0], est.u[0],
-                    est.dt, est.seconds, est.refined, {**est.info, "failed": bool(
-                        est.info["failed"][0])}, est._inverse, structure=est.structure)
+    one = est.take(0)
+    return dataclasses.replace(one, elements={k: float(v) for k, v in one.elements.items()},
+                               d=float(one.d), info={**est.info,
+                                                     "failed": bool(est.info["failed"][0])})

@@ -36,7 +36,7 @@ import scipy.optimize
 from aeid_struct.baselines.checks import estimate, nan_model
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
 from aeid_struct.baselines.subspace_step import nfoursid_model
-from aeid_struct.records import Units
+from aeid_struct.records import RecordBatch, Units
 from aeid_struct.simulation import fit_initial, project
 
 __all__ = ["OFFSETS", "POOR_FIT", "least_squares_record", "n4sid_record"]
@@ -59,7 +59,8 @@ def _finish(model, elements, y, u, dt, start, info, projection):
             "fit": projection.fit, "cost": projection.cost}
     # copies: the Record's arrays are read-only, which torch (Estimate.fit) warns about
     est = estimate(model, elements, y - projection.y_offset, np.array(u), dt, start, info, None)
-    return dataclasses.replace(est, initial="fitted")
+    return dataclasses.replace(est, provenance=dataclasses.replace(est.provenance,
+                                                                  initial="fitted"))
 
 
 def _failed(order, y, u, dt, start, info, reason):
@@ -211,10 +212,16 @@ def _restored(est, record, units):
         return est
     y, u, _ = _aligned(record)
     if est.info.get("failed"):
-        return dataclasses.replace(est, y=np.array(y), u=np.array(u))
+        return dataclasses.replace(est, record=_record(y, u, est.dt))
     c, d, elements, info = units.estimate(est.A, est.b, est.c, est.d, est.elements, est.info)
     return dataclasses.replace(est, c=c, d=np.float64(d), elements=elements, info=info,
-                               y=y - info["y_offset"], u=np.array(u))
+                               record=_record(y - info["y_offset"], u, est.dt))
+
+
+def _record(y, u, dt: float) -> RecordBatch:
+    """The estimate's record of the fitted samples (copies: the Record's arrays are read-only,
+    which torch, through ``Estimate.fit``, warns about)."""
+    return RecordBatch.of(np.array(y), np.array(u), dt, batched=False)
 
 
 def _least_squares(record, *, order: int, feedthrough: bool = False, max_nfev: int = 400):

@@ -173,6 +173,6 @@ def restore(units: Units, est: Estimate, data: Record) -> Estimate:
     if units.identity:
         return est
     c, d, elements, info = units.estimate(est.A, est.b, est.c, est.d, est.elements, est.info)
-    return Estimate(A=est.A, b=est.b, c=c, d=d, elements=elements, y=data.y, u=data.u,
-                    dt=data.dt, provenance=est.provenance, seconds=est.seconds,
+    return Estimate(A=est.A, b=est.b, c=c, d=d, elements=elements, record=data,
+                    provenance=est.provenance, seconds=est.seconds,
                     refined=est.refined, info=info)

@@ -104,12 +104,12 @@ def _model(model):
     if isinstance(model, (tuple, list)) and len(model) == 4:
         A, b, c, d = model
         delay = step = None
-    elif all(hasattr(model, k) for k in ("A", "B", "C", "D")):       # control.StateSpace
-        A, b, c, d = model.A, model.B, model.C, model.D
-        delay = step = None
     elif all(hasattr(model, k) for k in ("A", "b", "c", "d")):        # Estimate
         A, b, c, d = model.A, model.b, model.c, model.d
         delay, step = getattr(model, "delay", None), getattr(model, "dt", None)
+    elif all(hasattr(model, k) for k in ("A", "B", "C", "D")):       # control.StateSpace
+        A, b, c, d = model.A, model.B, model.C, model.D
+        delay = step = None
     else:
         raise ValueError(f"estimate_or_model must be an Estimate, a continuous-time "
                          f"control.StateSpace or TransferFunction, or a tuple (A, b, c, d); "

@@ -98,7 +98,7 @@ class Model:
             x0, y_offset, fit, y_hat, cost = p.x0, p.y_offset, p.fit, p.y_hat, p.cost
         info = {**info, "delay": self.delay, "x0": x0, "y_offset": y_offset,
                 "fit": fit, "y_hat": y_hat, "cost": cost}
-        return Estimate(A=A, b=b, c=c, d=d, elements=elements, y=data.y, u=data.u, dt=dt,
+        return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=data,
                         provenance=Provenance(structure=structure, initial="fitted"),
                         seconds=seconds, refined=refined, info=info)
 

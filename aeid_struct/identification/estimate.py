@@ -15,6 +15,7 @@ return those instead of computing them for a record without delay and offset.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property, wraps
 
@@ -23,7 +24,7 @@ import numpy as np
 from aeid_struct.identification import calibration
 from aeid_struct.identification.physical import inverse_of_models
 from aeid_struct.metrics import nrmse_fit
-from aeid_struct.records import RecordBatch
+from aeid_struct.records import Record, RecordBatch
 from aeid_struct.simulation import initial_state, simulate
 from aeid_struct.structures import CCF
 
@@ -70,7 +71,8 @@ def _from_info(key: str):
 
 class _RecordModel:
     """Fields of an :class:`Estimate` read from its ``info`` (the model of a record: 0 where
-    none was identified) and its provenance."""
+    none was identified) and its provenance, and its model in the shapes of several
+    channels."""
 
     @property
     def _inverse(self):
@@ -85,72 +87,6 @@ class _RecordModel:
     def offset(self) -> float:
         """Constant output offset (``info["y_offset"]``)."""
         return float(self.info.get("y_offset", 0.0))
-
-
-#: The old positional order of ``Estimate(...)`` (kept for code written before Provenance).
-_POSITIONAL = ("A", "b", "c", "d", "elements", "y", "u", "dt", "seconds", "refined", "info",
-               "_inverse")
-#: The old keywords: the record's and the provenance's fields, which an Estimate now refers to.
-_OLD = {"y", "u", "dt", "structure", "initial", "training_range", "_inverse"}
-
-
-@dataclass(frozen=True, eq=False, init=False)
-class Estimate(_RecordModel):
-    """An identified continuous-time model (batched or single), built with keywords.
-
-    Parameters
-    ----------
-    *legacy
-        The old positional form ``Estimate(A, b, c, d, elements, y, u, dt, seconds, refined,
-        info, _inverse)``, still accepted.
-    A : (batch, n, n) or (n, n) float64 array
-        A several-record estimate (``records = R > 1``) has a record axis after the batch axis
-        (``(batch, R, n, n)`` or ``(R, n, n)``), likewise ``b, c, d``.
-    b, c : (batch, n) or (n,) float64 arrays
-    d : (batch,) array or float
-    elements : dict name -> (batch,) array or float
-        The structure's named elements (e.g. ``a0``, ``c1``, ``k``).
-    record : RecordBatch
-        The records the estimate was made from (checked once, at the boundary).
-    provenance : Provenance
-        Structure, physical parameters' source, initial state mode, training range.
-    seconds : float
-        Wall time of the identification.
-    refined : bool
-        Whether a CasADi refinement polished the estimate.
-    info : dict
-        Diagnostics (refinement iterations, loss, ...).
-    errors : tuple of (str or None), optional
-        Set by ``Identifier.identify(errors="collect")``: per record of ``y``, why it could not
-        be identified, or None for a good one (its model rows are NaN). None when every record
-        was good by ``errors="raise"``.
-    **old
-        The old keywords ``y, u, dt`` (a new record) and ``structure, initial,
-        training_range, _inverse`` (a changed provenance), also through ``dataclasses.replace``.
-    """
-
-    A: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: np.ndarray
-    elements: dict
-    record: RecordBatch = field(repr=False)
-    provenance: Provenance = field(repr=False)
-    seconds: float = 0.0
-    refined: bool = False
-    info: dict = field(default_factory=dict)
-    errors: tuple | None = None
-
-    def __init__(self, *legacy, A=None, b=None, c=None, d=None, elements=None, record=None,
-                 provenance=None, seconds=0.0, refined=False, info=None, errors=None, **old):
-        values = _arguments(legacy, {"A": A, "b": b, "c": c, "d": d, "elements": elements,
-                                     "seconds": seconds, "refined": refined, "info": info}, old)
-        values["info"] = {} if values["info"] is None else values["info"]
-        values["record"] = _record(record, old, np.ndim(values["A"]))
-        values["provenance"] = _provenance(provenance, old)
-        values["errors"] = errors
-        for name, value in values.items():
-            object.__setattr__(self, name, value)
 
     # -- the record and the provenance ---------------------------------------------------------
     @property
@@ -193,6 +129,101 @@ class Estimate(_RecordModel):
     def batched(self) -> bool:
         """Whether the estimate has a batch axis."""
         return self.record.batched
+
+    # -- the model in the shapes of several channels ---------------------------------------------
+    @property
+    def B(self) -> np.ndarray:
+        """``(..., n, m)`` input matrix (``m = 1``: ``b`` as a column)."""
+        return np.asarray(self.b)[..., :, None]
+
+    @property
+    def C(self) -> np.ndarray:
+        """``(..., p, n)`` output matrix (``p = 1``: ``c`` as a row)."""
+        return np.asarray(self.c)[..., None, :]
+
+    @property
+    def D(self) -> np.ndarray:
+        """``(..., p, m)`` feedthrough (``p = m = 1``: ``d``)."""
+        return np.asarray(self.d, dtype=np.float64)[..., None, None]
+
+
+#: The old positional order of ``Estimate(...)`` (kept for code written before Provenance).
+_POSITIONAL = ("A", "b", "c", "d", "elements", "y", "u", "dt", "seconds", "refined", "info",
+               "_inverse")
+#: The old keywords: the record's and the provenance's fields, which an Estimate now refers to.
+_OLD = {"y", "u", "dt", "structure", "initial", "training_range", "_inverse"}
+
+
+@dataclass(frozen=True, eq=False, init=False)
+class Estimate(_RecordModel):
+    """An identified continuous-time model (batched or single), built with keywords.
+
+    Parameters
+    ----------
+    *legacy
+        The old positional form ``Estimate(A, b, c, d, elements, y, u, dt, seconds, refined,
+        info, _inverse)``: still read, with a DeprecationWarning (keywords are the one way).
+    A : (batch, n, n) or (n, n) float64 array
+        A several-record estimate (``records = R > 1``) has a record axis after the batch axis
+        (``(batch, R, n, n)`` or ``(R, n, n)``), likewise ``b, c, d``.
+    b, c : (batch, n) or (n,) float64 arrays
+    d : (batch,) array or float
+    elements : dict name -> (batch,) array or float
+        The structure's named elements (e.g. ``a0``, ``c1``, ``k``).
+    record : RecordBatch or Record
+        The records the estimate was made from (checked once, at the boundary); a measured
+        ``Record`` is one unbatched record.
+    provenance : Provenance
+        Structure, physical parameters' source, initial state mode, training range.
+    seconds : float
+        Wall time of the identification.
+    refined : bool
+        Whether a CasADi refinement polished the estimate.
+    info : dict
+        Diagnostics (refinement iterations, loss, ...).
+    errors : tuple of (str or None), optional
+        Set by ``Identifier.identify(errors="collect")``: per record of ``y``, why it could not
+        be identified, or None for a good one (its model rows are NaN). None when every record
+        was good by ``errors="raise"``.
+    **old
+        The old keywords ``y, u, dt`` (a new record) and ``structure, initial,
+        training_range, _inverse`` (a changed provenance), also through ``dataclasses.replace``
+        (which passes them on); given to the constructor they warn (DeprecationWarning).
+
+    Notes
+    -----
+    The model's matrices in the shapes of several inputs and outputs are :attr:`B` ``(n, m)``,
+    :attr:`C` ``(p, n)`` and :attr:`D` ``(p, m)`` (with the leading axes of ``A``); the
+    one-channel fields ``b (n,)``, ``c (n,)``, ``d ()`` are their views for ``p = m = 1``.
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+    d: np.ndarray
+    elements: dict
+    record: RecordBatch = field(repr=False)
+    provenance: Provenance = field(repr=False)
+    seconds: float = 0.0
+    refined: bool = False
+    info: dict = field(default_factory=dict)
+    errors: tuple | None = None
+
+    def __init__(self, *legacy, A=None, b=None, c=None, d=None, elements=None, record=None,
+                 provenance=None, seconds=0.0, refined=False, info=None, errors=None, **old):
+        values = _arguments(legacy, {"A": A, "b": b, "c": c, "d": d, "elements": elements,
+                                     "seconds": seconds, "refined": refined, "info": info}, old)
+        if old and not legacy:
+            warnings.warn(f"Estimate's keywords {sorted(old)} are deprecated: pass "
+                          f"record=RecordBatch.of(y, u, dt, ...) or a records.Record, and "
+                          f"provenance=Provenance(structure=..., initial=..., "
+                          f"training_range=..., inverse=...)", DeprecationWarning, stacklevel=2)
+        values["info"] = {} if values["info"] is None else values["info"]
+        values["record"] = _record(record, old, np.ndim(values["A"]))
+        values["provenance"] = _provenance(provenance, old)
+        values["errors"] = errors
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
 
     # -- derived on first access ---------------------------------------------------------------
     @cached_property
@@ -346,6 +377,11 @@ class Estimate(_RecordModel):
 def _arguments(legacy: tuple, values: dict, old: dict) -> dict:
     """The Estimate's own fields from the old positional form ``legacy`` and the keywords
     ``values``; the old positional ``y, u, dt, _inverse`` go to ``old`` (in place)."""
+    if legacy:
+        warnings.warn("Estimate(A, b, c, d, elements, y, u, dt, ...) positionally is deprecated: "
+                      "construct it with keywords, Estimate(A=..., b=..., c=..., d=..., "
+                      "elements=..., record=..., provenance=Provenance(...))",
+                      DeprecationWarning, stacklevel=3)
     if len(legacy) > len(_POSITIONAL):
         raise TypeError(f"Estimate takes at most {len(_POSITIONAL)} positional arguments (the "
                         f"old form); got {len(legacy)}")
@@ -381,6 +417,8 @@ def _state_spaces(est: Estimate):
 def _record(record: RecordBatch | None, old: dict, ndim: int) -> RecordBatch:
     """The estimate's record: ``record``, or one of the old keywords ``y, u, dt`` (over
     ``record``'s where both are given)."""
+    if isinstance(record, Record):
+        record = RecordBatch.of(record.y, record.u, record.dt, batched=False)
     if record is not None and not {"y", "u", "dt"} & set(old):
         return record
     if record is None and "y" not in old:

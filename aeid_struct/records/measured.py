@@ -94,8 +94,79 @@ def _offset(name: str, value, channels: int):
     return arr
 
 
+class _Channels:
+    """A record's channels: ``p`` outputs, ``m`` inputs, their two-dimensional views and one
+    channel of them (:class:`Record`'s, cut from it at this seam)."""
+
+    @property
+    def outputs(self) -> int:
+        """``p``, the number of outputs."""
+        return _width(self.y)
+
+    @property
+    def inputs(self) -> int:
+        """``m``, the number of inputs."""
+        return _width(self.u)
+
+    @property
+    def Y(self) -> np.ndarray:
+        """``(steps, p)`` outputs (a view of ``y``)."""
+        return self.y.reshape(self.steps, -1)
+
+    @property
+    def U(self) -> np.ndarray:
+        """``(steps, m)`` inputs (a view of ``u``)."""
+        return self.u.reshape(self.steps, -1)
+
+    def channel(self, output: int = 0, input: int = 0) -> Record:  # noqa: A002 (the maths' name)
+        """The one-output, one-input record of output ``output`` and input ``input``.
+
+        Parameters
+        ----------
+        output : int in [0, p)
+        input : int in [0, m)
+
+        Returns
+        -------
+        Record
+            With that channel's offsets, the same ``dt``, ``delay``, ``t0`` and name.
+
+        Raises
+        ------
+        ValueError
+            For an index outside the record's channels.
+        """
+        for what, k, count in (("output", output, self.outputs), ("input", input, self.inputs)):
+            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not (
+                    0 <= k < count):
+                raise ValueError(f"{what} must be an integer in [0, {count}) (the record has "
+                                 f"{count} {what}s); got {k!r}")
+        return self._like(y=self.Y[:, output], u=self.U[:, input],
+                          y_offset=float(np.ravel(self.y_offset)[output]),
+                          u_offset=float(np.ravel(self.u_offset)[input]))
+
+    def require_siso(self, what: str) -> None:
+        """Refuse a record with several outputs or inputs where ``what`` identifies one output
+        from one input.
+
+        Parameters
+        ----------
+        what : str
+            The entry point, named in the message.
+
+        Raises
+        ------
+        ValueError
+        """
+        if self.outputs > 1 or self.inputs > 1:
+            raise ValueError(f"{what} identifies one output from one input; the record has "
+                             f"{self.outputs} outputs and {self.inputs} inputs (y "
+                             f"{self.y.shape}, u {self.u.shape}): identify one channel at a "
+                             f"time with record.channel(output, input)")
+
+
 @dataclass(frozen=True, eq=False)
-class Record:
+class Record(_Channels):
     """A measured record ``(y, u)`` on the grid ``t_k = t0 + k dt``, checked once.
 
     One output and one input are ``(steps,)`` arrays (a ``(steps, 1)`` column is the same);
@@ -165,72 +236,6 @@ class Record:
     def steps(self) -> int:
         """Samples in the record."""
         return self.y.shape[0]
-
-    @property
-    def outputs(self) -> int:
-        """``p``, the number of outputs."""
-        return _width(self.y)
-
-    @property
-    def inputs(self) -> int:
-        """``m``, the number of inputs."""
-        return _width(self.u)
-
-    @property
-    def Y(self) -> np.ndarray:
-        """``(steps, p)`` outputs (a view of ``y``)."""
-        return self.y.reshape(self.steps, -1)
-
-    @property
-    def U(self) -> np.ndarray:
-        """``(steps, m)`` inputs (a view of ``u``)."""
-        return self.u.reshape(self.steps, -1)
-
-    def channel(self, output: int = 0, input: int = 0) -> Record:  # noqa: A002 (the maths' name)
-        """The one-output, one-input record of output ``output`` and input ``input``.
-
-        Parameters
-        ----------
-        output : int in [0, p)
-        input : int in [0, m)
-
-        Returns
-        -------
-        Record
-            With that channel's offsets, the same ``dt``, ``delay``, ``t0`` and name.
-
-        Raises
-        ------
-        ValueError
-            For an index outside the record's channels.
-        """
-        for what, k, count in (("output", output, self.outputs), ("input", input, self.inputs)):
-            if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not (
-                    0 <= k < count):
-                raise ValueError(f"{what} must be an integer in [0, {count}) (the record has "
-                                 f"{count} {what}s); got {k!r}")
-        return self._like(y=self.Y[:, output], u=self.U[:, input],
-                          y_offset=float(np.ravel(self.y_offset)[output]),
-                          u_offset=float(np.ravel(self.u_offset)[input]))
-
-    def require_siso(self, what: str) -> None:
-        """Refuse a record with several outputs or inputs where ``what`` identifies one output
-        from one input.
-
-        Parameters
-        ----------
-        what : str
-            The entry point, named in the message.
-
-        Raises
-        ------
-        ValueError
-        """
-        if self.outputs > 1 or self.inputs > 1:
-            raise ValueError(f"{what} identifies one output from one input; the record has "
-                             f"{self.outputs} outputs and {self.inputs} inputs (y "
-                             f"{self.y.shape}, u {self.u.shape}): identify one channel at a "
-                             f"time with record.channel(output, input)")
 
     @property
     def t(self) -> np.ndarray:
