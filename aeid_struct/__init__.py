@@ -29,6 +29,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.identification import Estimate as Estimate
     from aeid_struct.identification import Head as Head
     from aeid_struct.identification import Identifier as Identifier
+    from aeid_struct.identification import Identifies as Identifies
     from aeid_struct.identification import load_pretrained as load_pretrained
     from aeid_struct.records import Record as Record
     from aeid_struct.refinement import RefineConfig as RefineConfig
@@ -61,6 +62,7 @@ _SOURCES = {
     "Estimate": "identification",
     "Head": "identification",
     "Identifier": "identification",
+    "Identifies": "identification",
     "load_pretrained": "identification",
     "Record": "records",
     "RefineConfig": "refinement",
@@ -81,6 +83,7 @@ __all__ = [
     "Estimate",
     "Head",
     "Identifier",
+    "Identifies",
     "LegFamily",
     "Physical",
     "PoleFamily",

@@ -1747,7 +1747,8 @@ def _online() -> list[Case]:
 
     return [
         Case(area, "Tracker of a string", lambda x: Tracker("leg-stable-window"),
-             match=r"identifier must be an Identifier or an OnnxIdentifier; got str"),
+             match=r"identifier must answer identify\(record\) -> Estimate with a record "
+                   r"format .*; got str \(no .identify.\)"),
         Case(area, "Tracker of a from-rest identifier", lambda x: Tracker(x.stable),
              match=r"identifier must be trained on windows that start mid-motion"),
         Case(area, "Tracker of a several-record identifier", lambda x: Tracker(x.joint),

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeid_struct.identification import Estimate, Provenance
-from aeid_struct.records import RecordBatch, as_array, unit_step
+from aeid_struct.records import RecordBatch, arrays_of, as_array, unit_step
 from aeid_struct.simulation import check_dt
 
 __all__ = ["Classical"]
@@ -58,7 +58,9 @@ class Classical:
 
         Parameters
         ----------
-        y : (batch, steps) or (steps,)
+        y : Record, (batch, steps) or (steps,)
+            A measured ``records.Record`` at the format's ``dt`` (which carries ``u``), or
+            the outputs.
         u : like ``y``, or (steps,) for every record, or None for unit steps
         refine : bool
             Polish each estimate that did not fail (:mod:`aeid_struct.refinement`).
@@ -74,6 +76,9 @@ class Classical:
             For a ``y`` or ``u`` of the wrong shape.
         """
         start = time.perf_counter()
+        y, u, dt = arrays_of(y, u, None, what="Classical.identify")
+        if dt is not None and dt != self.dt:
+            raise ValueError(f"the record's dt must be this method's dt = {self.dt}; got {dt}")
         Y = np.atleast_2d(as_array("y", y))
         if Y.ndim != 2 or Y.shape[1] != self.steps:
             raise ValueError(f"y must have shape ({self.steps},) or (batch, {self.steps}); "

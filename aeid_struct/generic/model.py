@@ -30,8 +30,9 @@ from aeid_struct.generic.forward import (
     factors_numpy,
     normalise_numpy,
 )
+from aeid_struct.generic.pipeline import run
 from aeid_struct.generic.poles import denominator, factors, poles_of
-from aeid_struct.identification import PRETRAINED
+from aeid_struct.identification import PRETRAINED, Estimate
 from aeid_struct.structures import CCF
 
 __all__ = ["GENERIC", "ORDERS", "GenericConfig", "GenericIdentifier", "load_generic",
@@ -116,6 +117,35 @@ class GenericIdentifier:
         name = self.meta.get("name", "")
         return (f"GenericIdentifier(order={self.config.order}, window={self.config.window}"
                 + (f", name={name!r}" if name else "") + ")")
+
+    # -- the identifier protocol -----------------------------------------------------------------
+    def identify(self, record, **options) -> Estimate:
+        """Identify a measured record with this identifier: ``ae.identify(record,
+        order=self.config.order, identifier=self, **options)``.
+
+        Parameters
+        ----------
+        record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
+            At least ``config.window`` samples (``ae.identify``).
+        **options
+            ``structure, refine, delay, max_delay, method, iterations, classical`` as
+            ``ae.identify`` takes them.
+
+        Returns
+        -------
+        Estimate
+
+        Raises
+        ------
+        ValueError
+            As ``ae.identify``; an ``order`` other than this identifier's.
+        """
+        order = options.pop("order", self.config.order)
+        if order != self.config.order:
+            raise ValueError(f"order must be this identifier's order {self.config.order}; got "
+                             f"{order!r}")
+        mine = {self.config.order: self}
+        return run(lambda _: mine, record, order, what="GenericIdentifier.identify", **options)
 
     # -- torch: differentiable, for training -----------------------------------------------------
     def factors_batch(self, y_n: torch.Tensor, u_n: torch.Tensor):

@@ -1,239 +1,34 @@
-r"""One call: :func:`identify` a measured record with a generic identifier (issue 14, deliver 5).
+r"""One call: :func:`identify` a measured record with a generic identifier (the steps are in
+``generic.pipeline``; this module chooses the identifiers: the shipped ``generic-n``, or the
+caller's).
 
-The model of a record (docs/architecture.md, "Any system, any record"):
-
-    y_k = yhat_k(A, b, c, d; u delayed by D samples) + c^T e^{A k dt} x_0 + y_offset,
-
-identified in normalised time (dt = 1, time in samples) and de-normalised at the end
-(``A = A_n / dt``, ``b = b_n / dt``, the same ``c, d`` and state). The steps:
-
-1. the record is validated once (a :class:`~aeid_struct.records.Record` or arrays); it is not
-   detrended (the offset is a parameter of the model);
-2. the input delay by an ARX scan (:func:`~aeid_struct.generic.delay.arx_delay`) unless known;
-3. candidate denominators from windows at several time scales, one batched identifier call
-   (:func:`~aeid_struct.generic.windows.candidates`);
-4. the best candidate and delay by whole-record projection: every candidate at the ARX delay,
-   the :data:`SHORTLIST` best of them also at ``D_arx - 1`` and ``D_arx + 1``
-   (:func:`~aeid_struct.generic.scoring.select`; only the known delay where it is known);
-5. unless ``refine=False``, output-error refinement over the whole record, kept if its mean
-   squared residual is lower. The free CCF (the default) and MCF: separable least squares
-   (``refinement.refine_separable``: only the denominator iterated, ``c, d, x_0`` and the
-   offset projected) at the chosen delay; then ``D - 1`` and ``D + 1`` are re-checked by
-   projection with the refined poles and refined again only where one is better. An MCF whose
-   separable optimum is not stable, and every other structure (fixed elements, physical):
-   CasADi (``refinement.refine_record``) with delays ``D - 1, D, D + 1``.
-
-*The one pass* (``refine=False``): steps 2-4 with one more candidate beside the encoder's, the
-Steiglitz-McBride estimate at the ARX delay (``generic.classical``; ``classical=False`` leaves
-it out), then a fixed number of separable Levenberg-Marquardt iterations (``iterations``,
-default :data:`ITERATIONS`; ``refinement.refine_separable`` with ``max_iter``) from the chosen
-candidate at the chosen delay, for the free CCF and MCF (a structure with fixed elements: the
-iterations run in the free CCF, and the closest model in the structure is returned, its initial
-state, offset and fit its own); where the delay is unknown, it is re-scanned by projection with
-the iterated poles, and at a better delay as many iterations again. A bounded cost: at most
-twice ``iterations`` iterations and one re-scan; no search by refinement, no second start.
-``iterations=0, classical=False`` is the encoder's pass alone (candidates and projection), as
-before the iterations were added. Why: the iterations close the gap from a good start to the
-output-error optimum (the encoder's poles are near it, not at it, and the projected ``c, d,
-x_0`` inherit their error); the classical candidate is a good start where no window of the
-encoder's gives one; the re-scan undoes a delay chosen to absorb the start's error in the
-poles. ``aeid-struct bench-generic`` measures the pass, the encoder's pass alone and the
-refined model on the same records.
-
-*Order selection* (``order=None``): each available order is identified (refined where
-``refine``: an encoder's error in the poles would otherwise favour a higher order that absorbs
-it) on the first 70 % of the record and validated on the last 30 % (NRMSE fit with the initial
-state and offset fitted, MATLAB's ``compare``); the smallest order whose validation fit is
-within :data:`ORDER_TOLERANCE` points of the best is chosen and identified on the whole
-record. Where 70 % of the record is shorter than the identifier's window, the whole-record
-fits are compared instead by the same rule.
+The split is at a seam: the pipeline runs any generic identifiers it is given, and
+``GenericIdentifier.identify`` runs it with itself; only this module loads the shipped ones, so
+the identifier's class, the loader and the pipeline import one another in one direction only.
 """
 
 from __future__ import annotations
 
 import functools
 import os
-import time
-from dataclasses import dataclass, replace
-from importlib import import_module
 
-import numpy as np
-
-from aeid_struct.generic.boundary import check_grid, keeps_gain, measured, restore
-from aeid_struct.generic.classical import steiglitz_mcbride
-from aeid_struct.generic.delay import arx_delay
-from aeid_struct.generic.polish import (
-    Model,
-    better_of,
-    denominator_of,
-    refine_casadi,
-    refine_free,
-    refine_starts,
+from aeid_struct.generic.config import ORDERS
+from aeid_struct.generic.model import load_generic
+from aeid_struct.generic.pipeline import (
+    ESTIMATION_SHARE as ESTIMATION_SHARE,
 )
-from aeid_struct.generic.scoring import select
-from aeid_struct.generic.windows import candidates
+from aeid_struct.generic.pipeline import (
+    ITERATIONS,
+    MAX_DELAY,
+    METHODS,
+    ORDER_TOLERANCE,
+    run,
+)
+from aeid_struct.generic.pipeline import measured as measured
 from aeid_struct.identification import Estimate
-from aeid_struct.records import Record, Units
-from aeid_struct.simulation import fit_initial
-from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE", "identify",
-           "measured"]
-
-#: Points of validation fit within which the smaller order is preferred (``order=None``).
-ORDER_TOLERANCE = 0.5
-#: The estimation part of the record when the order is selected.
-ESTIMATION_SHARE = 0.7
-#: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
-SHORTLIST = 2
-#: Orders tried by ``order=None`` (those of the shipped generic identifiers).
-ORDERS = (1, 2, 3, 4)
-#: The largest delay considered by default (capped by what the record leaves after the window).
-MAX_DELAY = 10
-#: Refinement methods of :func:`identify`.
-METHODS = ("auto", "separable", "casadi")
-#: Levenberg-Marquardt iterations of the one pass (``refine=False``); chosen by
-#: ``aeid-struct bench-generic``: more bought next to nothing in validation fit per iteration.
-ITERATIONS = 3
-
-
-@dataclass(frozen=True)
-class _Fit:
-    """A normalised-time fit: the denominator, its projection, and how it was found
-    (``start``: the winning candidate is the encoder's or the classical one)."""
-
-    den: np.ndarray
-    projection: object
-    candidates: int
-    start: str = "encoder"
-
-
-def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
-                 classical=False) -> _Fit:
-    """Steps 2-4 of the module docstring, in normalised time (``classical``: the
-    Steiglitz-McBride candidate too, as in the one pass)."""
-    window = int(identifier.config.window)
-    if y.shape[0] < window:
-        raise ValueError(f"the record has {y.shape[0]} samples; the generic identifier of "
-                         f"order {order} needs at least {window} (its window)")
-    N = y.shape[0]
-    D0 = known if known is not None else arx_delay(y, u, order, min(max_delay, N - window))
-    dens = candidates(identifier, y[D0:], u[: N - D0])
-    if dens.shape[1] != order + 1:
-        raise ValueError(f"identifier must give denominators of order {order} ((K, "
-                         f"{order + 1}) arrays); got shape {dens.shape}")
-    if len(dens) == 0:
-        Record(y, u).require_informative()     # the one message for a constant y or u
-    sm = steiglitz_mcbride(y, u, order, D0) if classical else None
-    if len(dens) == 0 and sm is None:
-        raise ValueError(f"the generic identifier of order {order} found no usable model in "
-                         f"any window of this record ({N} samples)")
-    if len(dens) >= 3:
-        # the coefficient-wise median as one more candidate: measured on 300 random systems
-        # (orders 1-4, 5 perturbed candidates and an outlier), choosing among candidates plus
-        # their median beat both the median alone and the candidates alone
-        dens = np.vstack([dens, np.median(dens, axis=0)])
-    encoder = len(dens)
-    if sm is not None:
-        dens = np.vstack([dens, sm])
-    top = min(max_delay, N - window)
-    delays = [D0] if known is not None else range(top + 1)
-    chosen = select(dens, y, u, delays, feedthrough=feedthrough, shortlist=SHORTLIST,
-                    around=D0)
-    return _Fit(dens[chosen.index], chosen.projection, len(dens),
-                "encoder" if chosen.index < encoder else "classical")
-
-
-@functools.cache
-def _shipped(order: int):
-    """The shipped ``generic-n``, read once per process (reading it took two thirds of an
-    unrefined call; ``identify`` never changes an identifier)."""
-    if order not in ORDERS:
-        raise ValueError(f"order must be one of {ORDERS} (the shipped generic identifiers) or "
-                         f"None; got {order} (pass identifier= for another order)")
-    # the loader (module generic.model), looked up when needed
-    return import_module("aeid_struct.generic.model").load_generic(f"generic-{order}")
-
-
-def _generic(ident):
-    """``ident`` if it has what a generic identifier offers, else a ValueError naming it."""
-    config = getattr(ident, "config", None)
-    if not (hasattr(ident, "denominators") and all(
-            hasattr(config, k) for k in ("window", "order", "band"))):
-        raise ValueError(f"identifier must be a generic identifier (ae.load_generic), its "
-                         f"name or file, or a dict order -> identifier; got "
-                         f"{type(ident).__name__}")
-    return ident
-
-
-def _identifiers(order, identifier, structure) -> dict:
-    """Order -> generic identifier: the given one(s) (an identifier, its shipped name or file,
-    or a dict order -> identifier), or the shipped ``generic-n``."""
-    if isinstance(identifier, (str, os.PathLike)):
-        load = import_module("aeid_struct.generic.model").load_generic
-        try:
-            identifier = load(identifier)
-        except ValueError as err:
-            raise ValueError(f"identifier: {err}") from None
-    if identifier is None:
-        chosen = {n: _shipped(n) for n in (ORDERS if order is None else (order,))}
-    elif isinstance(identifier, dict):
-        chosen = {n: _generic(ident) for n, ident in identifier.items()}
-    else:
-        chosen = {int(_generic(identifier).config.order): identifier}
-    if order is not None:
-        if order not in chosen:
-            raise ValueError(f"identifier must be a generic identifier of order {order} (or "
-                             f"a dict order -> identifier that has it); got orders "
-                             f"{sorted(chosen)}")
-        return {order: chosen[order]}
-    return chosen
-
-
-def _check_order(order, structure):
-    if structure is not None and not isinstance(structure, (str, Structure)):
-        raise ValueError(f"structure must be None, 'ccf', 'mcf' or a Structure; got "
-                         f"{type(structure).__name__}")
-    if isinstance(structure, str) and structure not in ("ccf", "mcf"):
-        raise ValueError(f"structure must be 'ccf', 'mcf' or a Structure; got {structure!r}")
-    if isinstance(structure, Structure):
-        if order is not None and order != structure.n:
-            raise ValueError(f"order must match the structure's order {structure.n}; got "
-                             f"{order}")
-        order = structure.n
-    if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
-                              or order < 1):
-        raise ValueError(f"order must be None (selected) or an integer >= 1; got {order!r}")
-    return None if order is None else int(order)
-
-
-def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
-                  refine: bool, method: str, iterations: int, classical: bool) -> dict:
-    """Validation fit per order (see the module docstring), each order's model found as the
-    chosen order's is (the one pass, or refined); returns order -> fit."""
-    N = data.steps
-    cut = int(round(ESTIMATION_SHARE * N))
-    holdout = cut >= max(int(i.config.window) for i in identifiers.values())
-    part = Record(data.y[:cut], data.u[:cut], data.dt, delay=data.delay) if holdout else data
-    fits = {}
-    for n, ident in sorted(identifiers.items()):
-        fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough,
-                           classical and not refine)
-        model = Model.of_ccf(fit.den, fit.projection)
-        ccf_n = CCF(n, feedthrough=feedthrough)
-        if refine:
-            better, _ = (refine_casadi(ccf_n, model, part, max_delay) if method == "casadi" else
-                         refine_starts(ccf_n, model, part, max_delay, classical=classical))
-            model = better_of([model, better], part.y) if better is not None else model
-        else:
-            model = _iterate(None, ccf_n, model, part, iterations, max_delay)[0]
-        if not holdout:
-            fits[n] = model.fit
-            continue
-        fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
-                              1.0, delay=min(model.delay, N - cut - 2)).fit
-    return fits
-
+__all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDERS", "ORDER_TOLERANCE",
+           "identify", "measured"]
 
 def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=None,
              identifier=None, method="auto", iterations=ITERATIONS,
@@ -291,150 +86,50 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         For a bad record, order, structure, delay, max_delay, method, iterations or classical,
         or a record shorter than the identifier's window.
     """
-    start = time.perf_counter()
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}; got "
-                         f"{method!r}")
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or (
-            iterations < 0):
-        raise ValueError(f"iterations must be an integer >= 0 (Levenberg-Marquardt iterations "
-                         f"of the one pass); got {iterations!r}")
-    for name, value in (("refine", refine), ("classical", classical)):
-        if not isinstance(value, (bool, np.bool_)):
-            raise ValueError(f"{name} must be True or False; got {value!r}")
-    data = measured(record, delay)
-    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
-            max_delay, (int, np.integer)) or max_delay < 0):
-        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
-    order = _check_order(order, structure)
-    if method == "separable" and not _separable(structure):
-        raise ValueError(f"method='separable' refines the free CCF and MCF only; got "
-                         f"structure {structure!r} (use 'auto' or 'casadi')")
-    identifiers = _identifiers(order, identifier, structure)
-    data.require_informative()
-    max_delay = check_grid(data, identifiers, max_delay, MAX_DELAY)
-    # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two
-    # (both exact; records.Units); a structure with fixed gain elements keeps its gain
-    units = Units.of(data, keeps_gain(structure))
-    work = units.apply(data)
-    feedthrough = _feedthrough(structure)
-    order_fits = None
-    if order is None:
-        order_fits = _select_order(identifiers, work, max_delay, feedthrough, refine,
-                                   method, int(iterations), bool(classical))
-        best = max(f for f in order_fits.values() if np.isfinite(f))
-        order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
-    fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, max_delay,
-                       feedthrough, bool(classical) and not refine)
-    model = Model.of_ccf(fit.den, fit.projection)
-    spec, structure = structure, _structure(structure, order, fit.den)
-    refined = False
-    info = {"candidates": fit.candidates, "order_fits": order_fits, "start": fit.start,
-            "max_delay": max_delay}
-    free = CCF(order, feedthrough=feedthrough)
-    if not refine:
-        # a structure with fixed elements starts from the free CCF's iterated model (its
-        # delay found with free poles), then takes the closest model in the structure
-        model, about = _iterate(spec if _separable(spec) else None,
-                                structure if _separable(spec) else free, model, work,
-                                int(iterations), max_delay)
-        info |= about
-        if about and spec == "mcf":
-            structure = _structure(spec, order, denominator_of(model.A))
+    return run(functools.partial(_identifiers, identifier=identifier), record, order,
+               structure=structure, refine=refine, delay=delay, max_delay=max_delay,
+               method=method, iterations=iterations, classical=classical)
+
+
+@functools.cache
+def _shipped(order: int):
+    """The shipped ``generic-n``, read once per process (reading it took two thirds of an
+    unrefined call; ``identify`` never changes an identifier)."""
+    if order not in ORDERS:
+        raise ValueError(f"order must be one of {ORDERS} (the shipped generic identifiers) or "
+                         f"None; got {order} (pass identifier= for another order)")
+    return load_generic(f"generic-{order}")
+
+
+def _generic(ident):
+    """``ident`` if it has what a generic identifier offers, else a ValueError naming it."""
+    config = getattr(ident, "config", None)
+    if not (hasattr(ident, "denominators") and all(
+            hasattr(config, k) for k in ("window", "order", "band"))):
+        raise ValueError(f"identifier must be a generic identifier (ae.load_generic), its "
+                         f"name or file, or a dict order -> identifier; got "
+                         f"{type(ident).__name__}")
+    return ident
+
+
+def _identifiers(order, *, identifier) -> dict:
+    """Order -> generic identifier: the given one(s) (an identifier, its shipped name or file,
+    or a dict order -> identifier), or the shipped ``generic-n``."""
+    if isinstance(identifier, (str, os.PathLike)):
+        try:
+            identifier = load_generic(identifier)
+        except ValueError as err:
+            raise ValueError(f"identifier: {err}") from None
+    if identifier is None:
+        chosen = {n: _shipped(n) for n in (ORDERS if order is None else (order,))}
+    elif isinstance(identifier, dict):
+        chosen = {n: _generic(ident) for n, ident in identifier.items()}
     else:
-        model, structure, refined, about = _refine(spec, structure, model, work, order,
-                                                   feedthrough, max_delay, method,
-                                                   bool(classical))
-        info |= about
-    est = model.estimate(structure, work, time.perf_counter() - start, refined, info)
-    return restore(units, est, data)
-
-
-def _refine(spec, structure: Structure, model: Model, work: Record, order: int,
-            feedthrough: bool, max_delay: int, method: str, classical: bool):
-    """Step 5 of the module docstring: ``(model, structure, refined, info)``."""
-    refined, free = False, CCF(order, feedthrough=feedthrough)
-    better, about = None, {}
-    if method != "casadi" and _separable(spec):
-        better, about = refine_starts(structure, model, work, max_delay,
-                                      split=isinstance(spec, MCF), classical=classical)
-        if better is not None and spec == "mcf":
-            # the refined poles decide the modal form's real poles and pairs
-            structure = _structure(spec, order, denominator_of(better.A))
-    if better is None:
-        start_model = model
-        if work.delay is None and not _separable(spec):
-            # the delay is searched with the free CCF's refinement first: CasADi tries
-            # only D - 1, D, D + 1 around its start's delay, and a start whose poles
-            # absorb a wrong delay was measured to keep it (delay 8 for a true 3)
-            freed, _ = refine_starts(free, model, work, max_delay, classical=classical)
-            start_model = better_of([model, freed], work.y) or model
-        better, casadi_about = refine_casadi(structure, start_model, work, max_delay)
-        about |= casadi_about
-        if better is None:
-            # CasADi did not run (a record beyond its largest bucket) or failed: the
-            # free optimum's delay and poles are still the better start to project
-            model = start_model
-    if better is not None and better_of([model, better], work.y) is better:
-        model, refined = better, True
-    return model, structure, refined, about
-
-
-def _iterate(spec, structure: Structure, model: Model, data: Record, iterations: int,
-             max_delay: int):
-    """The one pass's iterations (module docstring): ``(model, info)``.
-
-    ``iterations`` Levenberg-Marquardt iterations from ``model`` at its delay
-    (``polish.refine_free`` with ``max_iter``, no delay search); where the delay is not known,
-    every delay re-scanned by projection with the iterated poles, and at a better one
-    ``iterations`` more from them; the best of the start and the iterated models kept
-    (``better_of``). Why the re-scan: the candidate's delay was chosen with its poles' error,
-    which a wrong delay partly absorbs; with the iterated poles the projection tells the delay
-    apart. The model unchanged (and ``{}``) where none run: ``iterations=0``, a structure that
-    is not a free CCF or MCF, or an MCF whose iterated poles are not stable in its form.
-    """
-    if iterations == 0 or not _separable(spec):
-        return model, {}
-    split = isinstance(spec, MCF)
-    better, about = refine_free(structure, model, data, 0, split=split, search=False,
-                                max_iter=iterations)
-    if better is None:
-        return model, {}
-    models, count = [model, better], about["iterations"]
-    top = min(max_delay, data.steps - 4 * model.A.shape[0] - 4)
-    if data.delay is None and top > 0:
-        feedthrough = "d" in structure.element_names
-        D = select(denominator_of(better.A)[None], data.y, data.u, range(top + 1),
-                   feedthrough=feedthrough).delay
-        if D != better.delay:
-            moved, about = refine_free(structure, replace(better, delay=D), data, 0,
-                                       split=split, search=False, max_iter=iterations)
-            models.append(moved)
-            count += about.get("iterations", 0)
-    chosen = better_of(models, data.y)
-    return chosen, {"iterations": count, "converged": bool(about.get("converged", False)),
-                    "delay_moved": chosen is models[-1] and len(models) == 3}
-
-
-def _separable(structure) -> bool:
-    """The structures :func:`refine_separable` serves: the free CCF and MCF."""
-    if structure is None or structure in ("ccf", "mcf"):
-        return True
-    return isinstance(structure, (CCF, MCF)) and not structure.fixed_values
-
-
-def _feedthrough(structure) -> bool:
-    if isinstance(structure, Structure):
-        return "d" in structure.element_names and "d" not in structure.fixed_values
-    return True
-
-
-def _structure(structure, order: int, den: np.ndarray) -> Structure:
-    """The structure of the estimate (``"mcf"``: the start's real poles and pairs)."""
-    if isinstance(structure, Structure):
-        return structure
-    if structure == "mcf":
-        poles = np.roots(den)
-        real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
-        return MCF(real=real, pairs=(order - real) // 2, feedthrough=True)
-    return CCF(order, feedthrough=True)
+        chosen = {int(_generic(identifier).config.order): identifier}
+    if order is not None:
+        if order not in chosen:
+            raise ValueError(f"identifier must be a generic identifier of order {order} (or "
+                             f"a dict order -> identifier that has it); got orders "
+                             f"{sorted(chosen)}")
+        return {order: chosen[order]}
+    return chosen

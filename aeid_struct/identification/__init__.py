@@ -24,6 +24,7 @@ from aeid_struct.identification.physical import inverse_of_models as inverse_of_
 from aeid_struct.identification.physical import through_ccf as through_ccf
 from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
 from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
+from aeid_struct.identification.protocol import Identifies as Identifies
 from aeid_struct.records import RecordBatch as RecordBatch
 
 __all__ = [
@@ -35,6 +36,7 @@ __all__ = [
     "Head",
     "INITIAL_STATES",
     "Identifier",
+    "Identifies",
     "PRETRAINED",
     "Provenance",
     "RecordBatch",

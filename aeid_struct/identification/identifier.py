@@ -17,7 +17,7 @@ from aeid_struct.identification.estimate import Estimate, Provenance
 from aeid_struct.identification.fast_path import fast_path
 from aeid_struct.identification.head import Head, HeadSlot
 from aeid_struct.identification.polish import polish
-from aeid_struct.records import check_record
+from aeid_struct.records import arrays_of, check_record
 from aeid_struct.structures import Physical, Structure, System
 
 __all__ = ["ERROR_MODES", "INITIAL_STATES", "SCALE_MODES", "Identifier"]
@@ -134,6 +134,22 @@ def _cached_provenance(ident) -> Provenance:
     if cached is None or any(a is not b for a, b in zip(cached[0], sources, strict=True)):
         cached = ident._provenance = (sources, _provenance_of(ident))
     return cached[1]
+
+
+def _check_call(ident, dt, refine, errors: str) -> None:
+    """``Identifier.identify``'s options: ``refine``, ``errors``, and a ``dt`` that must be the
+    identifier's."""
+    if refine not in (True, False, "auto"):
+        raise ValueError(f"refine must be True, False or 'auto'; got {refine!r}")
+    if errors not in ERROR_MODES:
+        raise ValueError(f"errors must be one of {ERROR_MODES}; got {errors!r}")
+    if dt is not None and not _same_dt(dt, ident._dts):
+        raise ValueError(f"dt must be {ident.dt} s for this identifier (trained on records of "
+                         f"{ident.steps} samples at dt={ident.dt}); got dt={dt!r}")
+    if refine and ident.records > 1:
+        raise ValueError("refine=True is not available for a several-record identifier: "
+                         "the refinement fits one record; refine each subsystem's estimate "
+                         "in its own structure")
 
 
 def _output_mask(structure: Structure) -> torch.Tensor:
@@ -294,11 +310,13 @@ class Identifier:
 
         Parameters
         ----------
-        y : (steps,) or (batch, steps) array, or a sequence of R of them
-            Measured output, ``batch >= 1``, sampled at ``t_k = k*dt`` from rest (or mid-motion
-            for ``initial="fitted"``); real numbers (a complex array is refused). A sequence of
-            ``R`` records (one per subsystem, each on its own grid) for a several-record
-            identifier.
+        y : Record, (steps,) or (batch, steps) array, or a sequence of R of them
+            A measured ``records.Record`` (one output, one input, no input delay; a sequence of
+            ``R`` Records for a several-record identifier), which carries ``u`` and ``dt``;
+            or the measured output, ``batch >= 1``, sampled at ``t_k = k*dt`` from rest (or
+            mid-motion for ``initial="fitted"``); real numbers (a complex array is refused).
+            A sequence of ``R`` records (one per subsystem, each on its own grid) for a
+            several-record identifier.
         u : like y, (steps,) for a whole batch, or None
             Input; None is a unit step, what step-trained identifiers expect.
         dt : float or tuple, optional
@@ -324,17 +342,8 @@ class Identifier:
             Batched when ``y`` is.
         """
         start = time.perf_counter()
-        if refine not in (True, False, "auto"):
-            raise ValueError(f"refine must be True, False or 'auto'; got {refine!r}")
-        if errors not in ERROR_MODES:
-            raise ValueError(f"errors must be one of {ERROR_MODES}; got {errors!r}")
-        if dt is not None and not _same_dt(dt, self._dts):
-            raise ValueError(f"dt must be {self.dt} s for this identifier (trained on records of "
-                             f"{self.steps} samples at dt={self.dt}); got dt={dt!r}")
-        if refine and self.records > 1:
-            raise ValueError("refine=True is not available for a several-record identifier: "
-                             "the refinement fits one record; refine each subsystem's estimate "
-                             "in its own structure")
+        y, u, dt = arrays_of(y, u, dt, what="Identifier.identify", records=self.records)
+        _check_call(self, dt, refine, errors)
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
         if refine is True and self.head is not None:
             return forward.refine_with_head(self, record, start, errors)

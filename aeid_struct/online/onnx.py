@@ -4,11 +4,20 @@ the physical parameters): :class:`OnnxIdentifier` reads what ``online.to_onnx`` 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 
-from aeid_struct.records import RecordError, check_records, normalise, overflow_problem
+from aeid_struct.records import (
+    Checked,
+    RecordError,
+    arrays_of,
+    check_record,
+    check_records,
+    normalise,
+    overflow_problem,
+)
 
 #: The metadata format written: the inverse map as a reference to a named map (``structures``),
 #: and the separable head (``identification.head``) that the reader applies after the graph.
@@ -145,7 +154,7 @@ class OnnxIdentifier:
                  trust: bool = False) -> None:
         import onnxruntime as ort
 
-        from aeid_struct.structures import check_maps, from_entry
+        from aeid_struct.structures import check_maps
 
         if not (isinstance(threads, int) and threads >= 1):
             raise ValueError(f"threads must be a positive integer; got {threads!r}")
@@ -161,48 +170,7 @@ class OnnxIdentifier:
             text = str(err).strip().splitlines()
             raise ValueError(f"{source} is not an ONNX model onnxruntime can load: "
                              f"{text[0] if text else type(err).__name__}") from None
-        meta = self.session.get_modelmeta().custom_metadata_map
-        if "aeid" not in meta:
-            raise ValueError(f"{source} is not an aeid-struct export: its metadata has no "
-                             "'aeid' entry (write it with aeid_struct.export.to_onnx)")
-        try:
-            header = json.loads(meta["aeid"])
-        except ValueError:
-            header = None
-        if not isinstance(header, dict):
-            raise ValueError(f"{source}: its 'aeid' metadata is not a JSON object")
-        if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_2, ONNX_FORMAT_1):
-            raise ValueError(f"{source} has format {header.get('format')!r}; this reader reads "
-                             f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_2!r}, {ONNX_FORMAT_1!r})")
-        if header["format"] == ONNX_FORMAT_1:
-            source += f" (format {ONNX_FORMAT_1!r}, which stored its inverse map as code)"
-        _check_onnx_header(header, source)
-        self.steps, self.dt = int(header["steps"]), float(header["dt"])
-        graph = {i.name: i.shape for i in self.session.get_inputs()}
-        if set(graph) != {"y", "u"} or any(shape != [self.steps] for shape in graph.values()):
-            # the metadata and the graph must describe the same record, or every call fails
-            # inside onnxruntime (or, for a looser graph, reads another record format)
-            raise ValueError(f"{source}: its 'aeid' metadata says steps={self.steps} but its "
-                             f"graph reads inputs {graph}; expected y and u of shape "
-                             f"[{self.steps}]")
-        self.inputs, self.initial = bool(header["inputs"]), header["initial"]
-        self.element_names = tuple(header["elements"])
-        self._output_mask = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
-                                      for k in self.element_names])
-        self.records = 1
-        self._physical_elements = header.get("physical_elements")
-        self._ccf = bool(header.get("ccf", True))
-        self._scale = header.get("scale")       # None: a file written before it was recorded
-        self._inverse = None
-        self.head = self.structure = None
-        if header.get("head") is not None:
-            _read_head(self, header, source)
-        if header.get("inverse"):
-            try:
-                self._inverse = from_entry(header["inverse"], "'inverse'", maps=maps,
-                                                 trust=trust)
-            except ValueError as err:
-                raise ValueError(f"{source}: {err}") from None
+        _read_metadata(self, source, maps, trust)
 
     @property
     def physical_names(self) -> tuple[str, ...] | None:
@@ -253,6 +221,60 @@ class OnnxIdentifier:
         """
         checked = check_records(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
         checked.raise_first()
+        out = self._run(checked)
+        return out if checked.batched else {k: v[0] for k, v in out.items()}
+
+    def identify(self, y, u=None, *, dt: float | None = None):
+        """Identify a record, or a batch of them, into an :class:`~aeid_struct.Estimate`: the
+        identifier protocol (``identify(record) -> Estimate``), the numbers of :meth:`__call__`.
+
+        Parameters
+        ----------
+        y : Record, (steps,) or (batch, steps) array_like
+            A measured ``records.Record`` (which carries ``u`` and ``dt``), or the outputs.
+        u : (steps,) or (batch, steps) array_like, optional
+            As :meth:`__call__`.
+        dt : float, optional
+            The record's sample time, checked against the export's.
+
+        Returns
+        -------
+        Estimate
+            Batched when ``y`` is; its provenance names the export's inverse map or physical
+            elements and its structure where the metadata has one.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`__call__`; a ``dt`` other than the export's.
+        """
+        from aeid_struct.identification import Estimate, Provenance
+
+        start = time.perf_counter()
+        y, u, dt = arrays_of(y, u, dt, what="OnnxIdentifier.identify")
+        if dt is not None and dt != self.dt:
+            raise ValueError(f"dt must be {self.dt} s for this export (trained on records of "
+                             f"{self.steps} samples at dt={self.dt}); got dt={dt!r}")
+        record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
+        record.raise_first()
+        out = self._run(Checked(record.y[0], record.u[0], record.batched, record.problems))
+        if not record.batched:
+            out = {k: v[0] for k, v in out.items()}
+        inverse = (("elements", tuple(self._physical_elements)) if self._physical_elements
+                   else self._inverse)
+        elements = dict(zip(self.element_names, np.moveaxis(out["elements"], -1, 0),
+                            strict=True))
+        if not record.batched:
+            elements = {k: float(v) for k, v in elements.items()}
+        # the structure is known where the metadata has one (a head's); without it
+        # Estimate.physical takes the model to CCF first, which a CCF model passes unchanged
+        return Estimate(A=out["A"], b=out["b"], c=out["c"], d=out["d"], elements=elements,
+                        record=record, provenance=Provenance(
+                            structure=self.structure, inverse=inverse, initial=self.initial),
+                        seconds=time.perf_counter() - start)
+
+    def _run(self, checked) -> dict[str, np.ndarray]:
+        """The graph (and the head) on checked records: batched arrays (:meth:`__call__`)."""
         _, u_unit, y_bar, u_bar = normalise(checked.y, checked.u)
         y_unit = checked.y / y_bar[:, None]
         gain = y_bar / u_bar
@@ -292,8 +314,7 @@ class OnnxIdentifier:
         if not finite.all():          # as Identifier.identify refuses it (identify._overflowed)
             r = int(np.argmin(finite))
             raise RecordError(overflow_problem(r, float(gain[r])), r)
-        out = dict(zip(("A", "b", "c", "d", "elements"), (A, b, c, d, el), strict=True))
-        return out if checked.batched else {k: v[0] for k, v in out.items()}
+        return dict(zip(("A", "b", "c", "d", "elements"), (A, b, c, d, el), strict=True))
 
     def physical(self, model: dict) -> dict:
         """Physical parameters of a model returned by ``__call__``.
@@ -314,34 +335,87 @@ class OnnxIdentifier:
         ValueError
             ``model`` is not such a dict.
         """
-        need = ("elements",) if self._physical_elements or self._inverse is None \
-            else ("A", "b", "c", "d", "elements")
-        if not isinstance(model, dict) or any(k not in model for k in need):
-            got = sorted(model) if isinstance(model, dict) else type(model).__name__
-            raise ValueError(f"model must be a dict with {', '.join(need)} as __call__ returns "
-                             f"it; got keys {got}" if isinstance(model, dict) else
-                             f"model must be the dict __call__ returns; got {got}")
-        try:
-            el = np.asarray(model["elements"], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError("model['elements'] must be an array of real numbers, as __call__ "
-                             f"returns it; got {model['elements']!r}") from None
-        if el.ndim not in (1, 2) or el.shape[-1] != len(self.element_names):
-            raise ValueError(f"model['elements'] must have shape ({len(self.element_names)},) "
-                             f"or (batch, {len(self.element_names)}); got {el.shape}")
-        batched = el.ndim == 2
-        if self._physical_elements:
-            out = {k: el[..., self.element_names.index(k)] for k in self._physical_elements}
-        elif self._inverse is None:
-            return {}
-        else:
-            from aeid_struct.identification import inverse_of_models
+        return _physical(self, model)
 
-            A = np.asarray(model["A"], dtype=np.float64)
-            n = A.shape[-1]
-            A = A.reshape(-1, n, n)
-            b, c = (np.asarray(model[k], dtype=np.float64).reshape(-1, n) for k in "bc")
-            d = np.asarray(model["d"], dtype=np.float64).reshape(-1)
-            out = inverse_of_models(self._inverse, A, b, c, d, self._ccf)
-        return {k: np.asarray(v, dtype=np.float64) if batched else float(np.ravel(v)[0])
-                for k, v in out.items()}
+
+def _physical(runner: OnnxIdentifier, model: dict) -> dict:
+    """``OnnxIdentifier.physical``: the checks of ``model`` and the map."""
+    need = ("elements",) if runner._physical_elements or runner._inverse is None \
+        else ("A", "b", "c", "d", "elements")
+    if not isinstance(model, dict) or any(k not in model for k in need):
+        got = sorted(model) if isinstance(model, dict) else type(model).__name__
+        raise ValueError(f"model must be a dict with {', '.join(need)} as __call__ returns "
+                         f"it; got keys {got}" if isinstance(model, dict) else
+                         f"model must be the dict __call__ returns; got {got}")
+    try:
+        el = np.asarray(model["elements"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("model['elements'] must be an array of real numbers, as __call__ "
+                         f"returns it; got {model['elements']!r}") from None
+    if el.ndim not in (1, 2) or el.shape[-1] != len(runner.element_names):
+        raise ValueError(f"model['elements'] must have shape ({len(runner.element_names)},) "
+                         f"or (batch, {len(runner.element_names)}); got {el.shape}")
+    batched = el.ndim == 2
+    if runner._physical_elements:
+        out = {k: el[..., runner.element_names.index(k)] for k in runner._physical_elements}
+    elif runner._inverse is None:
+        return {}
+    else:
+        from aeid_struct.identification import inverse_of_models
+
+        A = np.asarray(model["A"], dtype=np.float64)
+        n = A.shape[-1]
+        A = A.reshape(-1, n, n)
+        b, c = (np.asarray(model[k], dtype=np.float64).reshape(-1, n) for k in "bc")
+        d = np.asarray(model["d"], dtype=np.float64).reshape(-1)
+        out = inverse_of_models(runner._inverse, A, b, c, d, runner._ccf)
+    return {k: np.asarray(v, dtype=np.float64) if batched else float(np.ravel(v)[0])
+            for k, v in out.items()}
+
+
+def _read_metadata(runner: OnnxIdentifier, source: str, maps, trust: bool) -> None:
+    """Set the runner's record format, structure, head and inverse from its model's ``aeid``
+    metadata, checked against the graph (``OnnxIdentifier.__init__``)."""
+    from aeid_struct.structures import from_entry
+
+    meta = runner.session.get_modelmeta().custom_metadata_map
+    if "aeid" not in meta:
+        raise ValueError(f"{source} is not an aeid-struct export: its metadata has no "
+                         "'aeid' entry (write it with aeid_struct.export.to_onnx)")
+    try:
+        header = json.loads(meta["aeid"])
+    except ValueError:
+        header = None
+    if not isinstance(header, dict):
+        raise ValueError(f"{source}: its 'aeid' metadata is not a JSON object")
+    if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_2, ONNX_FORMAT_1):
+        raise ValueError(f"{source} has format {header.get('format')!r}; this reader reads "
+                         f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_2!r}, {ONNX_FORMAT_1!r})")
+    if header["format"] == ONNX_FORMAT_1:
+        source += f" (format {ONNX_FORMAT_1!r}, which stored its inverse map as code)"
+    _check_onnx_header(header, source)
+    runner.steps, runner.dt = int(header["steps"]), float(header["dt"])
+    graph = {i.name: i.shape for i in runner.session.get_inputs()}
+    if set(graph) != {"y", "u"} or any(shape != [runner.steps] for shape in graph.values()):
+        # the metadata and the graph must describe the same record, or every call fails
+        # inside onnxruntime (or, for a looser graph, reads another record format)
+        raise ValueError(f"{source}: its 'aeid' metadata says steps={runner.steps} but its "
+                         f"graph reads inputs {graph}; expected y and u of shape "
+                         f"[{runner.steps}]")
+    runner.inputs, runner.initial = bool(header["inputs"]), header["initial"]
+    runner.element_names = tuple(header["elements"])
+    runner._output_mask = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit())
+                                    for k in runner.element_names])
+    runner.records = 1
+    runner._physical_elements = header.get("physical_elements")
+    runner._ccf = bool(header.get("ccf", True))
+    runner._scale = header.get("scale")       # None: a file written before it was recorded
+    runner._inverse = None
+    runner.head = runner.structure = None
+    if header.get("head") is not None:
+        _read_head(runner, header, source)
+    if header.get("inverse"):
+        try:
+            runner._inverse = from_entry(header["inverse"], "'inverse'", maps=maps, trust=trust)
+        except ValueError as err:
+            raise ValueError(f"{source}: {err}") from None

@@ -26,6 +26,7 @@ from aeid_struct.records.measured import SAFE_EXPONENT as SAFE_EXPONENT
 from aeid_struct.records.measured import Record as Record
 from aeid_struct.records.measured import exact_scale as exact_scale
 from aeid_struct.records.record import RecordBatch as RecordBatch
+from aeid_struct.records.record import arrays_of as arrays_of
 from aeid_struct.records.record import check_record as check_record
 from aeid_struct.records.units import Units as Units
 
@@ -36,6 +37,7 @@ __all__ = [
     "RecordBatch",
     "RecordError",
     "Units",
+    "arrays_of",
     "as_array",
     "as_records",
     "check_dt",

@@ -8,8 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeid_struct.records.checks import Checked, check_records, unit_step
+from aeid_struct.records.measured import Record
 
-__all__ = ["RecordBatch", "check_record"]
+__all__ = ["RecordBatch", "arrays_of", "check_record"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,3 +204,59 @@ def _not_sequence(value, R: int) -> bool:
     """Whether ``value`` is not a sequence of ``R`` records (an array is one record)."""
     array = isinstance(value, np.ndarray) or (hasattr(value, "detach") and hasattr(value, "cpu"))
     return array or not hasattr(value, "__len__") or len(value) != R
+
+
+def arrays_of(y, u, dt, *, what: str, records: int = 1):
+    """The arrays ``(y, u, dt)`` of an entry point that reads arrays and takes a measured
+    :class:`~aeid_struct.records.Record` too (``identify(record)``, the identifier protocol):
+    a Record (a sequence of ``records`` of them for a several-record identifier) is unpacked,
+    anything else is returned as it is, for the entry point's own checks.
+
+    Parameters
+    ----------
+    y : Record, sequence of Record, or arrays
+    u : None where ``y`` is a Record (it carries its input)
+    dt : float, tuple or None
+        Where given beside Records, it must be theirs.
+    what : str
+        The entry point, named in the messages.
+    records : int
+        Records the entry point reads as one set (1: one Record).
+
+    Returns
+    -------
+    y, u, dt
+        ``(steps,)`` arrays and a float for one Record; tuples of ``records`` for several.
+
+    Raises
+    ------
+    ValueError
+        A ``u`` beside a Record, a record of several channels or with a known input delay
+        (these identifiers model neither), a number of Records other than ``records``, or a
+        ``dt`` that is not the Records'.
+    """
+    several = isinstance(y, (list, tuple)) and len(y) > 0 and all(
+        isinstance(r, Record) for r in y)
+    if not (isinstance(y, Record) or several):
+        return y, u, dt
+    given = [y] if isinstance(y, Record) else list(y)
+    if u is not None:
+        raise ValueError(f"u must be None when {what} is given a Record (the record carries its "
+                         f"input); got {type(u).__name__}")
+    if len(given) != records or (records == 1 and several):
+        raise ValueError(f"{what} reads {records} record{'s' if records > 1 else ''} as one set; "
+                         f"got {len(given)} Record{'s' if len(given) > 1 else ''}"
+                         + (" (stack the arrays of same-length records for a batch)"
+                            if records == 1 else ""))
+    for rec in given:
+        rec.require_siso(what)
+        if rec.delay:
+            raise ValueError(f"{what} models no input delay; the record has delay={rec.delay} "
+                             f"samples: pass record.shifted() (y[D:] with u[:steps - D])")
+    dts = tuple(rec.dt for rec in given)
+    if dt is not None and tuple(np.atleast_1d(dt)) != dts:
+        raise ValueError(f"dt must be the record's own ({dts[0] if records == 1 else dts}) when "
+                         f"given beside a Record; got {dt!r}")
+    if records == 1:
+        return given[0].y, given[0].u, given[0].dt
+    return tuple(r.y for r in given), tuple(r.u for r in given), dts
