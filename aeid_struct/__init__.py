@@ -31,6 +31,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.identification import Identifier as Identifier
     from aeid_struct.identification import Identifies as Identifies
     from aeid_struct.identification import load_pretrained as load_pretrained
+    from aeid_struct.loading import load as load
     from aeid_struct.records import Record as Record
     from aeid_struct.refinement import RefineConfig as RefineConfig
     from aeid_struct.simulation import discretise as discretise
@@ -64,6 +65,7 @@ _SOURCES = {
     "Identifier": "identification",
     "Identifies": "identification",
     "load_pretrained": "identification",
+    "load": "loading",
     "Record": "records",
     "RefineConfig": "refinement",
     "CCF": "structures",
@@ -97,6 +99,7 @@ __all__ = [
     "discretise",
     "identify",
     "initial_state",
+    "load",
     "load_pretrained",
     "simulate",
     "stationary_value",

@@ -1482,9 +1482,11 @@ def _files() -> list[Case]:
         Case(area, "header not JSON", lambda x: L(x.aeid_with("nj", raw_header="{not json")),
              match=NOT),
         Case(area, "header a JSON list", lambda x: L(x.aeid_with("jl", raw_header="[1, 2]")),
-             match=r"its header format is not"),
+             match=r"is not an aeid-struct file: its header is not a JSON object \(got list\)"),
         Case(area, "header format wrong", lambda x: hdr(x, format="aeid-struct/identifier/99"),
-             match=r"its header format is not"),
+             match=r"is not an aeid-struct file: its header format is "
+                   r"'aeid-struct/identifier/99'; this version reads 'aeid-struct/3' and the "
+                   r"older 'aeid-struct/identifier/2'"),
         Case(area, "header unknown entry", lambda x: hdr(x, evil=1),
              match=r"the header has unknown entries \['evil'\]"),
         Case(area, "header missing scale", lambda x: hdr(x, scale=...),

@@ -172,7 +172,9 @@ def _rewrite(path, head=None, tensors=None):
 
 @pytest.mark.parametrize("head, tensors, message", [
     (lambda h: {**h, "format": "aeid-struct/identifier/2"}, None,
-     "is not a generic identifier file: its header format is 'aeid-struct/identifier/2'"),
+     r"holds a structured identifier \(aeid_struct.Identifier\), kind 'identifier', not a "
+     r"generic identifier \(any SISO record\): read it with ae.Identifier.load, or with "
+     r"ae.load"),
     (lambda h: {**h, "extra": 1}, None, "the header must have exactly the entries"),
     (lambda h: {**h, "meta": [1]}, None, "header entry 'meta' must be a dict"),
     (lambda h: {**h, "config": {**h["config"], "order": 7}}, None,
@@ -201,13 +203,14 @@ def test_corrupted_files_are_refused_naming_the_path(tmp_path, head, tensors, me
 def test_unreadable_files_and_unknown_names_are_refused(tmp_path):
     junk = tmp_path / "junk.aeid"
     junk.write_bytes(b"not safetensors at all")
-    with pytest.raises(ValueError, match=f"generic identifier file '{junk}' cannot be read"):
+    with pytest.raises(ValueError, match=f"path '{junk}' is not an aeid-struct generic "
+                                         f"identifier file"):
         read_generic(junk)
     with pytest.raises(ValueError, match="path must be an existing generic identifier file"):
         read_generic(tmp_path / "missing.aeid")
     with pytest.raises(ValueError, match=r"name_or_path must be one of \['generic-1'"):
         load_generic("generic-9")
-    assert FORMAT == "aeid-struct/generic/1"
+    assert FORMAT == "aeid-struct/3"
 
 
 # -- the torch projection against the numpy one ------------------------------------------------

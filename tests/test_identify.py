@@ -106,7 +106,8 @@ def test_foreign_safetensors_rejected(tmp_path):
     from safetensors.torch import save_file
 
     save_file({"w": torch.zeros(2)}, str(tmp_path / "other.aeid"), metadata={"aeid": "{}"})
-    with pytest.raises(ValueError, match="header format is not"):
+    with pytest.raises(ValueError, match=r"is not an aeid-struct file: its header format is None; "
+                                         r"this version reads .aeid-struct/3."):
         Identifier.load(tmp_path / "other.aeid")
     with pytest.raises(ValueError, match="path must be an existing identifier file"):
         Identifier.load(tmp_path / "missing.aeid")

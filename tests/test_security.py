@@ -609,4 +609,6 @@ def test_exports_refuse_a_directory_and_the_reader_refuses_non_onnx(tmp_path):
     runner = OnnxIdentifier(to_onnx(ident, tmp_path / "ok.onnx"))
     assert maps.reference(runner._inverse) == {"map": "symbolic.leg.stable_inverse",
                                                "args": {"l0": 0.8, "g": 9.81}}
-    assert ONNX_FORMAT == "aeid-struct-onnx-3"
+    from aeid_struct.identification import container
+
+    assert ONNX_FORMAT == container.FORMAT == "aeid-struct/3"     # the one container

@@ -6,10 +6,10 @@ Layer: above ``identification`` (its :func:`identify` returns an ``Estimate``) a
 
 Modules: ``poles`` (raw network outputs -> stable factors -> denominator), ``model``
 (``GenericConfig``, ``GenericIdentifier``: a window -> its poles; the shipped names), ``files``
-(the ``.aeid`` format ``aeid-struct/generic/1``), ``windows`` (candidates from windows at several
-time scales, the whole-record choice), ``delay`` (the input delay: ARX scan, projection re-scan),
-``one_call`` (:func:`identify`), ``comparison`` (:func:`compare`, MATLAB's ``compare`` with the
-initial state fitted).
+(the ``.aeid`` file: the one container, kind ``"generic"``), ``windows`` (candidates from
+windows at several time scales, the whole-record choice), ``delay`` (the input delay: ARX scan,
+projection re-scan), ``one_call`` (:func:`identify`; its steps in ``pipeline``),
+``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
 """
 
 from aeid_struct.generic.comparison import Comparison as Comparison

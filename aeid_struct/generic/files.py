@@ -1,6 +1,8 @@
 """Generic identifier files: safetensors tensors plus a JSON header, data only.
 
-The header is ``{"format": FORMAT, "config": GenericConfig fields, "meta": {...}}``; the tensors are
+The header is ``{"format": FORMAT, "kind": "generic", "config": GenericConfig fields, "meta":
+{...}}`` (the one container, ``identification.container``; the older ``FORMAT_1`` without
+``kind`` still reads); the tensors are
 the encoder's weights (``encoder.<name>``). Loading parses JSON and raw tensors only (no pickle, no
 CasADi Function), and checks every header entry, every weight's name, shape and values before
 anything is built from them (docs/architecture.md, "Model files").
@@ -9,19 +11,25 @@ anything is built from them (docs/architecture.md, "Model files").
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import torch
 
 from aeid_struct.encoder import Encoder
 from aeid_struct.generic.config import GenericConfig
-from aeid_struct.identification import writable_file
+from aeid_struct.identification import (
+    FORMAT,
+    kind_of,
+    read_safetensors,
+    refuse_other,
+    stamp,
+    writable_file,
+)
 
-__all__ = ["FORMAT", "read", "write"]
+__all__ = ["FORMAT", "FORMAT_1", "read", "write"]
 
-#: The format written and read.
-FORMAT = "aeid-struct/generic/1"
+#: The format before the container (``FORMAT``, kind ``"generic"``): still read.
+FORMAT_1 = "aeid-struct/generic/1"
 _HEADER = ("format", "config", "meta")
 
 
@@ -31,7 +39,7 @@ def write(ident, path) -> Path:
     from safetensors.torch import save_file
 
     path = writable_file(path)
-    head = {"format": FORMAT, "config": ident.config.to_dict(), "meta": ident.meta}
+    head = stamp("generic", {"config": ident.config.to_dict(), "meta": ident.meta})
     try:
         text = json.dumps(head)
     except (TypeError, ValueError) as err:
@@ -44,12 +52,10 @@ def write(ident, path) -> Path:
 
 def _config(head, source: str) -> GenericConfig:
     """The header's checked entries -> the configuration (one ValueError naming ``source``)."""
-    if not isinstance(head, dict) or head.get("format") != FORMAT:
-        got = head.get("format") if isinstance(head, dict) else head
-        raise ValueError(f"{source} is not a generic identifier file: its header format is "
-                         f"{got!r}, not {FORMAT!r}")
-    if set(head) != set(_HEADER):
-        raise ValueError(f"{source}: the header must have exactly the entries {list(_HEADER)}; "
+    refuse_other(kind_of(head, source), "generic", source)
+    entries = _HEADER if head["format"] == FORMAT_1 else ("format", "kind", *_HEADER[1:])
+    if set(head) != set(entries):
+        raise ValueError(f"{source}: the header must have exactly the entries {list(entries)}; "
                          f"got {sorted(head)}")
     if not isinstance(head["meta"], dict):
         raise ValueError(f"{source}: header entry 'meta' must be a dict; got "
@@ -97,21 +103,6 @@ def read(cls, path):
     """:func:`~aeid_struct.generic.read_generic`'s reading (its parameters, returns and
     errors), the identifier built as ``cls(config, encoder, meta=...)``: the class is handed in
     (``generic.model`` imports this module, not the other way round)."""
-    from safetensors import safe_open
-
-    if not isinstance(path, (str, os.PathLike)) or not str(path):
-        raise ValueError(f"path must be an existing generic identifier file (str or Path); "
-                         f"got {path!r}")
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"path must be an existing generic identifier file; got {str(path)!r}")
-    source = f"generic identifier file {str(path)!r}"
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            head = json.loads((f.metadata() or {}).get("aeid", "null"))
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except Exception as err:  # safetensors and json raise their own error types
-        raise ValueError(f"{source} cannot be read as safetensors with a JSON header: "
-                         f"{err}") from None
+    head, tensors, source = read_safetensors(path, "generic identifier")
     config = _config(head, source)
     return cls(config, _encoder(config, tensors, source), meta=head["meta"])

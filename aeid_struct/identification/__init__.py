@@ -7,10 +7,16 @@ Layer: above ``refinement`` (``identify(refine=True)`` calls down into it), belo
 
 from aeid_struct.identification.calibration import FLAG_FALSE_RATE as FLAG_FALSE_RATE
 from aeid_struct.identification.calibration import excess as excess
+from aeid_struct.identification.container import KINDS as KINDS
+from aeid_struct.identification.container import kind_of as kind_of
+from aeid_struct.identification.container import read_safetensors as read_safetensors
+from aeid_struct.identification.container import refuse_other as refuse_other
+from aeid_struct.identification.container import stamp as stamp
 from aeid_struct.identification.estimate import Estimate as Estimate
 from aeid_struct.identification.estimate import Provenance as Provenance
 from aeid_struct.identification.files import FORMAT as FORMAT
 from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
+from aeid_struct.identification.files import FORMAT_2 as FORMAT_2
 from aeid_struct.identification.files import writable_file as writable_file
 from aeid_struct.identification.head import Head as Head
 from aeid_struct.identification.head import apply_head as apply_head
@@ -33,6 +39,8 @@ __all__ = [
     "FLAG_FALSE_RATE",
     "FORMAT",
     "FORMAT_1",
+    "FORMAT_2",
+    "KINDS",
     "Head",
     "INITIAL_STATES",
     "Identifier",
@@ -45,8 +53,12 @@ __all__ = [
     "head_failure",
     "excess",
     "inverse_of_models",
+    "kind_of",
     "load_pretrained",
     "pattern_of",
+    "read_safetensors",
+    "refuse_other",
+    "stamp",
     "through_ccf",
     "writable_file",
 ]

@@ -18,15 +18,20 @@ from pathlib import Path
 import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
+from aeid_struct.identification import container
 from aeid_struct.identification.fast_path import warm
 from aeid_struct.identification.forward import CHUNK
 from aeid_struct.identification.head import Head
 from aeid_struct.structures import Structure, check_maps, from_entry, to_entry
 
-__all__ = ["FORMAT", "FORMAT_1", "from_parts", "header", "load", "save", "writable_file"]
+__all__ = ["FORMAT", "FORMAT_1", "FORMAT_2", "from_parts", "header", "load", "save",
+           "writable_file"]
 
-#: The file format written: maps are references (``aeid_struct.structures.maps``), never code.
-FORMAT = "aeid-struct/identifier/2"
+#: The file format written: the one container (``identification.container``), kind
+#: ``"identifier"``; maps are references (``aeid_struct.structures.maps``), never code.
+FORMAT = container.FORMAT
+#: The format before the container (the same entries under ``format`` alone): still read.
+FORMAT_2 = "aeid-struct/identifier/2"
 #: The format before named maps (CasADi Functions serialised inline): read with ``trust=True``
 #: where it holds a Function.
 FORMAT_1 = "aeid-struct/identifier/1"
@@ -65,7 +70,7 @@ def writable_file(path) -> Path:
 #: Header entries: required ones, and optional ones with the JSON types they may have.
 _HEADER_REQUIRED = ("format", "encoder", "structure", "dt", "scale", "feature_mean",
                     "feature_scale")
-_HEADER_OPTIONAL = ("initial", "inverse", "meta", "head")
+_HEADER_OPTIONAL = ("kind", "initial", "inverse", "meta", "head")
 
 
 def _numbers(value, finite: bool = True) -> bool:
@@ -196,8 +201,7 @@ def header(ident) -> dict:
     -------
     dict
     """
-    return {
-        "format": FORMAT,
+    return container.stamp("identifier", {
         "encoder": ident.encoder.config.to_dict(),
         "structure": ident.structure.config(),
         "dt": ident.dt,
@@ -208,7 +212,7 @@ def header(ident) -> dict:
         "inverse": None if ident.inverse is None else to_entry(ident.inverse),
         "meta": ident.meta,
         **({} if ident.head is None else {"head": ident.head.to_dict()}),
-    }
+    })
 
 
 def save(ident, path) -> Path:
@@ -256,26 +260,9 @@ def load(cls, path, *, maps: dict | None = None, trust: bool = False):
     ValueError
         Naming the file and what is wrong.
     """
-    from safetensors import safe_open
-
-    if not isinstance(path, (str, os.PathLike)) or not str(path):
-        raise ValueError(f"path must be an existing identifier file (str or Path); got "
-                         f"{path!r}")
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"path must be an existing identifier file; got {str(path)!r}")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            head = json.loads((f.metadata() or {}).get("aeid", "null"))
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except Exception as err:  # safetensors raises its own error types
-        raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file "
-                         f"(safetensors + JSON header): {err}") from None
-    if not isinstance(head, dict) or head.get("format") not in (FORMAT, FORMAT_1):
-        raise ValueError(f"path {str(path)!r} is not an aeid-struct identifier file: "
-                         f"its header format is not {FORMAT!r}")
+    head, tensors, source = container.read_safetensors(path, "identifier")
+    container.refuse_other(container.kind_of(head, source), "identifier", source)
     check_maps(maps, trust)
-    source = f"identifier file {str(path)!r}"
     if head["format"] == FORMAT_1:
         source += f" (format {FORMAT_1!r}, which stored CasADi maps as code)"
     ident = from_parts(cls, head, tensors, source=source, maps=maps, trust=trust)

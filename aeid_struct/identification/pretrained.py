@@ -1,11 +1,12 @@
 """The identifiers shipped in the package (``aeid_struct/pretrained/*.aeid``).
 
-The folder holds two kinds of file: the leg identifiers read here (format
-``aeid-struct/identifier/2``, one system family, one sample time, one record length), and the
-generic identifiers ``generic-1`` .. ``generic-4`` (format ``aeid-struct/generic/1``, any SISO
-system, any sample time and record length), read by ``aeid_struct.generic.load_generic`` and
-used by ``aeid_struct.identify(record, order=n)``. A shipped file's name tells its kind: the
-generic ones are named ``generic-<order>``.
+The folder holds two kinds of file in the one container (``identification.container``, format
+``aeid-struct/3``): the leg identifiers read here (kind ``"identifier"``, one system family, one
+sample time, one record length), and the generic identifiers ``generic-1`` .. ``generic-4``
+(kind ``"generic"``, any SISO system, any sample time and record length), read by
+``aeid_struct.generic.load_generic`` and used by ``aeid_struct.identify(record, order=n)``;
+``aeid_struct.load`` reads either. A shipped file's name tells its kind too: the generic ones are
+named ``generic-<order>``.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # static analysers and the documentation see the lazy names
     from aeid_struct.online.onnx import ONNX_FORMAT as ONNX_FORMAT
     from aeid_struct.online.onnx import ONNX_FORMAT_1 as ONNX_FORMAT_1
     from aeid_struct.online.onnx import ONNX_FORMAT_2 as ONNX_FORMAT_2
+    from aeid_struct.online.onnx import ONNX_FORMAT_3 as ONNX_FORMAT_3
     from aeid_struct.online.onnx import OnnxIdentifier as OnnxIdentifier
 
 __all__ = [
@@ -29,6 +30,7 @@ __all__ = [
     "ONNX_FORMAT",
     "ONNX_FORMAT_1",
     "ONNX_FORMAT_2",
+    "ONNX_FORMAT_3",
     "OnnxIdentifier",
     "PushError",
     "Tracker",
@@ -41,6 +43,7 @@ __all__ = [
 
 #: deployment names -> the module that defines them, imported when first used
 _LAZY = {"ONNX_FORMAT": "onnx", "ONNX_FORMAT_1": "onnx", "ONNX_FORMAT_2": "onnx",
+         "ONNX_FORMAT_3": "onnx",
          "OnnxIdentifier": "onnx",
          "onnx_bytes": "export", "to_onnx": "export", "to_torchscript": "export"}
 

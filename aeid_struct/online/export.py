@@ -17,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from aeid_struct.identification import stamp
 from aeid_struct.online.onnx import ONNX_FORMAT as ONNX_FORMAT
 from aeid_struct.online.onnx import ONNX_FORMAT_1 as ONNX_FORMAT_1
 from aeid_struct.online.onnx import OnnxIdentifier as OnnxIdentifier
@@ -161,8 +162,8 @@ def onnx_bytes(ident) -> bytes:
                           dynamo=False)
     model = onnx.load_from_string(buffer.getvalue())
     inverse = ident.provenance.inverse
-    header = {
-        "format": ONNX_FORMAT, "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
+    header = stamp("onnx", {
+        "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
         "initial": ident.initial, "elements": list(ident.structure.element_names),
         "inverse": None if inverse is None or isinstance(inverse, tuple)
         else to_entry(inverse),
@@ -171,7 +172,7 @@ def onnx_bytes(ident) -> bytes:
         "ccf": isinstance(ident.structure, CCF),
         "scale": ident.scale,
         "head": None if ident.head is None else ident.head.to_dict(),
-    }
+    })
     entry = model.metadata_props.add()
     entry.key, entry.value = "aeid", json.dumps(header)
     return model.SerializeToString()

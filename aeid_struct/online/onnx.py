@@ -19,9 +19,14 @@ from aeid_struct.records import (
     overflow_problem,
 )
 
-#: The metadata format written: the inverse map as a reference to a named map (``structures``),
-#: and the separable head (``identification.head``) that the reader applies after the graph.
-ONNX_FORMAT = "aeid-struct-onnx-3"
+#: The metadata format written: the one container of every identifier file
+#: (``identification.container.FORMAT``, kind ``"onnx"``; spelled out here so that this module
+#: imports no torch, and tested to agree), with the entries of ``ONNX_FORMAT_3``.
+ONNX_FORMAT = "aeid-struct/3"
+#: The format before the container: the inverse map as a reference to a named map
+#: (``structures``), and the separable head (``identification.head``) that the reader applies
+#: after the graph; still read.
+ONNX_FORMAT_3 = "aeid-struct-onnx-3"
 #: The format before the head: read as a file without one.
 ONNX_FORMAT_2 = "aeid-struct-onnx-2"
 #: The format before named maps (the inverse serialised inline): read with ``trust=True``.
@@ -388,9 +393,13 @@ def _read_metadata(runner: OnnxIdentifier, source: str, maps, trust: bool) -> No
         header = None
     if not isinstance(header, dict):
         raise ValueError(f"{source}: its 'aeid' metadata is not a JSON object")
-    if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_2, ONNX_FORMAT_1):
+    from aeid_struct.identification import kind_of, refuse_other
+
+    if header.get("format") not in (ONNX_FORMAT, ONNX_FORMAT_3, ONNX_FORMAT_2, ONNX_FORMAT_1):
         raise ValueError(f"{source} has format {header.get('format')!r}; this reader reads "
-                         f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_2!r}, {ONNX_FORMAT_1!r})")
+                         f"{ONNX_FORMAT!r} (and {ONNX_FORMAT_3!r}, {ONNX_FORMAT_2!r}, "
+                         f"{ONNX_FORMAT_1!r})")
+    refuse_other(kind_of(header, source), "onnx", source)
     if header["format"] == ONNX_FORMAT_1:
         source += f" (format {ONNX_FORMAT_1!r}, which stored its inverse map as code)"
     _check_onnx_header(header, source)
