@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import aeid_struct as ae
-from aeid_struct.studies.bench_online import _outside_family, bench_excitation, format_tables
+from aeid_struct.studies.bench_online import bench_excitation, format_tables
+from aeid_struct.studies.online_flags import _outside_family
 
 RANGES = {"k": (19.0, 27.0), "d": (1.5, 5.5), "m": (0.5, 1.5)}
 

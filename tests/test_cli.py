@@ -276,7 +276,7 @@ def test_excitations_in_help_are_the_libraries():
     from aeid_struct.training import EXCITATIONS
 
     # import_module: the attribute aeid_struct.cli.main is the function main, not the module
-    assert import_module("aeid_struct.cli.parser")._EXCITATIONS == EXCITATIONS
+    assert import_module("aeid_struct.cli.train_options")._EXCITATIONS == EXCITATIONS
 
 
 # -- every user error: one line, status 2, no traceback -----------------------------------------

@@ -533,7 +533,8 @@ def test_free_ccf_in_physical_time_is_exact_for_a_stiff_model():
     # working precision, the diagonal state scaling z_i = dt^(n-i) x_i is not; the physical
     # model's frequency response at s equals the normalised one's at s dt, and so does x0's
     # free response
-    from aeid_struct.generic.polish import Model, in_structure
+    from aeid_struct.generic.normalised import Model
+    from aeid_struct.generic.result import in_structure
 
     dt, n = 0.3, 4
     poles = np.array([-1.0e5, -0.013, -0.009 + 0.7j, -0.009 - 0.7j])

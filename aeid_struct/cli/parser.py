@@ -1,82 +1,24 @@
 """The parser of the ``aeid-struct`` command: one function per subcommand adds its options.
 
 Building the parser and printing its help import neither torch nor CasADi (the subcommands import
-what they need when they run), so ``--help`` is immediate.
+what they need when they run), so ``--help`` is immediate. Here are the parser itself and the
+options of the subcommands that use the library (``demo``, ``leg``, ``track``, ``identify``); the
+training subcommands' options are in ``train_options``, the benchmarks' in ``bench_options``, and
+the argument types and help layout they all share in ``arguments``.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
-import textwrap
 
-from aeid_struct.cli.commands import (
-    run_bench,
-    run_bench_generic,
-    run_bench_online,
-    run_leg,
-    run_track,
-    run_train,
-)
+from aeid_struct.cli.arguments import FRACTION, POSITIVE, POSITIVE_INT, Parser, number
+from aeid_struct.cli.bench_options import add_bench, add_bench_generic, add_bench_online
+from aeid_struct.cli.commands import run_leg, run_track
 from aeid_struct.cli.demo import run_demo
-from aeid_struct.cli.errors import EXIT_INPUT, EXIT_OUTSIDE, InputError
+from aeid_struct.cli.errors import EXIT_INPUT, EXIT_OUTSIDE
 from aeid_struct.cli.identify import generic_names, run_identify, shipped_names
 from aeid_struct.cli.records_io import RECORD_LAYOUTS
-from aeid_struct.cli.train_generic import run_train_generic
-
-#: The training excitations, for --help only (TrainConfig checks the name; a test keeps this
-#: equal to training.EXCITATIONS, which the parser cannot import without torch).
-_EXCITATIONS = ("step", "ramp", "prbs", "multisine", "noise", "steps", "mix")
-
-
-class _Formatter(argparse.HelpFormatter):
-    """argparse's help layout, keeping blank-line paragraphs and names such as leg-stable-any
-    whole (textwrap would break them at the hyphens)."""
-
-    def _split_lines(self, text: str, width: int) -> list[str]:
-        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
-
-    def _fill_text(self, text: str, width: int, indent: str) -> str:
-        return "\n\n".join(textwrap.fill(" ".join(p.split()), width, initial_indent=indent,
-                                          subsequent_indent=indent, break_on_hyphens=False)
-                            for p in text.split("\n\n"))
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse, with its errors as one line (no usage block) through ``main``."""
-
-    def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", _Formatter)   # subcommands inherit the class
-        super().__init__(*args, **kwargs)
-
-    def error(self, message: str):
-        where = self.prog.removeprefix("aeid-struct").strip()
-        raise InputError(f"{where + ': ' if where else ''}{message} "
-                         f"(see '{self.prog} --help')")
-
-
-def _number(kind: type, low: float | None = None, *, strict: bool = True):
-    """An argparse type: a finite ``kind`` (int or float), above ``low`` (or at least it)."""
-    what = "an integer" if kind is int else "a finite number"
-    if low is not None:
-        what += f" {'>' if strict else '>='} {low:g}"
-
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}") from None
-        if not math.isfinite(value) or (low is not None
-                                        and (value <= low if strict else value < low)):
-            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
-        return value
-
-    return parse
-
-
-_POSITIVE = _number(float, 0)
-_POSITIVE_INT = _number(int, 0)
-_FRACTION = _number(float, 0, strict=False)
+from aeid_struct.cli.train_options import add_train, add_train_generic
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -90,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         Its errors raise ``InputError`` (``main`` prints them as one line).
     """
     names = ", ".join(shipped_names())
-    parser = _Parser(
+    parser = Parser(
         prog="aeid-struct",
         description="Structured, amortized identification of continuous-time LTI systems.",
         epilog=f"Exit status: 0 done; {EXIT_INPUT} a usage or input error (one line on stderr); "
@@ -102,13 +44,13 @@ def build_parser() -> argparse.ArgumentParser:
                                      "for its options)")
     _add_demo(sub)
     _add_leg(sub)
-    _add_train(sub)
-    _add_train_generic(sub)
+    add_train(sub)
+    add_train_generic(sub)
     _add_track(sub, names)
     _add_identify(sub, names, ", ".join(generic_names()))
-    _add_bench(sub)
-    _add_bench_online(sub)
-    _add_bench_generic(sub)
+    add_bench(sub)
+    add_bench_online(sub)
+    add_bench_generic(sub)
     return parser
 
 
@@ -119,18 +61,18 @@ def _add_demo(sub) -> None:
         description="Derive the robot-leg model with CasADi (paper Eq. 16), print both "
                     "subsystems in controllable canonical form, and write their unit-step "
                     "responses (exact FOH simulation) to OUT/leg_step_responses.png.")
-    demo.add_argument("--k", type=_POSITIVE, default=24.23, help="spring stiffness [N/m]")
-    demo.add_argument("--d", type=_POSITIVE, default=2.24, help="damping [kg/s]")
-    demo.add_argument("--m", type=_POSITIVE, default=1.01, help="mass [kg]")
-    demo.add_argument("--dt-stable", type=_POSITIVE, default=0.01,
+    demo.add_argument("--k", type=POSITIVE, default=24.23, help="spring stiffness [N/m]")
+    demo.add_argument("--d", type=POSITIVE, default=2.24, help="damping [kg/s]")
+    demo.add_argument("--m", type=POSITIVE, default=1.01, help="mass [kg]")
+    demo.add_argument("--dt-stable", type=POSITIVE, default=0.01,
                       help="sample time of the translational (stable) response [s] "
                            "(default 0.01)")
-    demo.add_argument("--steps-stable", type=_number(int, 2, strict=False), default=300,
+    demo.add_argument("--steps-stable", type=number(int, 2, strict=False), default=300,
                       help="samples of the translational response (default 300)")
-    demo.add_argument("--dt-unstable", type=_POSITIVE, default=0.005,
+    demo.add_argument("--dt-unstable", type=POSITIVE, default=0.005,
                       help="sample time of the rotational (unstable) response [s] "
                            "(default 0.005)")
-    demo.add_argument("--steps-unstable", type=_number(int, 2, strict=False), default=100,
+    demo.add_argument("--steps-unstable", type=number(int, 2, strict=False), default=100,
                       help="samples of the rotational response (default 100)")
     demo.add_argument("--out", default="out", help="folder for the PNG (default: out)")
     demo.set_defaults(func=run_demo)
@@ -141,122 +83,28 @@ def _add_leg(sub) -> None:
         "leg", help="the robot-leg study: train, evaluate, Table I, Fig. 3 (and Fig. 4)")
     legp.add_argument("--pretrained", action="store_true",
                       help="evaluate the shipped identifiers instead of training (seconds)")
-    legp.add_argument("--seconds", type=_POSITIVE, default=300.0,
+    legp.add_argument("--seconds", type=POSITIVE, default=300.0,
                       help="training budget for both identifiers together (default 300)")
-    legp.add_argument("--epochs", type=_POSITIVE_INT, default=None,
+    legp.add_argument("--epochs", type=POSITIVE_INT, default=None,
                       help="train each identifier for this many epochs instead of a time "
                            "budget (reproducible on a busy machine)")
-    legp.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
+    legp.add_argument("--seed", type=number(int, 0, strict=False), default=0,
                       help="seed of the training data and the validation systems (default 0)")
-    legp.add_argument("--validation", type=_POSITIVE_INT, default=500,
+    legp.add_argument("--validation", type=POSITIVE_INT, default=500,
                       help="fresh validation systems (default 500)")
     legp.add_argument("--fig4", action="store_true",
                       help="also train at several data sizes for Fig. 4 (takes longer)")
-    legp.add_argument("--fig4-sizes", type=_POSITIVE_INT, nargs="+",
+    legp.add_argument("--fig4-sizes", type=POSITIVE_INT, nargs="+",
                       default=[100, 300, 1000, 3000, 10000, 30000, 100000],
                       help="training-set sizes (records) for Fig. 4 "
                            "(default 100 300 1000 3000 10000 30000 100000)")
-    legp.add_argument("--fig4-seconds", type=_POSITIVE, default=30.0,
+    legp.add_argument("--fig4-seconds", type=POSITIVE, default=30.0,
                       help="training budget per size and subsystem for Fig. 4")
     legp.add_argument("--out", default="out/leg",
                       help="parent folder: a run writes JSON, PNGs and identifiers to "
                            "OUT/trained or OUT/pretrained (default out/leg)")
     legp.add_argument("--quiet", action="store_true", help="no progress lines")
     legp.set_defaults(func=run_leg)
-
-
-def _add_train(sub) -> None:
-    tr = sub.add_parser("train", help="train an identifier for a structure and a family",
-                        description="Train an identifier (encoder + structure) on simulated "
-                                    "records of a system family and write it as an .aeid file. "
-                                    "TrainConfig checks the values and names any it refuses.")
-    tr.add_argument("--structure", required=True,
-                    help="the model structure: ccf:N[:descartes][:feedthrough][:NAME=VALUE...] "
-                         "(controllable canonical form of order N; NAME=VALUE fixes an element, "
-                         "e.g. ccf:2:a1=0:c1=0), mcf:REAL,PAIRS (modal form), leg-stable or "
-                         "leg-unstable (the leg's physical k, d, m)")
-    tr.add_argument("--family", required=True,
-                    help="the systems to train on: leg-stable, leg-unstable, or poles:REAL,PAIRS "
-                         "(random stable poles: REAL real ones and PAIRS complex pairs)")
-    tr.add_argument("--dt", type=float, required=True,
-                    help="sample time of the records [s]")
-    tr.add_argument("--steps", type=int, required=True, help="samples per record")
-    tr.add_argument("--count", type=int, default=10_000,
-                    help="simulated training records, a share held out (default 10000)")
-    tr.add_argument("--epochs", type=int, default=200,
-                    help="epochs to train (default 200; --seconds stops earlier)")
-    tr.add_argument("--seconds", type=_POSITIVE, default=None,
-                    help="wall-clock training budget [s] (default: none, --epochs decides)")
-    tr.add_argument("--batch", type=int, default=128, help="records per gradient step "
-                                                           "(default 128)")
-    tr.add_argument("--lr", type=_POSITIVE, default=3e-3, help="Adam learning rate (default 3e-3)")
-    tr.add_argument("--gamma", type=_number(float, 0, strict=False), default=None,
-                    help="weight of Eq. 14's stationary-value term (default: 1 for steps, else 0)")
-    tr.add_argument("--noise", type=float, nargs="+", default=[0.0],
-                    help="a level, or LO HI drawn per record (std relative to max|y|)")
-    tr.add_argument("--excitation", default="step",
-                    help="input of the training records: " + ", ".join(_EXCITATIONS)
-                         + " (default step)")
-    tr.add_argument("--width", type=int, default=12,
-                    help="channels of the encoder's convolutions (default 12)")
-    tr.add_argument("--kernel", type=int, default=5,
-                    help="kernel size of the encoder's convolutions (default 5)")
-    tr.add_argument("--dense", type=int, nargs="+", default=[48, 48],
-                    help="widths of the encoder's dense layers (default 48 48)")
-    tr.add_argument("--pool", type=int, default=1,
-                    help="average-pooling factor of the record before the encoder (default 1)")
-    tr.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
-                    help="seed of the records, the initial weights and the batches (default 0)")
-    tr.add_argument("--checkpoint", default=None, help="checkpoint file to resume from")
-    tr.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu",
-                    help="where the encoder and decoder run: cpu (default), cuda, or auto (a GPU "
-                         "when torch finds one). Launched by torchrun, the run is data-parallel "
-                         "(--batch is the global batch) and rank 0 writes --out")
-    tr.add_argument("--out", required=True, help="identifier file to write (.aeid)")
-    tr.add_argument("--quiet", action="store_true", help="no progress lines")
-    tr.set_defaults(func=run_train)
-
-
-def _add_train_generic(sub) -> None:
-    tg = sub.add_parser(
-        "train-generic", help="train a generic identifier of one order (any system, any dt)",
-        description="Train a generic identifier of order N on fresh records of the generic "
-                    "family in normalised time (dt = 1) by variable projection, and write it as "
-                    "an .aeid file with a JSON file of the run. It checkpoints to OUT.ckpt every "
-                    "epoch.")
-    tg.add_argument("--order", type=_number(int, 0), required=True,
-                    help="the model order N, 1..4")
-    tg.add_argument("--minutes", type=_POSITIVE, default=None,
-                    help="wall-clock training budget [min] (default: none, --epochs decides)")
-    tg.add_argument("--epochs", type=_POSITIVE_INT, default=100,
-                    help="at most this many epochs (default 100)")
-    tg.add_argument("--count", type=_POSITIVE_INT, default=4096,
-                    help="fresh training windows per epoch (default 4096)")
-    tg.add_argument("--holdout", type=_POSITIVE_INT, default=512,
-                    help="held-out windows that pick the best weights (default 512)")
-    tg.add_argument("--window", type=_POSITIVE_INT, default=256,
-                    help="samples per window the encoder reads (default 256)")
-    tg.add_argument("--batch", type=_POSITIVE_INT, default=128,
-                    help="windows per gradient step (default 128)")
-    tg.add_argument("--lr", type=_POSITIVE, default=3e-3,
-                    help="peak Adam learning rate (default 3e-3)")
-    tg.add_argument("--loss", default="log",
-                    help="per-window loss: log (log of 1 - R^2, default) or nmse (1 - R^2)")
-    tg.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
-                    help="seed of the weights and the records (default 0)")
-    tg.add_argument("--threads", type=_POSITIVE_INT, default=None,
-                    help="torch threads for the run (default: torch's setting)")
-    tg.add_argument("--device", choices=("cpu", "cuda", "auto"), default="cpu",
-                    help="where the encoder and the projection run: cpu (default), cuda, or auto "
-                         "(a GPU when torch finds one). Launched by torchrun, the run is "
-                         "data-parallel (--batch is the global batch) and rank 0 writes --out")
-    tg.add_argument("--out", default=None,
-                    help="identifier file to write (default generic-N.aeid); the run's JSON "
-                         "goes next to it (.json)")
-    tg.add_argument("--resume", action="store_true",
-                    help="continue the run checkpointed in OUT.ckpt")
-    tg.add_argument("--quiet", action="store_true", help="no progress lines")
-    tg.set_defaults(func=run_train_generic)
 
 
 def _add_track(sub, names: str) -> None:
@@ -269,8 +117,8 @@ def _add_track(sub, names: str) -> None:
     trk.add_argument("--model", default="leg-stable-window",
                      help="an identifier of mid-motion windows reading u: an .aeid file or a "
                           f"shipped name ({names}; default leg-stable-window)")
-    trk.add_argument("--seconds", type=_POSITIVE, default=120.0, help="length of the scenario")
-    trk.add_argument("--noise", type=_FRACTION, default=0.01,
+    trk.add_argument("--seconds", type=POSITIVE, default=120.0, help="length of the scenario")
+    trk.add_argument("--noise", type=FRACTION, default=0.01,
                      help="measurement noise, of max|y|")
     tracker = TrackerConfig()          # the tracker's own defaults, not copies of them
     (m0, s0), (m1, s1) = DEFAULT_SMOOTHING["encoder"], DEFAULT_SMOOTHING["head"]
@@ -290,7 +138,7 @@ def _add_track(sub, names: str) -> None:
                          help=f"{text} (default {by_head.get(name, getattr(tracker, name))})")
     trk.add_argument("--watch", nargs="*", default=["k"],
                      help="parameters whose drift raises the alarm (default: k, the spring)")
-    trk.add_argument("--seed", type=_number(int, 0, strict=False), default=0,
+    trk.add_argument("--seed", type=number(int, 0, strict=False), default=0,
                      help="seed of the scenario (default 0)")
     trk.add_argument("--engine", choices=("auto", "onnx", "identifier"), default="auto",
                      help="onnx: the exported encoder under onnxruntime (auto: when installed)")
@@ -342,15 +190,15 @@ def _add_identify(sub, names: str, generic: str) -> None:
                      help="identify RECORD with the generic identifiers: the model order 1-4, "
                           "or auto (each order identified on the first 70 %% of the record, the "
                           "smallest within 0.5 points of the best validation fit on the rest)")
-    idp.add_argument("--dt", type=_POSITIVE, default=None,
+    idp.add_argument("--dt", type=POSITIVE, default=None,
                      help="with --order: the record's sample time [s] (default: from its t "
                           "column)")
     idp.add_argument("--no-refine", action="store_true",
                      help="with --order: the generic identifier's model alone, without the "
                           "output-error refinement over the whole record")
-    idp.add_argument("--delay", type=_number(int, 0, strict=False), default=None, metavar="D",
+    idp.add_argument("--delay", type=number(int, 0, strict=False), default=None, metavar="D",
                      help="with --order: the known input delay [samples] (default: estimated)")
-    idp.add_argument("--max-delay", type=_number(int, 0, strict=False), default=None,
+    idp.add_argument("--max-delay", type=number(int, 0, strict=False), default=None,
                      metavar="D",
                      help="with --order: the largest input delay considered when it is "
                           "estimated [samples] (default 10)")
@@ -380,87 +228,3 @@ def _add_identify(sub, names: str, generic: str) -> None:
                           "outside and the thresholds; with --order: the model, delay, initial "
                           "state, offset, fit and time)")
     idp.set_defaults(func=run_identify)
-
-
-def _add_bench(sub) -> None:
-    bench = sub.add_parser(
-        "bench", help="accuracy and speed of the encoder, the one pass, refinement and classical "
-                      "baselines, and decoder timings, measured side by side; prints and writes "
-                      "JSON")
-    bench.add_argument("--quick", action="store_true",
-                       help="20 systems, 8 records per one-pass row, short decoder table")
-    bench.add_argument("--count", type=_POSITIVE_INT, default=None,
-                       help="systems per subsystem and noise level (default 500)")
-    bench.add_argument("--noise", type=_FRACTION, nargs="+", default=None,
-                       help="noise levels, std relative to max|y| (default 0 0.01 0.05; the "
-                            "one-pass study with --quick: 0 0.01)")
-    bench.add_argument("--decoder-only", action="store_true", help="only the decoder timings")
-    bench.add_argument("--onepass-only", action="store_true",
-                       help="only the one-pass study (encoder alone, one pass, refined, cold "
-                            "least squares, cold CasADi, n4sid under four inputs)")
-    bench.add_argument("--records", type=_POSITIVE_INT, default=None,
-                       help="records per one-pass row (default 60; --quick 8)")
-    bench.add_argument("--timed", type=_POSITIVE_INT, default=None,
-                       help="records per one-pass row timed at batch 1 and fitted by the cold "
-                            "baselines (default 30; --quick 4)")
-    bench.add_argument("--identifiers", nargs="+", default=None,
-                       choices=["leg-stable-any", "leg-unstable-any", "leg-stable-window"],
-                       help="identifiers of the one-pass study (default all three)")
-    bench.add_argument("--kinds", nargs="+", default=None,
-                       choices=["steps", "prbs", "multisine", "noise"],
-                       help="input kinds of the one-pass study (default all four)")
-    bench.add_argument("--batch", type=_POSITIVE_INT, default=256,
-                       help="records per decoder call in the decoder timings (default 256)")
-    bench.add_argument("--steps", type=_POSITIVE_INT, nargs="+", default=[100, 300, 1000],
-                       help="record lengths of the decoder timings (default 100 300 1000)")
-    bench.add_argument("--threads", type=_POSITIVE_INT, default=1,
-                       help="torch threads for the decoder timings (default 1: steady on a "
-                            "busy box)")
-    bench.add_argument("--json", default="out/bench.json",
-                       help="JSON file to write (default out/bench.json)")
-    bench.add_argument("--quiet", action="store_true", help="no progress lines")
-    bench.set_defaults(func=run_bench)
-
-
-def _add_bench_online(sub) -> None:
-    bon = sub.add_parser(
-        "bench-online", help="online identification: tracker error, alarm delay and update "
-                             "time, export latency, arbitrary inputs, out-of-range flags")
-    bon.add_argument("--quick", action="store_true",
-                     help="a 30 s scenario, one seed, 20 records per row (for tests)")
-    bon.add_argument("--seconds", type=_POSITIVE, default=120.0, help="wear scenario length")
-    bon.add_argument("--noise", type=_FRACTION, default=0.01, help="tracker measurement noise")
-    bon.add_argument("--json", default="out/bench_online.json",
-                     help="JSON file to write (default out/bench_online.json)")
-    bon.add_argument("--quiet", action="store_true", help="no progress lines")
-    bon.set_defaults(func=run_bench_online)
-
-
-def _add_bench_generic(sub) -> None:
-    gen = sub.add_parser(
-        "bench-generic", help="the generic identifiers on unseen systems: encoder alone, one "
-                              "pass, refined, n4sid, least squares and the true model, fits and "
-                              "times",
-        description="Identify unseen simulated systems of orders 1-4 (random dt, delay, offsets, "
-                    "mid-motion start, noise) with the shipped generic identifiers and the "
-                    "classical baselines, all on the same records; print the validation fits "
-                    "(median per order, noise and record length), the one pass's gap to the "
-                    "refined model, the worst gap to n4sid, two stand-ins for measured data "
-                    "sets and the time per call; write JSON.")
-    gen.add_argument("--quick", action="store_true",
-                     help="3 records per cell, record lengths 400 and 1000 (default: 10, and "
-                          "400, 1000, 5000)")
-    gen.add_argument("--count", type=_POSITIVE_INT, default=None, help="records per cell")
-    gen.add_argument("--orders", type=_POSITIVE_INT, nargs="+", default=[1, 2, 3, 4],
-                     choices=[1, 2, 3, 4], help="model orders (default 1 2 3 4)")
-    gen.add_argument("--noise", type=_FRACTION, nargs="+", default=[0.01, 0.05],
-                     help="noise std / output std (default 0.01 0.05)")
-    gen.add_argument("--lengths", type=_POSITIVE_INT, nargs="+", default=None,
-                     help="estimation record lengths in samples (each >= 256, the window)")
-    gen.add_argument("--seed", type=_number(int, 0, strict=False), default=20_261_123,
-                     help="seed of the systems and records (default 20261123)")
-    gen.add_argument("--json", default="out/bench_generic.json",
-                     help="JSON file to write (default out/bench_generic.json)")
-    gen.add_argument("--quiet", action="store_true", help="no progress lines")
-    gen.set_defaults(func=run_bench_generic)
-

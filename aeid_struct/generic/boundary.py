@@ -1,20 +1,24 @@
 """The boundary of :func:`~aeid_struct.generic.identify` and
 :func:`~aeid_struct.generic.compare`: a user's record, delay and sample time checked once
-(:func:`measured`, :func:`check_grid`), and the estimate of a record identified in other units
-(``records.Units``: a level far above the signal's variation removed, amplitudes brought near 1
-by powers of two) taken back to the user's (:func:`restore`).
-
+(:func:`measured`, :func:`check_grid`), and whether a structure must keep the record's gain
+(:func:`keeps_gain`, which decides the ``records.Units`` the record is identified in; the
+estimate is taken back to the user's units by ``generic.result.restore``, the last stage).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from aeid_struct.identification import Estimate
+from aeid_struct.generic.normalised import feedthrough_of, separable
 from aeid_struct.records import Record, Units
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["check_grid", "keeps_gain", "measured", "restore"]
+__all__ = ["METHODS", "Call", "check_grid", "checked", "keeps_gain", "measured"]
+
+#: Refinement methods of ``ae.identify``.
+METHODS = ("auto", "separable", "casadi")
 
 
 def _delay(name: str, value, steps: int) -> int | None:
@@ -149,30 +153,103 @@ def keeps_gain(structure) -> bool:
                for k, v in structure.fixed_values.items())
 
 
-def restore(units: Units, est: Estimate, data: Record) -> Estimate:
-    """The estimate of ``units.apply(data)`` for ``data`` itself (``Units.estimate``; why the
-    units are exact: ``records.units``).
+@dataclass(frozen=True)
+class Call:
+    """A call of ``ae.identify`` after its check stage: everything the later stages read.
+
+    Attributes
+    ----------
+    data : Record
+        The user's record, checked (with the known delay, if any).
+    work : Record
+        The same record in its working units (``units.apply(data)``).
+    units : records.Units
+    order : int or None
+        None: selected among ``identifiers``.
+    identifiers : dict order -> generic identifier
+    max_delay : int
+        The largest delay to consider.
+    feedthrough : bool
+        Whether the structure has a free feedthrough.
+    """
+
+    data: Record
+    work: Record
+    units: Units
+    order: int | None
+    identifiers: dict
+    max_delay: int
+    feedthrough: bool
+
+
+def checked(resolve, record, order, *, structure, refine, delay, max_delay, method, iterations,
+            classical, what: str, default_max_delay: int) -> Call:
+    """The check stage of ``ae.identify`` (``generic.pipeline.run``): every argument checked
+    once, the identifiers resolved, the record checked against their grid and taken to its
+    working units.
 
     Parameters
     ----------
-    units : Units
-    est : Estimate
-        Of the record in these units.
-    data : Record
-        The user's record.
+    resolve : callable
+        ``resolve(order) -> dict order -> identifier`` (``generic.pipeline.run``).
+    record, order, structure, refine, delay, max_delay, method, iterations, classical
+        As ``ae.identify``.
+    what : str
+        The entry point, named where a record of several channels is refused.
+    default_max_delay : int
+        ``max_delay`` where None is given (capped by the record).
 
     Returns
     -------
-    Estimate
+    Call
 
     Raises
     ------
     ValueError
-        Where that model leaves float64.
+        Naming the argument, in the order the arguments are listed above (the record's own
+        checks after ``refine`` and ``classical``).
     """
-    if units.identity:
-        return est
-    c, d, elements, info = units.estimate(est.A, est.b, est.c, est.d, est.elements, est.info)
-    return Estimate(A=est.A, b=est.b, c=c, d=d, elements=elements, record=data,
-                    provenance=est.provenance, seconds=est.seconds,
-                    refined=est.refined, info=info)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}; got "
+                         f"{method!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or (
+            iterations < 0):
+        raise ValueError(f"iterations must be an integer >= 0 (Levenberg-Marquardt iterations "
+                         f"of the one pass); got {iterations!r}")
+    for name, value in (("refine", refine), ("classical", classical)):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{name} must be True or False; got {value!r}")
+    data = measured(record, delay, what=what)
+    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
+            max_delay, (int, np.integer)) or max_delay < 0):
+        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
+    order = _order(order, structure)
+    if method == "separable" and not separable(structure):
+        raise ValueError(f"method='separable' refines the free CCF and MCF only; got "
+                         f"structure {structure!r} (use 'auto' or 'casadi')")
+    identifiers = resolve(order)
+    data.require_informative()
+    max_delay = check_grid(data, identifiers, max_delay, default_max_delay)
+    # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two
+    # (both exact; records.Units); a structure with fixed gain elements keeps its gain
+    units = Units.of(data, keeps_gain(structure))
+    return Call(data, units.apply(data), units, order, identifiers, max_delay,
+                feedthrough_of(structure))
+
+
+def _order(order, structure):
+    """The model order a call asks for (None: selected), checked against the structure."""
+    if structure is not None and not isinstance(structure, (str, Structure)):
+        raise ValueError(f"structure must be None, 'ccf', 'mcf' or a Structure; got "
+                         f"{type(structure).__name__}")
+    if isinstance(structure, str) and structure not in ("ccf", "mcf"):
+        raise ValueError(f"structure must be 'ccf', 'mcf' or a Structure; got {structure!r}")
+    if isinstance(structure, Structure):
+        if order is not None and order != structure.n:
+            raise ValueError(f"order must match the structure's order {structure.n}; got "
+                             f"{order}")
+        order = structure.n
+    if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
+                              or order < 1):
+        raise ValueError(f"order must be None (selected) or an integer >= 1; got {order!r}")
+    return None if order is None else int(order)

@@ -53,27 +53,31 @@ fits are compared instead by the same rule.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.generic.boundary import check_grid, keeps_gain, measured, restore
+from aeid_struct.generic.boundary import METHODS as METHODS
+from aeid_struct.generic.boundary import checked
+from aeid_struct.generic.boundary import measured as measured
 from aeid_struct.generic.classical import steiglitz_mcbride
 from aeid_struct.generic.delay import arx_delay
+from aeid_struct.generic.normalised import Model, structure_of
 from aeid_struct.generic.polish import (
-    Model,
     better_of,
-    denominator_of,
+    iterate,
+    one_pass,
     refine_casadi,
-    refine_free,
+    refine_model,
     refine_starts,
 )
+from aeid_struct.generic.result import estimate_of, restore
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
-from aeid_struct.records import Record, Units
+from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
-from aeid_struct.structures import CCF, MCF, Structure
+from aeid_struct.structures import CCF
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE", "run"]
 
@@ -85,8 +89,6 @@ ESTIMATION_SHARE = 0.7
 SHORTLIST = 2
 #: The largest delay considered by default (capped by what the record leaves after the window).
 MAX_DELAY = 10
-#: Refinement methods of :func:`identify`.
-METHODS = ("auto", "separable", "casadi")
 #: Levenberg-Marquardt iterations of the one pass (``refine=False``); chosen by
 #: ``aeid-struct bench-generic``: more bought next to nothing in validation fit per iteration.
 ITERATIONS = 3
@@ -139,23 +141,6 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
                 "encoder" if chosen.index < encoder else "classical")
 
 
-def _check_order(order, structure):
-    if structure is not None and not isinstance(structure, (str, Structure)):
-        raise ValueError(f"structure must be None, 'ccf', 'mcf' or a Structure; got "
-                         f"{type(structure).__name__}")
-    if isinstance(structure, str) and structure not in ("ccf", "mcf"):
-        raise ValueError(f"structure must be 'ccf', 'mcf' or a Structure; got {structure!r}")
-    if isinstance(structure, Structure):
-        if order is not None and order != structure.n:
-            raise ValueError(f"order must match the structure's order {structure.n}; got "
-                             f"{order}")
-        order = structure.n
-    if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
-                              or order < 1):
-        raise ValueError(f"order must be None (selected) or an integer >= 1; got {order!r}")
-    return None if order is None else int(order)
-
-
 def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
                   refine: bool, method: str, iterations: int, classical: bool) -> dict:
     """Validation fit per order (see the module docstring), each order's model found as the
@@ -175,7 +160,7 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
                          refine_starts(ccf_n, model, part, max_delay, classical=classical))
             model = better_of([model, better], part.y) if better is not None else model
         else:
-            model = _iterate(None, ccf_n, model, part, iterations, max_delay)[0]
+            model = iterate(None, ccf_n, model, part, iterations, max_delay)[0]
         if not holdout:
             fits[n] = model.fit
             continue
@@ -208,32 +193,11 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     Estimate
     """
     start = time.perf_counter()
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}; got "
-                         f"{method!r}")
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or (
-            iterations < 0):
-        raise ValueError(f"iterations must be an integer >= 0 (Levenberg-Marquardt iterations "
-                         f"of the one pass); got {iterations!r}")
-    for name, value in (("refine", refine), ("classical", classical)):
-        if not isinstance(value, (bool, np.bool_)):
-            raise ValueError(f"{name} must be True or False; got {value!r}")
-    data = measured(record, delay, what=what)
-    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
-            max_delay, (int, np.integer)) or max_delay < 0):
-        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
-    order = _check_order(order, structure)
-    if method == "separable" and not _separable(structure):
-        raise ValueError(f"method='separable' refines the free CCF and MCF only; got "
-                         f"structure {structure!r} (use 'auto' or 'casadi')")
-    identifiers = resolve(order)
-    data.require_informative()
-    max_delay = check_grid(data, identifiers, max_delay, MAX_DELAY)
-    # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two
-    # (both exact; records.Units); a structure with fixed gain elements keeps its gain
-    units = Units.of(data, keeps_gain(structure))
-    work = units.apply(data)
-    feedthrough = _feedthrough(structure)
+    call = checked(resolve, record, order, structure=structure, refine=refine, delay=delay,
+                   max_delay=max_delay, method=method, iterations=iterations,
+                   classical=classical, what=what, default_max_delay=MAX_DELAY)
+    order, identifiers, max_delay = call.order, call.identifiers, call.max_delay
+    units, work, data, feedthrough = call.units, call.work, call.data, call.feedthrough
     order_fits = None
     if order is None:
         order_fits = _select_order(identifiers, work, max_delay, feedthrough, refine,
@@ -243,114 +207,19 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, max_delay,
                        feedthrough, bool(classical) and not refine)
     model = Model.of_ccf(fit.den, fit.projection)
-    spec, structure = structure, _structure(structure, order, fit.den)
+    spec, structure = structure, structure_of(structure, order, fit.den)
     refined = False
     info = {"candidates": fit.candidates, "order_fits": order_fits, "start": fit.start,
             "max_delay": max_delay}
-    free = CCF(order, feedthrough=feedthrough)
     if not refine:
-        # a structure with fixed elements starts from the free CCF's iterated model (its
-        # delay found with free poles), then takes the closest model in the structure
-        model, about = _iterate(spec if _separable(spec) else None,
-                                structure if _separable(spec) else free, model, work,
-                                int(iterations), max_delay)
-        info |= about
-        if about and spec == "mcf":
-            structure = _structure(spec, order, denominator_of(model.A))
+        model, structure, about = one_pass(spec, structure, model, work, order, feedthrough,
+                                           int(iterations), max_delay)
     else:
-        model, structure, refined, about = _refine(spec, structure, model, work, order,
-                                                   feedthrough, max_delay, method,
-                                                   bool(classical))
-        info |= about
-    est = model.estimate(structure, work, time.perf_counter() - start, refined, info)
+        model, structure, refined, about = refine_model(spec, structure, model, work, order,
+                                                        feedthrough, max_delay, method,
+                                                        bool(classical))
+    info |= about
+    est = estimate_of(model, structure, work, time.perf_counter() - start, refined, info)
     return restore(units, est, data)
 
 
-def _refine(spec, structure: Structure, model: Model, work: Record, order: int,
-            feedthrough: bool, max_delay: int, method: str, classical: bool):
-    """Step 5 of the module docstring: ``(model, structure, refined, info)``."""
-    refined, free = False, CCF(order, feedthrough=feedthrough)
-    better, about = None, {}
-    if method != "casadi" and _separable(spec):
-        better, about = refine_starts(structure, model, work, max_delay,
-                                      split=isinstance(spec, MCF), classical=classical)
-        if better is not None and spec == "mcf":
-            # the refined poles decide the modal form's real poles and pairs
-            structure = _structure(spec, order, denominator_of(better.A))
-    if better is None:
-        start_model = model
-        if work.delay is None and not _separable(spec):
-            # the delay is searched with the free CCF's refinement first: CasADi tries
-            # only D - 1, D, D + 1 around its start's delay, and a start whose poles
-            # absorb a wrong delay was measured to keep it (delay 8 for a true 3)
-            freed, _ = refine_starts(free, model, work, max_delay, classical=classical)
-            start_model = better_of([model, freed], work.y) or model
-        better, casadi_about = refine_casadi(structure, start_model, work, max_delay)
-        about |= casadi_about
-        if better is None:
-            # CasADi did not run (a record beyond its largest bucket) or failed: the
-            # free optimum's delay and poles are still the better start to project
-            model = start_model
-    if better is not None and better_of([model, better], work.y) is better:
-        model, refined = better, True
-    return model, structure, refined, about
-
-
-def _iterate(spec, structure: Structure, model: Model, data: Record, iterations: int,
-             max_delay: int):
-    """The one pass's iterations (module docstring): ``(model, info)``.
-
-    ``iterations`` Levenberg-Marquardt iterations from ``model`` at its delay
-    (``polish.refine_free`` with ``max_iter``, no delay search); where the delay is not known,
-    every delay re-scanned by projection with the iterated poles, and at a better one
-    ``iterations`` more from them; the best of the start and the iterated models kept
-    (``better_of``). Why the re-scan: the candidate's delay was chosen with its poles' error,
-    which a wrong delay partly absorbs; with the iterated poles the projection tells the delay
-    apart. The model unchanged (and ``{}``) where none run: ``iterations=0``, a structure that
-    is not a free CCF or MCF, or an MCF whose iterated poles are not stable in its form.
-    """
-    if iterations == 0 or not _separable(spec):
-        return model, {}
-    split = isinstance(spec, MCF)
-    better, about = refine_free(structure, model, data, 0, split=split, search=False,
-                                max_iter=iterations)
-    if better is None:
-        return model, {}
-    models, count = [model, better], about["iterations"]
-    top = min(max_delay, data.steps - 4 * model.A.shape[0] - 4)
-    if data.delay is None and top > 0:
-        feedthrough = "d" in structure.element_names
-        D = select(denominator_of(better.A)[None], data.y, data.u, range(top + 1),
-                   feedthrough=feedthrough).delay
-        if D != better.delay:
-            moved, about = refine_free(structure, replace(better, delay=D), data, 0,
-                                       split=split, search=False, max_iter=iterations)
-            models.append(moved)
-            count += about.get("iterations", 0)
-    chosen = better_of(models, data.y)
-    return chosen, {"iterations": count, "converged": bool(about.get("converged", False)),
-                    "delay_moved": chosen is models[-1] and len(models) == 3}
-
-
-def _separable(structure) -> bool:
-    """The structures :func:`refine_separable` serves: the free CCF and MCF."""
-    if structure is None or structure in ("ccf", "mcf"):
-        return True
-    return isinstance(structure, (CCF, MCF)) and not structure.fixed_values
-
-
-def _feedthrough(structure) -> bool:
-    if isinstance(structure, Structure):
-        return "d" in structure.element_names and "d" not in structure.fixed_values
-    return True
-
-
-def _structure(structure, order: int, den: np.ndarray) -> Structure:
-    """The structure of the estimate (``"mcf"``: the start's real poles and pairs)."""
-    if isinstance(structure, Structure):
-        return structure
-    if structure == "mcf":
-        poles = np.roots(den)
-        real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
-        return MCF(real=real, pairs=(order - real) // 2, feedthrough=True)
-    return CCF(order, feedthrough=True)

@@ -1,147 +1,36 @@
-"""The models of :func:`~aeid_struct.generic.identify` in normalised time and their
-refinement: the separable output-error refinement of the free canonical forms from several
-starts (the encoder's best candidate and a classical Steiglitz-McBride estimate), the CasADi one
-for every other structure, the delay re-scanned after refinement, and the conversion to the
-user's structure and time unit.
+"""The fit stage of :func:`~aeid_struct.generic.identify`: the normalised-time models
+(``generic.normalised.Model``) refined, the separable output-error refinement of the free
+canonical forms from several starts (the encoder's best candidate and a classical
+Steiglitz-McBride estimate), the CasADi one for every other structure, and the delay re-scanned
+after refinement. The conversion to the user's structure and time unit is the next stage,
+``generic.result``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 
 import numpy as np
 import torch
 
 from aeid_struct.generic.classical import steiglitz_mcbride
-from aeid_struct.generic.scoring import ccf, select
-from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.generic.normalised import (
+    Model,
+    common_cost,
+    denominator_of,
+    separable,
+    structure_of,
+)
+from aeid_struct.generic.scoring import select
 from aeid_struct.refinement import BUCKETS, refine_record, refine_separable
-from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["COST_TOL", "Model", "better_of", "classical_start", "common_cost", "controllability",
-           "denominator_of", "in_structure", "refine_casadi", "refine_free", "refine_starts"]
+__all__ = ["COST_TOL", "better_of", "classical_start", "iterate", "one_pass", "refine_casadi",
+           "refine_free", "refine_model", "refine_starts"]
 
 #: ``refine_separable``'s ``cost_tol`` (default 1e-10): a fifth fewer iterations, same median
 #: fit (measured from the encoder's starts at orders 2 and 4).
 COST_TOL = 1e-8
-
-
-def common_cost(m: Model, y: np.ndarray, first: int) -> float:
-    """Mean squared residual of ``m`` on the samples from ``first`` on.
-
-    Models at different delays fit different samples (``y[D:]``); per fitted sample, a longer
-    delay wins by dropping the record's first samples, the hardest to fit mid-motion. Compared
-    on common samples (``first`` >= every delay compared), they are compared fairly.
-
-    Parameters
-    ----------
-    m : Model
-    y : (steps,) array
-    first : int
-
-    Returns
-    -------
-    float
-    """
-    return float(np.mean((y[first:] - m.y_hat[first:]) ** 2))
-
-
-def denominator_of(A: np.ndarray) -> np.ndarray:
-    """The monic denominator of a bottom-row CCF ``A``.
-
-    Parameters
-    ----------
-    A : (n, n) array
-
-    Returns
-    -------
-    (n + 1,) array
-        Highest power first.
-    """
-    return np.concatenate([[1.0], -A[-1, ::-1]])
-
-
-@dataclass(frozen=True)
-class Model:
-    """A model of a record in NORMALISED time (dt = 1): ``A, b, c, d`` in some realisation,
-    its state at sample ``delay``, offset, output and mean squared residual."""
-
-    A: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: float
-    x0: np.ndarray
-    y_offset: float
-    delay: int
-    y_hat: np.ndarray
-    fit: float
-    cost: float
-
-    @classmethod
-    def of_ccf(cls, den, p) -> Model:
-        A, b = ccf(den)
-        return cls(A, b, p.c, p.d, p.x0, p.y_offset, p.delay, p.y_hat, p.fit, p.cost)
-
-    def estimate(self, structure: Structure, data, seconds: float, refined: bool,
-                 info: dict) -> Estimate:
-        """The Estimate in physical time: ``A / dt, b / dt``, the same ``c, d, x0``."""
-        dt = data.dt
-        A, b, c, d, x0, elements = in_structure(structure, self, dt)
-        y_offset, fit, y_hat, cost = self.y_offset, self.fit, self.y_hat, self.cost
-        if not _free_ccf(structure):
-            # elements_of gives the closest model the structure admits, not this one (a fixed
-            # element the data contradict moves it): the initial state, offset, output and
-            # fit are the returned model's own
-            with np.errstate(all="ignore"):
-                p = fit_initial(A, b, c, d, data.y, data.u, dt, delay=self.delay, offset=True)
-            x0, y_offset, fit, y_hat, cost = p.x0, p.y_offset, p.fit, p.y_hat, p.cost
-        info = {**info, "delay": self.delay, "x0": x0, "y_offset": y_offset,
-                "fit": fit, "y_hat": y_hat, "cost": cost}
-        return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=data,
-                        provenance=Provenance(structure=structure, initial="fitted"),
-                        seconds=seconds, refined=refined, info=info)
-
-
-def _free_ccf(structure: Structure) -> bool:
-    """The structure :func:`in_structure` converts exactly: the free CCF with a feedthrough."""
-    return isinstance(structure, CCF) and not structure.fixed_values and structure.feedthrough
-
-
-def in_structure(structure: Structure, m: Model, dt: float):
-    """``A, b, c, d, x0, elements`` of the physical-time model ``(A_n / dt, b_n / dt, c, d)``
-    in ``structure``'s realisation (the state transformed with it, ``x = T x_n``: for the free
-    CCF the exact diagonal ``T = diag(dt^(n-i))``, else ``T = C_s C_n^-1`` from the
-    controllability matrices)."""
-    A, b = m.A / dt, m.b / dt
-    n = A.shape[0]
-    if _free_ccf(structure):
-        # m.A is a CCF in normalised time (the projection's, or refined in CCF): its
-        # coefficients in physical time are a_i / dt^(n-i), no torch needed
-        den = np.concatenate([[1.0], -m.A[-1, ::-1]]) / dt ** np.arange(n + 1)
-        As, bs = ccf(den)
-        # the state in physical time is z_i = dt^(n-i) x_i (i = 0..n-1): z_(i+1) = dz_i/dt
-        # and b = e_n hold exactly. Diagonal, so exact where the controllability matrices of a
-        # stiff model (a pole at -1e5 per sample) are singular to working precision: their
-        # T = C_s C_n^-1 gave a c whose fit was -1e6 % for a model that fits 90 %.
-        T = dt ** (n - np.arange(n, dtype=np.float64))
-        cs = m.c / T
-        values = np.concatenate([den[:0:-1], cs, [m.d]])
-        names = [f"a{i}" for i in range(n)] + [f"c{i}" for i in range(n)] + ["d"]
-        return As, bs, cs, m.d, T * m.x0, dict(zip(names, values.tolist(), strict=True))
-    x = structure.elements_of(A, b, m.c, m.d, strict=False).to(torch.float64)
-    s = structure.assemble(x)
-    As, bs, cs = (t.numpy() for t in (s.A, s.b, s.c))
-    T = controllability(As, bs) @ np.linalg.inv(controllability(A, b))
-    elements = dict(zip(structure.element_names, x.tolist(), strict=True))
-    return As, bs, cs, float(s.d), T @ m.x0, elements
-
-
-def controllability(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    cols = [b]
-    for _ in range(A.shape[0] - 1):
-        cols.append(A @ cols[-1])
-    return np.stack(cols, axis=1)
 
 
 def refine_casadi(structure: Structure, m: Model, data, max_delay: int):
@@ -365,3 +254,132 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     info["refine_seconds"] = (sum(r[1].get("refine_seconds", 0.0) for r in results)
                               + info.get("refine_seconds", 0.0))
     return final, info
+
+
+def one_pass(spec, structure: Structure, model: Model, work, order: int, feedthrough: bool,
+             iterations: int, max_delay: int):
+    """The one pass's fit (``refine=False``): the iterations of :func:`iterate` in the
+    structure spec's free form, ``(model, structure, info)``.
+
+    A structure with fixed elements starts from the free CCF's iterated model (its delay found
+    with free poles); the result stage then takes the closest model in the structure. For
+    ``"mcf"`` the iterated poles decide its real poles and pairs.
+
+    Parameters
+    ----------
+    spec : None, str or Structure
+    structure : Structure
+        The structure the spec names (``normalised.structure_of``).
+    model : Model
+        The start.
+    work : Record
+    order : int
+    feedthrough : bool
+    iterations : int
+    max_delay : int
+
+    Returns
+    -------
+    model : Model
+    structure : Structure
+    info : dict
+    """
+    free = CCF(order, feedthrough=feedthrough)
+    model, about = iterate(spec if separable(spec) else None,
+                           structure if separable(spec) else free, model, work, iterations,
+                           max_delay)
+    if about and spec == "mcf":
+        structure = structure_of(spec, order, denominator_of(model.A))
+    return model, structure, about
+
+
+def refine_model(spec, structure: Structure, model: Model, work, order: int,
+                 feedthrough: bool, max_delay: int, method: str, classical: bool):
+    """Step 5 of ``generic.pipeline``'s docstring, the refinement: ``(model, structure,
+    refined, info)``.
+
+    Parameters
+    ----------
+    spec : None, str or Structure
+        The caller's structure spec.
+    structure : Structure
+        The structure it names (``normalised.structure_of``).
+    model : Model
+        The start (normalised time).
+    work : Record
+        The record in its working units.
+    order : int
+    feedthrough : bool
+    max_delay : int
+    method : {"auto", "separable", "casadi"}
+    classical : bool
+        A Steiglitz-McBride second start.
+
+    Returns
+    -------
+    model : Model
+    structure : Structure
+        For ``"mcf"``: the real poles and pairs of the refined model.
+    refined : bool
+    info : dict
+    """
+    refined, free = False, CCF(order, feedthrough=feedthrough)
+    better, about = None, {}
+    if method != "casadi" and separable(spec):
+        better, about = refine_starts(structure, model, work, max_delay,
+                                      split=isinstance(spec, MCF), classical=classical)
+        if better is not None and spec == "mcf":
+            # the refined poles decide the modal form's real poles and pairs
+            structure = structure_of(spec, order, denominator_of(better.A))
+    if better is None:
+        start_model = model
+        if work.delay is None and not separable(spec):
+            # the delay is searched with the free CCF's refinement first: CasADi tries
+            # only D - 1, D, D + 1 around its start's delay, and a start whose poles
+            # absorb a wrong delay was measured to keep it (delay 8 for a true 3)
+            freed, _ = refine_starts(free, model, work, max_delay, classical=classical)
+            start_model = better_of([model, freed], work.y) or model
+        better, casadi_about = refine_casadi(structure, start_model, work, max_delay)
+        about |= casadi_about
+        if better is None:
+            # CasADi did not run (a record beyond its largest bucket) or failed: the
+            # free optimum's delay and poles are still the better start to project
+            model = start_model
+    if better is not None and better_of([model, better], work.y) is better:
+        model, refined = better, True
+    return model, structure, refined, about
+
+
+def iterate(spec, structure: Structure, model: Model, data, iterations: int, max_delay: int):
+    """The one pass's iterations (module docstring): ``(model, info)``.
+
+    ``iterations`` Levenberg-Marquardt iterations from ``model`` at its delay
+    (``polish.refine_free`` with ``max_iter``, no delay search); where the delay is not known,
+    every delay re-scanned by projection with the iterated poles, and at a better one
+    ``iterations`` more from them; the best of the start and the iterated models kept
+    (``better_of``). Why the re-scan: the candidate's delay was chosen with its poles' error,
+    which a wrong delay partly absorbs; with the iterated poles the projection tells the delay
+    apart. The model unchanged (and ``{}``) where none run: ``iterations=0``, a structure that
+    is not a free CCF or MCF, or an MCF whose iterated poles are not stable in its form.
+    """
+    if iterations == 0 or not separable(spec):
+        return model, {}
+    split = isinstance(spec, MCF)
+    better, about = refine_free(structure, model, data, 0, split=split, search=False,
+                                max_iter=iterations)
+    if better is None:
+        return model, {}
+    models, count = [model, better], about["iterations"]
+    top = min(max_delay, data.steps - 4 * model.A.shape[0] - 4)
+    if data.delay is None and top > 0:
+        feedthrough = "d" in structure.element_names
+        D = select(denominator_of(better.A)[None], data.y, data.u, range(top + 1),
+                   feedthrough=feedthrough).delay
+        if D != better.delay:
+            moved, about = refine_free(structure, replace(better, delay=D), data, 0,
+                                       split=split, search=False, max_iter=iterations)
+            models.append(moved)
+            count += about.get("iterations", 0)
+    chosen = better_of(models, data.y)
+    return chosen, {"iterations": count, "converged": bool(about.get("converged", False)),
+                    "delay_moved": chosen is models[-1] and len(models) == 3}

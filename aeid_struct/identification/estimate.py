@@ -10,6 +10,10 @@ an output offset (docs/architecture.md, "Any system, any record"). Its ``info`` 
 (samples), ``x0`` (the state at sample ``delay``), ``y_offset``, ``fit`` and ``y_hat`` (NaN on
 the first ``delay`` samples); ``Estimate.delay``, ``offset``, ``x0``, ``fit`` and ``y_hat``
 return those instead of computing them for a record without delay and offset.
+
+Beside it: the fields an Estimate reads from its ``info``, record and provenance
+(``estimate_fields.py``), the old forms of its constructor (``old_forms.py``) and its model in
+other forms, python-control and physical parameters (``conversions.py``).
 """
 
 from __future__ import annotations
@@ -17,16 +21,16 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from dataclasses import dataclass, field
-from functools import cached_property, wraps
+from functools import cached_property
 
 import numpy as np
 
-from aeid_struct.identification import calibration
-from aeid_struct.identification.physical import inverse_of_models
+from aeid_struct.identification import calibration, old_forms
+from aeid_struct.identification.conversions import physical_parameters, state_spaces
+from aeid_struct.identification.estimate_fields import EstimateFields, from_info
 from aeid_struct.metrics import nrmse_fit
-from aeid_struct.records import Record, RecordBatch
+from aeid_struct.records import RecordBatch
 from aeid_struct.simulation import initial_state, simulate
-from aeid_struct.structures import CCF
 
 __all__ = ["Estimate", "Provenance"]
 
@@ -58,104 +62,8 @@ class Provenance:
     training_range: dict | None = None
 
 
-def _from_info(key: str):
-    """A derived property that returns ``info[key]`` where the estimate carries it (a generic
-    estimate's, made with its delay and offset) and computes it otherwise."""
-    def wrap(compute):
-        @wraps(compute)
-        def get(self):
-            return self.info[key] if key in self.info else compute(self)
-        return get
-    return wrap
-
-
-class _RecordModel:
-    """Fields of an :class:`Estimate` read from its ``info`` (the model of a record: 0 where
-    none was identified) and its provenance, and its model in the shapes of several
-    channels."""
-
-    @property
-    def _inverse(self):
-        return self.provenance.inverse
-
-    @property
-    def delay(self) -> int:
-        """Input delay in samples (``info["delay"]``)."""
-        return int(self.info.get("delay", 0))
-
-    @property
-    def offset(self) -> float:
-        """Constant output offset (``info["y_offset"]``)."""
-        return float(self.info.get("y_offset", 0.0))
-
-    # -- the record and the provenance ---------------------------------------------------------
-    @property
-    def y(self):
-        """The outputs the estimate was made from: ``(steps,)`` or ``(batch, steps)`` (a tuple
-        of ``R`` for several records)."""
-        return self.record.given(self.record.y)
-
-    @property
-    def u(self):
-        """The inputs, shaped like ``y`` (a unit step where none was given)."""
-        return self.record.given(self.record.u)
-
-    @property
-    def dt(self):
-        """Sample time (a tuple of ``R`` for several records)."""
-        return self.record.times
-
-    @property
-    def structure(self):
-        """The structure the model is in, or None (:class:`Provenance`)."""
-        return self.provenance.structure
-
-    @property
-    def initial(self) -> str:
-        """``"rest"`` or ``"fitted"`` (:class:`Provenance`)."""
-        return self.provenance.initial
-
-    @property
-    def training_range(self):
-        """The identifier's training range, or None (:class:`Provenance`)."""
-        return self.provenance.training_range
-
-    @property
-    def records(self) -> int:
-        """Records the estimate was made from jointly (1, or ``R`` for a tuple of records)."""
-        return self.record.records
-
-    @property
-    def batched(self) -> bool:
-        """Whether the estimate has a batch axis."""
-        return self.record.batched
-
-    # -- the model in the shapes of several channels ---------------------------------------------
-    @property
-    def B(self) -> np.ndarray:
-        """``(..., n, m)`` input matrix (``m = 1``: ``b`` as a column)."""
-        return np.asarray(self.b)[..., :, None]
-
-    @property
-    def C(self) -> np.ndarray:
-        """``(..., p, n)`` output matrix (``p = 1``: ``c`` as a row)."""
-        return np.asarray(self.c)[..., None, :]
-
-    @property
-    def D(self) -> np.ndarray:
-        """``(..., p, m)`` feedthrough (``p = m = 1``: ``d``)."""
-        return np.asarray(self.d, dtype=np.float64)[..., None, None]
-
-
-#: The old positional order of ``Estimate(...)`` (kept for code written before Provenance).
-_POSITIONAL = ("A", "b", "c", "d", "elements", "y", "u", "dt", "seconds", "refined", "info",
-               "_inverse")
-#: The old keywords: the record's and the provenance's fields, which an Estimate now refers to.
-_OLD = {"y", "u", "dt", "structure", "initial", "training_range", "_inverse"}
-
-
 @dataclass(frozen=True, eq=False, init=False)
-class Estimate(_RecordModel):
+class Estimate(EstimateFields):
     """An identified continuous-time model (batched or single), built with keywords.
 
     Parameters
@@ -211,15 +119,16 @@ class Estimate(_RecordModel):
 
     def __init__(self, *legacy, A=None, b=None, c=None, d=None, elements=None, record=None,
                  provenance=None, seconds=0.0, refined=False, info=None, errors=None, **old):
-        values = _arguments(legacy, {"A": A, "b": b, "c": c, "d": d, "elements": elements,
-                                     "seconds": seconds, "refined": refined, "info": info}, old)
+        values = old_forms.arguments(legacy, {"A": A, "b": b, "c": c, "d": d,
+                                              "elements": elements, "seconds": seconds,
+                                              "refined": refined, "info": info}, old)
         if old and not legacy:
             warnings.warn(f"Estimate's keywords {sorted(old)} are deprecated: pass "
                           f"record=RecordBatch.of(y, u, dt, ...) or a records.Record, and "
                           f"provenance=Provenance(structure=..., initial=..., "
                           f"training_range=..., inverse=...)", DeprecationWarning, stacklevel=2)
         values["info"] = {} if values["info"] is None else values["info"]
-        values["record"] = _record(record, old, np.ndim(values["A"]))
+        values["record"] = old_forms.record_of(record, old, np.ndim(values["A"]))
         values["provenance"] = _provenance(provenance, old)
         values["errors"] = errors
         for name, value in values.items():
@@ -227,7 +136,7 @@ class Estimate(_RecordModel):
 
     # -- derived on first access ---------------------------------------------------------------
     @cached_property
-    @_from_info("y_hat")
+    @from_info("y_hat")
     def y_hat(self):
         """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
         return self._per_record(
@@ -235,7 +144,7 @@ class Estimate(_RecordModel):
             lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
 
     @cached_property
-    @_from_info("x0")
+    @from_info("x0")
     def x0(self):
         """The state at the first sample: zeros for a record from rest, else the least-squares
         initial state (``simulation.initial_state``); ``(n,)`` / ``(batch, n)``, a tuple of
@@ -248,7 +157,7 @@ class Estimate(_RecordModel):
         return tuple(np.zeros(np.shape(self.b[..., r, :])) for r in range(self.records))
 
     @cached_property
-    @_from_info("fit")
+    @from_info("fit")
     def fit(self):
         """NRMSE fit in %: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` per record (a float,
         ``(batch,)``, or ``(R,)`` / ``(batch, R)``); NaN where undefined (a constant record,
@@ -264,7 +173,7 @@ class Estimate(_RecordModel):
         """Physical parameters by name: a ``Physical`` structure's elements, or a canonical
         structure's model through its CasADi inverse map (e.g. the leg's CCF -> k, d, m);
         empty otherwise."""
-        return _physical(self)
+        return physical_parameters(self)
 
     @cached_property
     def excess(self):
@@ -327,7 +236,7 @@ class Estimate(_RecordModel):
         control.StateSpace, or a list of them
             A list for a batch (per batch row and record for several records).
         """
-        return _state_spaces(self)
+        return state_spaces(self)
 
     # -- helpers -------------------------------------------------------------------------------
     @property
@@ -374,83 +283,9 @@ class Estimate(_RecordModel):
         return self.__dict__["_x0_fitted"]
 
 
-def _arguments(legacy: tuple, values: dict, old: dict) -> dict:
-    """The Estimate's own fields from the old positional form ``legacy`` and the keywords
-    ``values``; the old positional ``y, u, dt, _inverse`` go to ``old`` (in place)."""
-    if legacy:
-        warnings.warn("Estimate(A, b, c, d, elements, y, u, dt, ...) positionally is deprecated: "
-                      "construct it with keywords, Estimate(A=..., b=..., c=..., d=..., "
-                      "elements=..., record=..., provenance=Provenance(...))",
-                      DeprecationWarning, stacklevel=3)
-    if len(legacy) > len(_POSITIONAL):
-        raise TypeError(f"Estimate takes at most {len(_POSITIONAL)} positional arguments (the "
-                        f"old form); got {len(legacy)}")
-    given = dict(zip(_POSITIONAL, legacy, strict=False))   # a prefix of the old order
-    values = {k: given.get(k, v) for k, v in values.items()}
-    old.update({k: given[k] for k in ("y", "u", "dt", "_inverse") if k in given})
-    unknown = sorted(set(old) - _OLD)
-    if unknown:
-        raise TypeError(f"Estimate got unexpected keyword arguments {unknown}")
-    if any(values[k] is None for k in ("A", "b", "c", "d", "elements")):
-        raise TypeError("Estimate needs A, b, c, d and elements")
-    return values
-
-
-def _state_spaces(est: Estimate):
-    """``Estimate.to_control``."""
-    import control
-
-    def one(A, b, c, d):
-        n = A.shape[0]
-        return control.ss(A, b.reshape(n, 1), c.reshape(1, n), np.reshape(d, (1, 1)))
-
-    if est.records > 1:   # a list per record (per batch row and record when batched)
-        A, b, c, d = (np.asarray(x) for x in (est.A, est.b, est.c, est.d))
-        rows = [(A, b, c, d)] if not est.batched else list(zip(A, b, c, d, strict=True))
-        out = [[one(*m) for m in zip(*row, strict=True)] for row in rows]
-        return out if est.batched else out[0]
-    if not est.batched:
-        return one(est.A, est.b, est.c, est.d)
-    return [one(*m) for m in zip(est.A, est.b, est.c, est.d, strict=True)]
-
-
-def _record(record: RecordBatch | None, old: dict, ndim: int) -> RecordBatch:
-    """The estimate's record: ``record``, or one of the old keywords ``y, u, dt`` (over
-    ``record``'s where both are given)."""
-    if isinstance(record, Record):
-        record = RecordBatch.of(record.y, record.u, record.dt, batched=False)
-    if record is not None and not {"y", "u", "dt"} & set(old):
-        return record
-    if record is None and "y" not in old:
-        raise TypeError("Estimate needs a record (or the old y, u, dt)")
-    y = old["y"] if "y" in old else record.given(record.y)
-    u = old["u"] if "u" in old else (None if record is None else record.given(record.u))
-    dt = old["dt"] if "dt" in old else (None if record is None else record.times)
-    return RecordBatch.of(y, u, dt, batched=ndim == (4 if isinstance(y, tuple) else 3))
-
-
 def _provenance(provenance: Provenance | None, old: dict) -> Provenance:
     """``provenance`` (default: none known) with the old keywords' changes."""
     provenance = Provenance() if provenance is None else provenance
     changes = {("inverse" if k == "_inverse" else k): old[k]
                for k in ("structure", "initial", "training_range", "_inverse") if k in old}
     return dataclasses.replace(provenance, **changes) if changes else provenance
-
-
-def _physical(est: Estimate) -> dict:
-    """``Estimate.physical``: name -> float or ``(batch,)``."""
-    inverse = est.provenance.inverse
-    if inverse is None:
-        return {}
-    if isinstance(inverse, tuple) and inverse[0] == "elements":
-        return {name: est.elements[name] for name in inverse[1]}
-    A = np.asarray(est.A, dtype=np.float64)
-    A = A[None] if A.ndim == 2 else A
-    count, n = A.shape[0], A.shape[-1]
-    b = np.asarray(est.b, dtype=np.float64).reshape(count, n)
-    c = np.asarray(est.c, dtype=np.float64).reshape(count, n)
-    d = np.asarray(est.d, dtype=np.float64).reshape(count)
-    result = inverse_of_models(inverse, A, b, c, d, isinstance(est.structure, CCF))
-    if not est.batched:
-        result = {k: float(v[0]) for k, v in result.items()}
-    return result

@@ -66,7 +66,7 @@ def differentiable(ident, y, u, *, raw: bool = False):
 
 
 def identify_record(ident, record: RecordBatch, start: float, errors: str,
-                    head=None) -> Estimate:
+                    head=None, provenance=None) -> Estimate:
     """The Estimate of a checked record (``Identifier.identify`` after its checks).
 
     Parameters
@@ -79,6 +79,9 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
     errors : {"raise", "collect"}
     head : Head, optional
         In place of ``ident.head`` (``Head.converged()`` for the refinement).
+    provenance : Provenance, optional
+        ``ident.provenance``, read by the caller (the identifier hands it over, so that this
+        module's walk never calls back into the identifier's module).
 
     Returns
     -------
@@ -103,10 +106,11 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
         if errors == "raise":
             record.raise_first()
     return estimate_of(ident, record, model, start, None if errors == "raise"
-                       else record.problems)
+                       else record.problems, provenance)
 
 
-def refine_with_head(ident, record: RecordBatch, start: float, errors: str) -> Estimate:
+def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
+                     head, provenance=None) -> Estimate:
     """``identify(refine=True)`` of an identifier with a head: the head iterated to
     convergence (``Head.converged``), the least-squares optimum in its structure, batched
     (``refinement.gauss_newton``) in place of the CasADi NLP.
@@ -118,13 +122,18 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str) -> E
     record : RecordBatch
     start : float
     errors : {"raise", "collect"}
+    head : Head
+        ``ident.head.converged()``, made by the caller (the identifier's own step, so that
+        this module's walk never goes back to it).
+    provenance : Provenance, optional
+        As :func:`identify_record`.
 
     Returns
     -------
     Estimate
         ``refined`` True, ``info["refine"] = "separable"``.
     """
-    est = identify_record(ident, record, start, errors, ident.head.converged())
+    est = identify_record(ident, record, start, errors, head, provenance)
     return dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
 
 
@@ -248,7 +257,8 @@ def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:
     return tuple(out)
 
 
-def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors) -> Estimate:
+def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors,
+                provenance=None) -> Estimate:
     """Wrap float64 ``A (count, ...), b, c, d, elements (count, q)`` of ``record`` as the
     Estimate (unbatched where the record is).
 
@@ -259,6 +269,8 @@ def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors) 
     model : tuple of arrays
     start : float
     errors : tuple or None
+    provenance : Provenance, optional
+        Default: ``ident.provenance``.
 
     Returns
     -------
@@ -272,5 +284,6 @@ def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors) 
         elements = dict(zip(names, el[0].tolist(), strict=True))
         A, b, c, d = A[0], b[0], c[0], (float(d[0]) if record.records == 1 else d[0])
     return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=record,
-                    provenance=ident.provenance, seconds=time.perf_counter() - start,
+                    provenance=ident.provenance if provenance is None else provenance,
+                    seconds=time.perf_counter() - start,
                     errors=errors)

@@ -346,8 +346,9 @@ class Identifier:
         _check_call(self, dt, refine, errors)
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
         if refine is True and self.head is not None:
-            return forward.refine_with_head(self, record, start, errors)
-        est = forward.identify_record(self, record, start, errors)
+            return forward.refine_with_head(self, record, start, errors, self.head.converged(),
+                                            self.provenance)
+        est = forward.identify_record(self, record, start, errors, provenance=self.provenance)
         return polish(est, refine) if refine else est
 
     # -- files ---------------------------------------------------------------------------------

@@ -12,10 +12,13 @@ measured side by side in one run.
   timing, PRBS, multisines, filtered noise) and noise level, the encoder alone and the encoder +
   refinement (variable projection of the initial state for windows): median k, d, m errors,
   Table I step error, failures and milliseconds per record (``evaluation.score``).
-- **Flags** (:func:`bench_flags`): the share of estimates ``Estimate.outside`` flags for legs
-  inside the identifier's training range (false flags) and for legs with one parameter 10, 20,
-  30 % beyond its range (``hi (1 + f)`` or ``lo (1 - f)``), and the mean k, d, m errors before and
-  after ``identify(refine="auto")``.
+- **Flags** (:func:`bench_flags`, in ``studies.online_flags``): the share of estimates
+  ``Estimate.outside`` flags for legs inside the identifier's training range (false flags) and
+  for legs with one parameter 10, 20, 30 % beyond its range (``hi (1 + f)`` or ``lo (1 - f)``),
+  and the mean k, d, m errors before and after ``identify(refine="auto")``.
+
+The tables that print a result, each with its legend (:func:`format_tables`, :data:`LEGENDS`),
+are in ``studies.online_tables``; both names, and ``bench_flags``, are importable from here.
 
 Errors are measured against the noise-free truth. Noise is white, ``noise * max|y_clean|``.
 """
@@ -24,18 +27,16 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.training import LegFamily, Systems, records
+# The flags and the tables have modules of their own; they stay importable from here
+from aeid_struct.studies.online_flags import bench_flags as bench_flags
+from aeid_struct.studies.online_tables import LEGENDS as LEGENDS
+from aeid_struct.studies.online_tables import format_tables as format_tables
+from aeid_struct.training import LegFamily, records
 
 KINDS = ("steps", "prbs", "multisine", "noise")
-
-
-def _percent(est: dict, truth: dict, names=("k", "d", "m")) -> dict[str, np.ndarray]:
-    return {p: 100.0 * np.abs(np.asarray(est[p]) / truth[p] - 1.0) for p in names
-            if p in est and p in truth}
 
 
 def bench_tracker(ident, *, seconds: float = 120.0, noise: float = 0.01, seeds=(0, 1, 2),
@@ -201,194 +202,6 @@ def bench_excitation(ident, family, *, kinds=KINDS, noises=(0.0, 0.01, 0.05), co
                              "ms": 1e3 * sc.seconds / count}
             rows.append(row)
     return rows
-
-
-def _outside_family(ranges: dict, name: str, f: float, count: int,
-                    rng: np.random.Generator, side: str | None = None) -> dict[str, np.ndarray]:
-    """Legs inside ``ranges`` but for ``name``, which lies ``f`` beyond one of its bounds (either,
-    at random, or the ``side`` given: ``"above"`` or ``"below"``)."""
-    params = {p: rng.uniform(lo, hi, count) for p, (lo, hi) in ranges.items()}
-    lo, hi = ranges[name]
-    above = rng.random(count) < 0.5 if side is None else np.full(count, side == "above")
-    params[name] = np.where(above, hi * (1 + f), lo * (1 - f))
-    return params
-
-
-@dataclass(frozen=True)
-class _Given:
-    """A family of given systems, so that ``training.records`` simulates them like any family."""
-
-    systems: Systems
-    records: int = 1
-
-    def sample(self, count: int, rng: np.random.Generator) -> Systems:
-        return self.systems
-
-
-def bench_flags(ident, ranges: dict, *, noises=(0.0, 0.01), beyond=(0.1, 0.2, 0.3),
-                count: int = 300, seed: int = 2000, refine: bool = True,
-                subsystem: str = "stable", sides: dict | None = None) -> list[dict]:
-    """How often ``Estimate.outside`` flags legs inside and beyond the training range.
-
-    Parameters
-    ----------
-    ident : Identifier
-        A leg identifier with a calibrated training range.
-    ranges : dict of str to (float, float)
-        The parameter ranges of its training family.
-    noises : tuple of float
-        Noise levels, a share of ``max|y|``.
-    beyond : tuple of float
-        Departures beyond a bound, a share of it (``hi (1 + f)`` or ``lo (1 - f)``).
-    count : int
-        Legs per row.
-    seed : int
-        Seed of the legs and records.
-    refine : bool
-        Also compare the errors before and after ``refine="auto"``.
-    subsystem : str
-        ``"stable"`` or ``"unstable"``.
-    sides : dict of str to str or None, optional
-        The parameters pushed out and on which side (name -> ``"above"``, ``"below"`` or None
-        for either); default every parameter, either side. For the unstable subsystem only k
-        above and m below keep a leg (``L = l0 - m g / k > 0``), and d is not in its record.
-
-    Returns
-    -------
-    list of dict
-        One row per noise level and departure (0 = inside the range): the share flagged and,
-        with ``refine``, the mean k, d, m errors (%) before and after ``refine="auto"``.
-    """
-    cfg = ident.meta.get("train", {}).get("config", {})
-    kind, warmup = cfg.get("excitation", "step"), int(cfg.get("warmup", 0))
-    fam = LegFamily(subsystem=subsystem, ranges=ranges)
-    sides = sides or {p: None for p in ranges}
-    rows = []
-    for i, noise in enumerate(noises):
-        for j, f in enumerate((0.0, *beyond)):
-            rng = np.random.default_rng(seed + 100 * i + j)
-            if f == 0.0:
-                params = {p: rng.uniform(lo, hi, count) for p, (lo, hi) in ranges.items()}
-            else:
-                names = rng.choice(sorted(sides), size=count)
-                params = {p: np.empty(count) for p in ranges}
-                for name in sorted(sides):
-                    rows_ = names == name
-                    part = _outside_family(ranges, name, f, int(rows_.sum()), rng, sides[name])
-                    for p in ranges:
-                        params[p][rows_] = part[p]
-            # the identifier's own kind of record: its excitation, mid-motion after warmup
-            rec = records(_Given(fam.systems(params["k"], params["d"], params["m"])), count,
-                          steps=ident.steps, dt=ident.dt, excitation_kind=kind, noise=noise,
-                          seed=seed + 100 * i + j, warmup=warmup)
-            y, u = rec.y, rec.u
-            est = ident.identify(y, u)
-            row = {"noise": noise, "beyond": f, "count": count,
-                   "flagged": float(np.mean(est.outside))}
-            if refine:
-                auto = ident.identify(y, u, refine="auto")
-                before, after = _percent(est.physical, params), _percent(auto.physical, params)
-                row["before"] = {p: float(np.mean(v)) for p, v in before.items()}
-                row["after"] = {p: float(np.mean(v)) for p, v in after.items()}
-            rows.append(row)
-    return rows
-
-
-def _joined(values: dict, fmt: str, names=("k", "d", "m")) -> str:
-    """``"a / b / c"`` of every named value, each formatted by ``fmt``; ``-`` for a parameter
-    the record does not hold (absent: the rotational leg has no d), ``n/a`` for nan. Every
-    name keeps its place, so ``k / - / m`` cannot be read as k and d."""
-    def cell(p):
-        if p not in values:
-            return "-"
-        return "n/a" if math.isnan(values[p]) else format(values[p], fmt)
-
-    return " / ".join(cell(p) for p in names)
-
-
-def _heading(title: str, columns: str, align: str) -> list[str]:
-    return [f"### {title}", "", columns, align]
-
-
-#: The columns of each ``format_tables`` table, printed under it.
-LEGENDS = {
-    "tracker": "k / d / m RMS %: RMS error of the smoothed estimate relative to the true value "
-               "after the baseline windows. true 5 % crossing: when the true k first left its "
-               "start by the alarm threshold (5 %). alarm: when the tracker raised it; (false): "
-               "before the wear began. update ms: median and 95th percentile wall time of one "
-               "update (one window identified, smoothed and checked), one core.",
-    "latency": "Wall time of one record through each path, one thread, the paths taking turns; "
-               "median and 95th percentile, ms.",
-    "excitation": "k / d / m median %: median absolute parameter error over all records, % of "
-                  "the true value; '-': the subsystem does not contain the parameter (the "
-                  "rotational leg has no d). step err: median Table I step error (share of the "
-                  "true response's range). fail: share of records with a parameter that is not "
-                  "finite and positive or a step error above 0.05. ms / record: the "
-                  "refinement's wall time per record. Noise: standard deviation as a share of "
-                  "max |y|.",
-    "flags": "flagged: share of estimates that Estimate.outside flags (for legs inside the "
-             "range: false flags). before / after refine='auto': mean absolute parameter "
-             "errors, % of the true value, of the encoder alone and after refining the flagged "
-             "records; '-': a parameter the record does not hold.",
-}
-
-
-def format_tables(result: dict) -> str:
-    """Markdown tables of an online benchmark, each with its legend (``LEGENDS``).
-
-    Parameters
-    ----------
-    result : dict
-        What :func:`bench_online` returned (or a part of it).
-
-    Returns
-    -------
-    str
-    """
-    out = []
-    if "tracker" in result:
-        out += _heading("Tracker (wear scenario, one update = one window identified)",
-                        "| engine | seed | k / d / m RMS % | true 5 % crossing | alarm | "
-                        "update ms median / p95 |", "|---|---:|---|---:|---:|---:|")
-        for r in result["tracker"]:
-            out.append(f"| {r['engine']} | {r['seed']} | {_joined(r['rms'], '.2f')}"
-                       + f" | {r['drift_time']:.1f} s | {r['alarm_time']:.1f} s"
-                       + (" (false)" if r["false_alarm"] else "")
-                       + f" | {r['latency_ms']:.3f} / {r['latency_p95_ms']:.3f} |")
-        out += ["", LEGENDS["tracker"], ""]
-    if "latency" in result:
-        out += _heading("Latency of one record, one thread", "| path | median ms | p95 ms |",
-                        "|---|---:|---:|")
-        for name, t in result["latency"].items():
-            out.append(f"| {name} | {t['median_ms']:.3f} | {t['p95_ms']:.3f} |")
-        out += ["", LEGENDS["latency"], ""]
-    for key, rows in result.get("excitation", {}).items():
-        out += _heading(f"Arbitrary excitation: {key}",
-                        "| input | noise | encoder k / d / m median % | step err | fail | "
-                        "+ refine k / d / m median % | step err | fail | ms / record |",
-                        "|---|---:|---|---:|---:|---|---:|---:|---:|")
-        for r in rows:
-            e = r["encoder"]
-            line = (f"| {r['kind']} | {100 * r['noise']:g} % | {_joined(e, '.2f')}"
-                    f" | {e['step_error']:.1e} | {100 * e['failures']:.0f} % |")
-            if "refined" in r:
-                f = r["refined"]
-                line += (f" {_joined(f, '.3f')} | {f['step_error']:.1e} | "
-                         f"{100 * f['failures']:.0f} % | {f['ms']:.1f} |")
-            out.append(line)
-        out += ["", LEGENDS["excitation"], ""]
-    for key, rows in result.get("flags", {}).items():
-        out += _heading(f"Out-of-range flags: {key}",
-                        "| noise | legs | flagged | mean % before (k / d / m) "
-                        "| after refine='auto' |", "|---:|---|---:|---|---|")
-        for r in rows:
-            where = "inside" if r["beyond"] == 0 else f"{100 * r['beyond']:.0f} % beyond"
-            line = f"| {100 * r['noise']:g} % | {where} | {100 * r['flagged']:.1f} % |"
-            if "before" in r:
-                line += f" {_joined(r['before'], '.2f')} | {_joined(r['after'], '.2f')} |"
-            out.append(line)
-        out += ["", LEGENDS["flags"], ""]
-    return "\n".join(out)
 
 
 def bench_online(*, quick: bool = False, seconds: float = 120.0, noise: float = 0.01,

@@ -2,11 +2,14 @@
 (paper Eq. 14-15).
 
 Modules: ``families`` (the true systems), ``generic_family`` (stable systems of order 1-4 and
-their records in normalised time, for the generic identifiers), ``excitation`` (the inputs),
+their records in normalised time, for the generic identifiers; their types in
+``generic_systems``, the polynomial algebra in ``generic_polynomials``), ``excitation`` (the
+inputs),
 ``datasets`` (simulated records and the per-record time grid), ``config`` (``TrainConfig``),
 ``objective`` (Eq. 14 on Eq. 15-normalised records), ``tensors`` (the run's records as
 tensors), ``loop`` (``train``), ``distributed`` (data-parallel runs under ``torchrun``, the
-device), ``generic`` (``train_generic``: generic identifiers by variable projection),
+device), ``generic`` (``train_generic``: generic identifiers by variable projection; its
+settings in ``generic_config``, its loss in ``generic_objective``),
 ``checkpoints``, ``calibration`` (the training range and flag
 thresholds) and ``progress`` (the budget, the progress line, the warning).
 """

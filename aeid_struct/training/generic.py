@@ -1,15 +1,11 @@
 r"""Training of a generic identifier (:class:`~aeid_struct.generic.GenericIdentifier`) by variable
 projection: the encoder gives the poles, least squares the rest, the residual is the loss.
 
-Per window (normalised as at identification, :func:`~aeid_struct.generic.normalise_windows`) the
-encoder's denominator fixes ``(A, b)`` (CCF, paper Eq. 5) and
-:func:`~aeid_struct.simulation.project_batch` fits ``c``, ``d``, the initial state and the output
-offset exactly; the loss is the unexplained share of the window's output variance,
-``e = ||y - y_hat||^2 / ||y - mean y||^2`` (``1 - R^2``), as ``log(e + eps)`` (``loss="log"``, the
-default: windows whose best fit is 99.9 % and windows whose best fit is 60 % weigh alike, so the
-easy majority does not drown the hard ones) or as ``e`` itself (``loss="nmse"``). Fresh records
-from the family every epoch (the exact simulator makes them cheap, and a fixed set is overfitted);
-a fixed held-out set picks the weights. Adam with the warm-up and cosine decay of
+This module is the run. The loss of a window is ``training.generic_objective``'s (``1 - R^2``
+under the encoder's poles with the rest of the model projected, as ``log(e + eps)`` or ``e``) and
+the settings are ``training.generic_config``'s (``GenericTrainConfig``), both re-exported here.
+Fresh records from the family every epoch (the exact simulator makes them cheap, and a fixed set
+is overfitted); a fixed held-out set picks the weights. Adam with the warm-up and cosine decay of
 :func:`~aeid_struct.training.progress.learning_rate` over an epoch or wall-time budget, gradient
 clipping, non-finite batches skipped and counted, a checkpoint every epoch (a killed run resumes
 bit-identically: every epoch's windows come in blocks of ``distributed.BLOCK``, each from a
@@ -27,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import sys
 import time
 import warnings
@@ -39,10 +34,12 @@ import numpy as np
 import torch
 
 from aeid_struct.generic import GenericConfig, GenericIdentifier, normalise_windows
-from aeid_struct.simulation import project_batch
 from aeid_struct.training import checkpoints, distributed
-from aeid_struct.training.checks import real
+from aeid_struct.training.generic_config import GenericTrainConfig as GenericTrainConfig
 from aeid_struct.training.generic_family import GenericFamily
+from aeid_struct.training.generic_objective import EPS, reduce_loss
+from aeid_struct.training.generic_objective import LOSSES as LOSSES
+from aeid_struct.training.generic_objective import window_loss as window_loss
 from aeid_struct.training.progress import (
     UndertrainedWarning,
     learning_rate,
@@ -51,140 +48,6 @@ from aeid_struct.training.progress import (
 )
 
 __all__ = ["GenericTrainConfig", "train_generic", "window_loss"]
-
-LOSSES = ("log", "nmse")
-#: Floor of ``e`` inside the log loss: a fit of 99.99 % counts as perfect.
-_EPS = 1e-8
-
-
-def _positive_int(name: str, v) -> int:
-    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-        raise ValueError(f"{name} must be a positive integer; got {v!r}")
-    return v
-
-
-@dataclass(frozen=True, kw_only=True)
-class GenericTrainConfig:
-    """How to train a generic identifier; validates itself.
-
-    Attributes
-    ----------
-    epochs : int
-        At most this many epochs.
-    seconds : float or None
-        At most this much wall time (None: no limit); not before ``min_epochs``.
-    min_epochs : int
-        The fewest epochs a wall-time budget may give, in ``[1, epochs]``.
-    target_loss : float or None
-        The best held-out loss expected (a run above it warns); None: no expectation.
-    count : int
-        Fresh training windows per epoch.
-    holdout : int
-        Held-out windows (fixed for the run).
-    batch : int
-        Windows per gradient step.
-    lr : float
-        Peak learning rate of Adam.
-    clip : float
-        Gradient-norm limit (``math.inf``: none).
-    loss : {"log", "nmse"}
-        ``log(1 - R^2 + eps)`` or ``1 - R^2`` per window, averaged.
-    seed : int
-        Seeds the weights and every epoch's records.
-    checkpoint : str, os.PathLike or None
-        File to checkpoint to and resume from.
-    progress : bool
-        Print a progress line per epoch (stderr).
-    threads : int or None
-        Torch threads for the run, restored after it (None: torch's setting).
-    device : {"cpu", "cuda", "auto"}
-        Where the encoder and the projection run, as ``TrainConfig.device`` (``"cuda"``
-        without a GPU is refused); the windows are simulated on the CPU either way.
-    """
-
-    epochs: int = 100
-    seconds: float | None = None
-    min_epochs: int = 1
-    target_loss: float | None = None
-    count: int = 4096
-    holdout: int = 512
-    batch: int = 128
-    lr: float = 3e-3
-    clip: float = 1.0
-    loss: str = "log"
-    seed: int = 0
-    checkpoint: str | None = None
-    progress: bool = True
-    threads: int | None = None
-    device: str = "cpu"
-
-    def __post_init__(self) -> None:
-        for name in ("epochs", "count", "holdout", "batch"):
-            _positive_int(name, getattr(self, name))
-        if self.seconds is not None:
-            real("seconds", self.seconds, "positive or None", lambda v: v > 0)
-        if (not isinstance(self.min_epochs, int) or isinstance(self.min_epochs, bool)
-                or not 1 <= self.min_epochs <= self.epochs):
-            raise ValueError(f"min_epochs must be an integer in [1, epochs={self.epochs}]; "
-                             f"got {self.min_epochs!r}")
-        if self.target_loss is not None:
-            real("target_loss", self.target_loss, "a finite number or None", lambda v: True)
-        real("lr", self.lr, "positive and finite", lambda v: v > 0)
-        if not (isinstance(self.clip, (int, float)) and not isinstance(self.clip, bool)
-                and self.clip > 0):
-            raise ValueError(f"clip must be positive (inf: no clipping); got {self.clip!r}")
-        if self.loss not in LOSSES:
-            raise ValueError(f"loss must be one of {LOSSES}; got {self.loss!r}")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer; got {self.seed!r}")
-        if not isinstance(self.progress, bool):
-            raise ValueError(f"progress must be True or False; got {self.progress!r}")
-        if self.threads is not None:
-            _positive_int("threads", self.threads)
-        if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
-            raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
-                             f"got {self.checkpoint!r}")
-        distributed.resolve_device(self.device)   # a bad name, or "cuda" where there is none
-
-    def to_dict(self) -> dict:
-        """The settings as JSON-ready data.
-
-        Returns
-        -------
-        dict
-        """
-        d = dataclasses.asdict(self)
-        d["checkpoint"] = None if self.checkpoint is None else str(self.checkpoint)
-        return d
-
-
-def window_loss(ident: GenericIdentifier, y: torch.Tensor, u: torch.Tensor):
-    """The unexplained output variance ``e = 1 - R^2`` of each window under the encoder's poles
-    with the rest of the model projected (differentiable).
-
-    Parameters
-    ----------
-    ident : GenericIdentifier
-    y, u : (batch, window) float64 tensors
-        Normalised windows (:func:`~aeid_struct.generic.normalise_windows`).
-
-    Returns
-    -------
-    e : (batch,) float64 tensor
-        All NaN where the encoder gives non-finite poles (weights gone non-finite): the batch
-        is skipped.
-    """
-    w, zeta = ident.factors_batch(y, u)
-    if not bool(torch.isfinite(w).all() and torch.isfinite(zeta).all()):
-        return torch.full_like(y[:, 0], math.nan)
-    A, b = ident.companion(w, zeta)
-    r = project_batch(A, b, y, u).residual
-    centred = y - y.mean(dim=1, keepdim=True)
-    return (r ** 2).sum(dim=1) / (centred ** 2).sum(dim=1)
-
-
-def _reduce(e: torch.Tensor, kind: str) -> torch.Tensor:
-    return torch.log(e + _EPS).mean() if kind == "log" else e.mean()
 
 
 def _windows(family, count: int, steps: int, rng: np.random.Generator):
@@ -407,7 +270,7 @@ def _epoch(run: _Run, start: float):
             for group in run.opt.param_groups:
                 group["lr"] = lr
             e = window_loss(run.ident, y[sl], u[sl])
-            terms = torch.log(e + _EPS) if train.loss == "log" else e
+            terms = torch.log(e + EPS) if train.loss == "log" else e
             local = torch.where(ok[sl], terms, torch.zeros_like(terms)).sum()
             total, n = ctx.sum([float(local.detach()), int(ok[sl].sum())])
             run.opt.zero_grad(set_to_none=True)
@@ -444,7 +307,7 @@ def _holdout(run: _Run) -> tuple[float, float]:
         whole[mine] = e
         e = torch.tensor(ctx.sum(whole.tolist()), dtype=torch.float64)
     fit = 100.0 * (1.0 - torch.sqrt(e.clamp_min(0.0)))
-    return float(_reduce(e, run.train.loss)), float(torch.nanmedian(fit))
+    return float(reduce_loss(e, run.train.loss)), float(torch.nanmedian(fit))
 
 
 def _record(run: _Run, loss, held, fit, lr, norms, skipped, elapsed) -> None:

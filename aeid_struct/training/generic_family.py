@@ -1,14 +1,16 @@
 """Generic families in normalised time: stable SISO systems of order 1-4 that look like real ones
 (zeros, resonances to overdamped modes, gains of either sign, feedthrough, input delay) and their
 records (excitations people apply, a mid-motion start, offsets, noise), for training and
-benchmarking the generic identifiers.
+benchmarking the generic identifiers. This module is the family: the random draw and the
+simulation. What it gives, ``GenericSystems`` and ``GenericRecords``, is in
+``training.generic_systems`` (re-exported here), and the polynomial algebra of the draw in
+``training.generic_polynomials``.
 
-Normalised time: ``dt = 1``, time in samples, poles ``|p| dt`` in rad/sample. A normalised model
-``(A_n, b_n, c, d)`` is, at sample time ``dt``, ``A = A_n / dt``, ``b = b_n / dt`` with the same
-``c``, ``d`` and state (:meth:`GenericSystems.at`); the samples of a record do not change.
-Systems come in the bottom-row CCF (paper Eq. 5, ``b = e_n``); every random draw comes from an
-explicit generator. The model of a record is docs/architecture.md's: the exact FOH response
-(Eq. 10-13) of the delayed input from the record's initial state, plus an output offset.
+Normalised time: ``dt = 1``, time in samples, poles ``|p| dt`` in rad/sample
+(``training.generic_systems``). Systems come in the bottom-row CCF (paper Eq. 5, ``b = e_n``);
+every random draw comes from an explicit generator. The model of a record is
+docs/architecture.md's: the exact FOH response (Eq. 10-13) of the delayed input from the record's
+initial state, plus an output offset.
 """
 
 from __future__ import annotations
@@ -22,28 +24,20 @@ import torch
 from aeid_struct.simulation import states_batch
 from aeid_struct.structures import ccf_matrices
 from aeid_struct.training.checks import count as positive_int
-from aeid_struct.training.checks import generator, positive, real, value_range
+from aeid_struct.training.checks import generator, real, value_range
 from aeid_struct.training.excitation import GENERIC_EXCITATIONS, generic_excitation
+from aeid_struct.training.generic_polynomials import convolve, peak_gain, poly
+from aeid_struct.training.generic_systems import GenericRecords as GenericRecords
+from aeid_struct.training.generic_systems import GenericSystems as GenericSystems
 
 __all__ = ["GenericFamily", "GenericRecords", "GenericSystems"]
 
 #: Share of drawn zeros (real ones, and complex pairs) in the right half plane.
 RHP_ZEROS = 0.25
-#: Frequencies (rad/sample) of the grid the numerator is scaled on, besides each |pole|.
-_GRID = np.logspace(-4, np.log10(np.pi), 256)
 
 
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float, size) -> np.ndarray:
     return np.exp(rng.uniform(np.log(lo), np.log(hi), size=size))
-
-
-def _poly(roots: np.ndarray) -> np.ndarray:
-    """Monic polynomials of rows of roots, ascending: ``(B, k) -> (B, k + 1)`` complex."""
-    coef = np.ones((roots.shape[0], 1), dtype=complex)
-    for j in range(roots.shape[1]):
-        shifted = np.concatenate([np.zeros_like(coef[:, :1]), coef], axis=1)   # s * p(s)
-        coef = shifted - roots[:, j : j + 1] * np.concatenate([coef, 0 * coef[:, :1]], axis=1)
-    return coef
 
 
 def _pairs(rng, size, magnitude, damping):
@@ -52,134 +46,6 @@ def _pairs(rng, size, magnitude, damping):
     z = _log_uniform(rng, *damping, size)
     root = np.sqrt(z.astype(complex) ** 2 - 1)
     return w * (-z + root), w * (-z - root)
-
-
-@dataclass(frozen=True)
-class GenericSystems:
-    """A batch of stable SISO systems in the bottom-row CCF (paper Eq. 5) with an input delay.
-
-    Attributes
-    ----------
-    A : (N, n, n) float64 array
-        Companion matrices (ones above the diagonal, last row ``-a``).
-    b : (N, n) float64 array
-        ``e_n`` (``e_n / dt`` after :meth:`at`).
-    c : (N, n) float64 array
-        Numerator coefficients ``c_0..c_{n-1}`` (ascending).
-    d : (N,) float64 array
-        Feedthrough (0 for most systems).
-    poles : (N, n) complex array
-        The eigenvalues of ``A``: the pairs first (conjugate pairs, or two real poles), then the
-        real pole of an odd order.
-    delay : (N,) int array
-        Input delay in samples.
-    dt : float
-        The sample time these matrices are for (1: normalised time).
-    """
-
-    A: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: np.ndarray
-    poles: np.ndarray
-    delay: np.ndarray
-    dt: float = 1.0
-
-    def __len__(self) -> int:
-        return self.A.shape[0]
-
-    @property
-    def order(self) -> int:
-        """The order ``n``."""
-        return self.A.shape[-1]
-
-    def take(self, index) -> GenericSystems:
-        """The systems at ``index`` (int array, slice or boolean mask along the batch axis).
-
-        Parameters
-        ----------
-        index : int array, slice or boolean mask
-
-        Returns
-        -------
-        GenericSystems
-        """
-        return GenericSystems(self.A[index], self.b[index], self.c[index], self.d[index],
-                              self.poles[index], self.delay[index], self.dt)
-
-    def at(self, dt: float) -> GenericSystems:
-        """The same systems for records sampled at ``dt``: ``A dt_0 / dt``, ``b dt_0 / dt``.
-
-        With ``dt_0 = self.dt`` (1 in normalised time): ``A = A_n / dt``, ``b = b_n / dt``, the
-        same ``c``, ``d``, state and delay in samples; poles scale as ``A``. The samples of a
-        record are the same at any ``dt``.
-
-        Parameters
-        ----------
-        dt : float
-            Sample time (s), positive.
-
-        Returns
-        -------
-        GenericSystems
-        """
-        scale = self.dt / positive("dt", dt)
-        return dataclasses.replace(self, A=self.A * scale, b=self.b * scale,
-                                   poles=self.poles * scale, dt=float(dt))
-
-
-@dataclass(frozen=True)
-class GenericRecords:
-    """Simulated records of generic systems (:meth:`GenericFamily.records`).
-
-    Attributes
-    ----------
-    y : (N, steps) float64 array
-        Measured output: ``y_clean`` plus white noise.
-    y_clean : (N, steps) float64 array
-        Noise-free output, offset included: ``c^T x_k + d u_plant_k + offsets[:, 1]`` with the
-        exact FOH state ``x_k`` from ``x0`` (Eq. 10-13).
-    u : (N, steps) float64 array
-        Measured input: the excitation plus ``offsets[:, 0]``.
-    u_plant : (N, steps) float64 array
-        The input the plant saw over the record, without offset: ``u - offsets[:, 0]`` delayed
-        by ``systems.delay`` samples, its first ``delay`` samples from before the record.
-    x0 : (N, n) float64 array
-        The state at the record's first sample (mid-motion).
-    noise : (N,) float64 array
-        Noise std over the std of the clean output, per record.
-    offsets : (N, 2) float64 array
-        The constant (input, output) offsets added.
-    systems : GenericSystems
-        The true systems.
-    """
-
-    y: np.ndarray
-    y_clean: np.ndarray
-    u: np.ndarray
-    u_plant: np.ndarray
-    x0: np.ndarray
-    noise: np.ndarray
-    offsets: np.ndarray
-    systems: GenericSystems
-
-    def __len__(self) -> int:
-        return self.y.shape[0]
-
-    def at(self, dt: float) -> GenericRecords:
-        """The same records read at sample time ``dt``: samples unchanged, systems
-        :meth:`GenericSystems.at` ``dt``.
-
-        Parameters
-        ----------
-        dt : float
-            Sample time (s), positive.
-
-        Returns
-        -------
-        GenericRecords
-        """
-        return dataclasses.replace(self, systems=self.systems.at(dt))
 
 
 def _pair_range(name: str, value, lower: float, strict: bool) -> tuple[float, float]:
@@ -308,11 +174,11 @@ class GenericFamily:
             # a pair in the right half plane: both roots mirrored (-conj keeps a pair a pair)
             z1 = np.where(rhp[:, j] < 0, -np.conj(first[:, j]), first[:, j])
             z2 = np.where(rhp[:, j] < 0, -np.conj(second[:, j]), second[:, j])
-            factor = np.where(on, _poly(np.stack([z1, z2], 1)), np.array([1.0, 0.0, 0.0]))
-            num = _convolve(num, factor)
-        factor = np.where((m % 2 == 1)[:, None], _poly(single.astype(complex)),
+            factor = np.where(on, poly(np.stack([z1, z2], 1)), np.array([1.0, 0.0, 0.0]))
+            num = convolve(num, factor)
+        factor = np.where((m % 2 == 1)[:, None], poly(single.astype(complex)),
                           np.array([1.0, 0.0]))
-        num = _convolve(num, factor).real
+        num = convolve(num, factor).real
         c = np.zeros((count, n))
         width = min(n, num.shape[1])
         c[:, :width] = num[:, :width]
@@ -345,10 +211,10 @@ class GenericFamily:
         if n % 2:
             poles = np.concatenate([poles, -_log_uniform(rng, *self.band, (count, 1))], axis=1)
         poles = poles.astype(complex)
-        a = _poly(poles).real[:, :n]                  # a_0..a_{n-1}; the monic term dropped
+        a = poly(poles).real[:, :n]                  # a_0..a_{n-1}; the monic term dropped
         c, _ = self._numerator(count, rng)
         sign = np.where(rng.random(count) < 0.5, -1.0, 1.0)
-        peak = _peak_gain(a, c, np.abs(poles))
+        peak = peak_gain(a, c, np.abs(poles))
         c = c * (sign / peak)[:, None]
         d = np.where(rng.random(count) < self.feedthrough,
                      rng.choice([-1.0, 1.0], count) * rng.uniform(0.2, 1.0, count), 0.0)
@@ -433,22 +299,3 @@ class GenericFamily:
             if idx.size:
                 u[idx] = generic_excitation(kind, idx.size, total, rng, first=first, band=band)
         return u
-
-
-def _convolve(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Row-wise products of ascending polynomials ``(B, i) x (B, j) -> (B, i + j - 1)``."""
-    out = np.zeros((p.shape[0], p.shape[1] + q.shape[1] - 1), dtype=complex)
-    for j in range(q.shape[1]):
-        out[:, j : j + p.shape[1]] += p * q[:, j : j + 1]
-    return out
-
-
-def _peak_gain(a: np.ndarray, c: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """``max |c(jw) / a(jw)|`` over ``_GRID`` and the frequencies ``at`` (B, k), per system."""
-    w = np.concatenate([np.broadcast_to(_GRID, (a.shape[0], _GRID.size)), at], axis=1)
-    s = 1j * w
-    n = a.shape[1]
-    power = s[..., None] ** np.arange(n + 1)                   # (B, W, n + 1)
-    den = power[..., :n] @ a[:, :, None] + power[..., n : n + 1]
-    num = power[..., :n] @ c[:, :, None].astype(complex)
-    return np.max(np.abs(num / den)[..., 0], axis=1)

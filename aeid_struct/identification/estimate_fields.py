@@ -1,0 +1,103 @@
+"""What an :class:`~aeid_struct.identification.Estimate` reads rather than computes: the base
+class of its fields taken from its ``info``, its record and its provenance (and its model in the
+shapes of several channels), and the decorator of the derived properties that a generic
+estimate carries in ``info``. The seam: reading what the estimate holds, apart from deriving
+its response, fit and flags (``estimate.py``).
+"""
+
+from __future__ import annotations
+
+from functools import wraps
+
+import numpy as np
+
+__all__ = ["EstimateFields", "from_info"]
+
+
+def from_info(key: str):
+    """A derived property that returns ``info[key]`` where the estimate carries it (a generic
+    estimate's, made with its delay and offset) and computes it otherwise."""
+    def wrap(compute):
+        @wraps(compute)
+        def get(self):
+            return self.info[key] if key in self.info else compute(self)
+        return get
+    return wrap
+
+
+class EstimateFields:
+    """Fields of an :class:`Estimate` read from its ``info`` (the model of a record: 0 where
+    none was identified) and its provenance, and its model in the shapes of several
+    channels."""
+
+    @property
+    def _inverse(self):
+        return self.provenance.inverse
+
+    @property
+    def delay(self) -> int:
+        """Input delay in samples (``info["delay"]``)."""
+        return int(self.info.get("delay", 0))
+
+    @property
+    def offset(self) -> float:
+        """Constant output offset (``info["y_offset"]``)."""
+        return float(self.info.get("y_offset", 0.0))
+
+    # -- the record and the provenance ---------------------------------------------------------
+    @property
+    def y(self):
+        """The outputs the estimate was made from: ``(steps,)`` or ``(batch, steps)`` (a tuple
+        of ``R`` for several records)."""
+        return self.record.given(self.record.y)
+
+    @property
+    def u(self):
+        """The inputs, shaped like ``y`` (a unit step where none was given)."""
+        return self.record.given(self.record.u)
+
+    @property
+    def dt(self):
+        """Sample time (a tuple of ``R`` for several records)."""
+        return self.record.times
+
+    @property
+    def structure(self):
+        """The structure the model is in, or None (:class:`Provenance`)."""
+        return self.provenance.structure
+
+    @property
+    def initial(self) -> str:
+        """``"rest"`` or ``"fitted"`` (:class:`Provenance`)."""
+        return self.provenance.initial
+
+    @property
+    def training_range(self):
+        """The identifier's training range, or None (:class:`Provenance`)."""
+        return self.provenance.training_range
+
+    @property
+    def records(self) -> int:
+        """Records the estimate was made from jointly (1, or ``R`` for a tuple of records)."""
+        return self.record.records
+
+    @property
+    def batched(self) -> bool:
+        """Whether the estimate has a batch axis."""
+        return self.record.batched
+
+    # -- the model in the shapes of several channels ---------------------------------------------
+    @property
+    def B(self) -> np.ndarray:
+        """``(..., n, m)`` input matrix (``m = 1``: ``b`` as a column)."""
+        return np.asarray(self.b)[..., :, None]
+
+    @property
+    def C(self) -> np.ndarray:
+        """``(..., p, n)`` output matrix (``p = 1``: ``c`` as a row)."""
+        return np.asarray(self.c)[..., None, :]
+
+    @property
+    def D(self) -> np.ndarray:
+        """``(..., p, m)`` feedthrough (``p = m = 1``: ``d``)."""
+        return np.asarray(self.d, dtype=np.float64)[..., None, None]
