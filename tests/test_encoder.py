@@ -1,5 +1,6 @@
 """The residual 1-D CNN encoder: shapes, structure of paper Sec. III-A, config validation."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -88,3 +89,51 @@ def test_several_records_pool_each_to_a_common_length_and_stack_as_channels():
 def test_several_record_config_errors(kw, match):
     with pytest.raises(ValueError, match=match):
         EncoderConfig(outputs=3, **kw)
+
+
+# -- the one numpy forward pass ------------------------------------------------------------------
+@pytest.mark.parametrize(("config", "dtype", "activation"), [
+    (EncoderConfig(steps=60, outputs=3, width=4, kernel=5, dense=(8,), pool=3), np.float64,
+     "numpy"),
+    (EncoderConfig(steps=61, outputs=2, inputs=True, features=1, kernel=3, dense=(6, 5)),
+     np.float64, "numpy"),
+    (EncoderConfig(steps=48, outputs=4, inputs=True, width=5, kernel=7, depth=2, pool=2,
+                   activation="gelu"), np.float64, "torch"),
+    (EncoderConfig(steps=64, outputs=3, inputs=True, dense=(12,), pool=4,
+                   activation="silu"), None, "torch"),
+])
+@pytest.mark.parametrize("batch", [1, 5])
+def test_numpy_pass_is_the_torch_module(config, dtype, activation, batch):
+    """NumpyEncoder (convolve, the caller's features, dense) against the module's forward on
+    the same records: float64 to 1e-12, the weights' float32 to float32 rounding."""
+    from aeid_struct.encoder import NumpyEncoder
+
+    torch.manual_seed(0)
+    enc = Encoder(config).eval()
+    channels = 2 if config.inputs else 1
+    x = torch.rand(batch, channels, config.steps, dtype=torch.float64) * 2 - 1
+    feats = torch.randn(batch, config.features, dtype=torch.float64) if config.features else None
+    net = NumpyEncoder(enc, dtype=dtype, activation=activation)
+    z = net.convolve(x.numpy().transpose(1, 0, 2))
+    if feats is not None:
+        z = np.concatenate([z, feats.numpy().astype(z.dtype)], axis=1)
+    got = net.dense(z)
+    if dtype is None:
+        with torch.no_grad():
+            want = enc(x.float(), None if feats is None else feats.float()).numpy()
+        assert got.dtype == np.float32
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    else:
+        with torch.no_grad():
+            want = enc.double()(x, feats).numpy()
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_numpy_pass_refuses_what_numpy_cannot_evaluate():
+    from aeid_struct.encoder import NumpyEncoder
+
+    enc = Encoder(EncoderConfig(steps=40, outputs=2, activation="gelu"))
+    with pytest.raises(ValueError, match=r"^no numpy path for activation 'gelu'"):
+        NumpyEncoder(enc, activation="numpy")
+    with pytest.raises(ValueError, match=r"^activation must be one of \('numpy', 'torch'\)"):
+        NumpyEncoder(enc, activation="jax")

@@ -3,8 +3,10 @@
 
 from aeid_struct.encoder.network import Encoder as Encoder
 from aeid_struct.encoder.network import EncoderConfig as EncoderConfig
+from aeid_struct.encoder.numpy_forward import NumpyEncoder as NumpyEncoder
 
 __all__ = [
     "Encoder",
     "EncoderConfig",
+    "NumpyEncoder",
 ]

@@ -4,9 +4,9 @@ The same function as :meth:`~aeid_struct.generic.GenericIdentifier.factors_batch
 normalisation, spectral features, the residual 1-D encoder of paper Sec. III-A, the pole map of
 :mod:`~aeid_struct.generic.poles`), evaluated without torch: at identification the batch is a
 handful of windows, and torch's per-operation overhead (some twenty modules and their hooks)
-costs many times the arithmetic. The encoder runs in its weights' precision (float32 as
-trained), each "same" convolution as one matmul over an im2col gather; the normalisation,
-the spectra and the pole map run in float64 as the torch path does.
+costs many times the arithmetic. The encoder is the one numpy pass (``encoder.NumpyEncoder``)
+in its weights' precision (float32 as trained); the normalisation, the spectra and the pole map
+run in float64 as the torch path does.
 ``tests/test_generic_model.py`` checks the two paths against each other.
 """
 
@@ -16,14 +16,10 @@ import math
 
 import numpy as np
 import scipy.special
-import torch
 
-__all__ = ["NumpyEncoder", "denominator_numpy", "factors_numpy", "normalise_numpy"]
+from aeid_struct.encoder import NumpyEncoder
 
-# torch's own activations on numpy buffers (no copy): the exact functions trained, and torch's
-# vectorised erf is several times faster than scipy.special.erf on these few thousand values
-_ACTIVATIONS = {"tanh": torch.tanh, "relu": torch.relu, "gelu": torch.nn.functional.gelu,
-                "silu": torch.nn.functional.silu}
+__all__ = ["WindowEncoder", "denominator_numpy", "factors_numpy", "normalise_numpy"]
 
 
 def normalise_numpy(y: np.ndarray, u: np.ndarray):
@@ -52,8 +48,10 @@ def normalise_numpy(y: np.ndarray, u: np.ndarray):
     return out[0], out[1], ok
 
 
-class NumpyEncoder:
-    """A generic identifier's encoder and spectral features as a numpy function.
+class WindowEncoder:
+    """A generic identifier's encoder and spectral features as a numpy function: the one
+    numpy forward pass (``encoder.NumpyEncoder``, in the weights' float32 and torch's own
+    activations, as trained) with the windows' spectra appended between its halves.
 
     Parameters
     ----------
@@ -66,66 +64,29 @@ class NumpyEncoder:
     """
 
     def __init__(self, encoder, spectrum: bool) -> None:
-        cfg = encoder.config
-        sd = {k: v.detach().cpu().numpy().copy() for k, v in encoder.state_dict().items()}
-        self.dtype = sd["shortcut.0.weight"].dtype
-        act = _ACTIVATIONS[cfg.activation]
-        self.act = lambda x: act(torch.from_numpy(x)).numpy()
-        self.pool, self.length = int(cfg.pool), cfg.length
-        self.kernel, self.pad = cfg.kernel, cfg.kernel // 2
-        self.convs = [(sd[f"main.{2 * i}.weight"].reshape(cfg.width, -1),
-                       sd[f"main.{2 * i}.bias"][:, None]) for i in range(cfg.depth)]
-        self.shortcut = (sd["shortcut.0.weight"].reshape(cfg.width, -1),
-                         sd["shortcut.0.bias"][:, None])
-        self.dense = [(sd[f"head.{2 * i}.weight"].T.copy(), sd[f"head.{2 * i}.bias"])
-                      for i in range(len(cfg.dense) + 1)]
+        self.net = NumpyEncoder(encoder)
         self.spectrum = spectrum
-        self.hann = np.hanning(cfg.steps)                 # torch.hann_window(periodic=False)
-
-    def _conv(self, hp: np.ndarray, W: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """'Same' 1-D convolution (Eq. 8) + activation of zero-padded windows laid end to end,
-        ``hp (C, K (L + 2 pad)) -> (O, K (L + 2 pad))`` zero-padded again: ONE matmul over the
-        whole batch (the columns that straddle two windows are computed and zeroed)."""
-        C, T = hp.shape
-        ksz, p = self.kernel, self.pad
-        # im2col without a gather: cols[c, j, t] = hp[c, t + j]
-        view = np.lib.stride_tricks.as_strided(
-            hp, (C, ksz, T - 2 * p), (hp.strides[0], hp.strides[1], hp.strides[1]))
-        out = np.zeros((W.shape[0], T), dtype=self.dtype)
-        # the output of window i at sample l sits at column i (L + 2 pad) + l of the product
-        out[:, p : T - p] = self.act(W @ view.reshape(C * ksz, T - 2 * p) + b)
-        framed = out.reshape(W.shape[0], -1, self.length + 2 * p)
-        framed[:, :, :p] = 0.0
-        framed[:, :, self.length + p :] = 0.0
-        return out
+        self.hann = np.hanning(encoder.config.steps)      # torch.hann_window(periodic=False)
 
     def __call__(self, y_n: np.ndarray, u_n: np.ndarray) -> np.ndarray:
-        """Raw outputs ``(K, n)`` (float64) of normalised windows ``y_n, u_n (K, steps)``."""
-        K, steps = y_n.shape
-        L, p = self.length, self.pad
-        x = np.stack([y_n, u_n], axis=0).astype(self.dtype)           # (2, K, steps)
-        if self.pool > 1:
-            x = x[:, :, : L * self.pool].reshape(2, K, L, self.pool).mean(
-                axis=3, dtype=self.dtype)
-        xp = np.zeros((2, K, L + 2 * p), dtype=self.dtype)
-        xp[:, :, p : p + L] = x
-        xp = xp.reshape(2, -1)
-        h = xp
-        for W, b in self.convs:
-            h = self._conv(h, W, b)
-        both = np.concatenate([h, self._conv(xp, *self.shortcut)], axis=0)
-        # torch flattens (K, channels, L) channel-major per window
-        z = both.reshape(-1, K, L + 2 * p)[:, :, p : p + L].transpose(1, 0, 2).reshape(K, -1)
+        """Raw outputs ``(K, n)`` (float64) of normalised windows ``y_n, u_n (K, steps)``.
+
+        Parameters
+        ----------
+        y_n, u_n : (K, steps) arrays
+
+        Returns
+        -------
+        (K, n) float64 array
+        """
+        steps = y_n.shape[1]
+        z = self.net.convolve(np.stack([y_n, u_n], axis=0))
         if self.spectrum:
             mags = [np.abs(np.fft.rfft(s * self.hann, axis=1)) / math.sqrt(steps)
                     for s in (y_n, u_n)]
             features = np.log(np.concatenate(mags, axis=1) + 1e-3) / 4
-            z = np.concatenate([z, features.astype(self.dtype)], axis=1)
-        for i, (W, b) in enumerate(self.dense):
-            z = z @ W + b
-            if i < len(self.dense) - 1:
-                z = self.act(z)
-        return z.astype(np.float64)
+            z = np.concatenate([z, features.astype(self.net.dtype)], axis=1)
+        return self.net.dense(z).astype(np.float64)
 
 
 def factors_numpy(raw: np.ndarray, band, damping):

@@ -25,7 +25,7 @@ from aeid_struct.encoder import Encoder
 from aeid_struct.generic import files as generic_files
 from aeid_struct.generic.config import GENERIC, ORDERS, GenericConfig
 from aeid_struct.generic.forward import (
-    NumpyEncoder,
+    WindowEncoder,
     denominator_numpy,
     factors_numpy,
     normalise_numpy,
@@ -222,7 +222,7 @@ class GenericIdentifier:
                              f"{arrays[0].shape} and {arrays[1].shape}")
         return normalise_numpy(arrays[0], arrays[1])
 
-    def _numpy_encoder(self) -> NumpyEncoder:
+    def _numpy_encoder(self) -> WindowEncoder:
         """The encoder as numpy (:mod:`~aeid_struct.generic.forward`), rebuilt when a weight
         changed since (training updates them in place, which bumps their version)."""
         cached = getattr(self, "_numpy", None)
@@ -232,7 +232,7 @@ class GenericIdentifier:
             self._numpy = cached
         key = [(p.data_ptr(), p._version) for p in cached[1]]
         if cached[2] != key:
-            cached[2:] = key, NumpyEncoder(self.encoder, self.config.spectrum)
+            cached[2:] = key, WindowEncoder(self.encoder, self.config.spectrum)
         return cached[3]
 
     def _factors(self, y, u):

@@ -8,23 +8,20 @@ import warnings
 import numpy as np
 import torch
 
+from aeid_struct.encoder import NumpyEncoder
 from aeid_struct.records import normalise
 from aeid_struct.structures import Physical
 
 __all__ = ["Batch1", "fast_path", "warm"]
 
-_NUMPY_ACTIVATIONS = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}
-
-
 class Batch1:
     """One record through the identifier without per-operation torch overhead.
 
-    The encoder is evaluated in numpy (float64 copies of the weights): average pooling by a
-    reshape, each "same" convolution as one matmul over a strided im2col view, then the dense
-    layers; the structure (theta -> elements -> A, b, c, d) runs as a frozen TorchScript trace
-    (or eagerly for CasADi-backed structures). A call ``(y (steps,), u (steps,) or None)``
-    returns float64 ``A (1, n, n), b, c (1, n), d (1,), elements (1, q)``, in measured units
-    like ``Identifier.system``.
+    The encoder is the one numpy pass (``encoder.NumpyEncoder``, float64 copies of the
+    weights, numpy's activations); the structure (theta -> elements -> A, b, c, d) runs as a
+    frozen TorchScript trace (or eagerly for CasADi-backed structures). A call ``(y (steps,),
+    u (steps,) or None)`` returns float64 ``A (1, n, n), b, c (1, n), d (1,), elements (1,
+    q)``, in measured units like ``Identifier.system``.
 
     Parameters
     ----------
@@ -33,22 +30,9 @@ class Batch1:
     """
 
     def __init__(self, ident):
-        enc = ident.encoder
-        cfg = enc.config
-        if cfg.activation not in _NUMPY_ACTIVATIONS:
-            raise ValueError(f"no numpy path for activation {cfg.activation!r}")
-        self.act = _NUMPY_ACTIVATIONS[cfg.activation]
-        sd = {k: v.detach().double().numpy() for k, v in enc.state_dict().items()}
-        self.cfg = cfg
-        self.pad = cfg.kernel // 2
-        self.length = cfg.steps // cfg.pool
-        self.window = np.arange(cfg.kernel)[:, None] + np.arange(self.length)[None, :]
-        self.convs = [(sd[f"main.{2 * i}.weight"].reshape(cfg.width, -1),
-                       sd[f"main.{2 * i}.bias"][:, None]) for i in range(cfg.depth)]
-        self.shortcut = (sd["shortcut.0.weight"].reshape(cfg.width, -1),
-                         sd["shortcut.0.bias"][:, None])
-        self.dense = [(sd[f"head.{2 * i}.weight"], sd[f"head.{2 * i}.bias"])
-                      for i in range(len(cfg.dense) + 1)]
+        # the one numpy pass, in float64 and numpy's own activations (ValueError for others)
+        self.net = NumpyEncoder(ident.encoder, dtype=np.float64, activation="numpy")
+        self.cfg = ident.encoder.config
         self.mean = ident.theta_mean.double().numpy()
         self.scale = ident.theta_scale.double().numpy()
         self.ident = ident
@@ -69,33 +53,16 @@ class Batch1:
                     self.structure, (torch.zeros(1, structure.p, dtype=torch.float64),),
                     check_trace=False))
 
-    def _conv(self, h: np.ndarray, W: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """'Same' 1-D convolution (Eq. 8) + activation: ``h (C, L) -> (O, L)``."""
-        C, L, p = h.shape[0], self.length, self.pad
-        hp = np.zeros((C, L + 2 * p))
-        hp[:, p: p + L] = h
-        # im2col by one gather: cols[c, k, l] = hp[c, l + k], laid out as torch's (O, C, K)
-        return self.act(W @ hp[:, self.window].reshape(C * self.cfg.kernel, L) + b)
-
     def __call__(self, y: np.ndarray, u: np.ndarray | None):
         cfg = self.cfg
         y_tilde, u_tilde, y_bar, u_bar = normalise(y[None], None if u is None else u[None])
         gain = float(y_bar[0] / u_bar[0])
         x = np.concatenate([y_tilde, u_tilde]) if cfg.inputs else y_tilde     # Eq. 15
-        if cfg.pool > 1:
-            x = x[:, : self.length * cfg.pool].reshape(x.shape[0], self.length,
-                                                       cfg.pool).mean(axis=2)
-        h = x
-        for W, b in self.convs:
-            h = self._conv(h, W, b)
-        z = np.concatenate([h, self._conv(x, *self.shortcut)]).ravel()
+        z = self.net.convolve(x[:, None, :])
         if cfg.features:
             ident = self.ident
-            z = np.append(z, (np.log(gain) - ident.feature_mean) / ident.feature_scale)
-        for i, (W, b) in enumerate(self.dense):
-            z = W @ z + b
-            if i < len(self.dense) - 1:
-                z = self.act(z)
+            z = np.append(z, (np.log(gain) - ident.feature_mean) / ident.feature_scale)[None]
+        z = self.net.dense(z)[0]
         theta = torch.from_numpy((self.mean + self.scale * z)[None])
         with torch.no_grad():
             A, b, c, d, el = (t.numpy() for t in self.structure(theta))
