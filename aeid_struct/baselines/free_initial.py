@@ -38,6 +38,7 @@ from aeid_struct.baselines.continuous import NoRealLogarithm, convert
 from aeid_struct.baselines.subspace_step import nfoursid_model
 from aeid_struct.records import RecordBatch, Units
 from aeid_struct.simulation import fit_initial, project
+from aeid_struct.structures import ccf_matrices
 
 __all__ = ["OFFSETS", "POOR_FIT", "least_squares_record", "n4sid_record"]
 
@@ -156,9 +157,8 @@ def _n4sid(record, *, order: int, feedthrough: bool = False,
 def _ccf(alpha: np.ndarray, dt: float):
     """``A, b`` of the bottom-row CCF whose ``A dt`` has the denominator ``alpha``."""
     n = alpha.shape[0]
-    A = np.eye(n, k=1)
-    A[-1] = -alpha / dt ** (n - np.arange(n))
-    return A, np.eye(n)[-1]
+    A, b, _ = ccf_matrices((alpha / dt ** (n - np.arange(n)))[None], None)
+    return A[0], b[0]
 
 
 def _alpha_of_poles(poles: np.ndarray, dt: float) -> np.ndarray:

@@ -27,6 +27,7 @@ import scipy.linalg
 import scipy.signal
 
 from aeid_struct.simulation import Projection
+from aeid_struct.structures import ccf_matrices
 
 __all__ = ["BLOCK_BYTES", "PREFIX", "PREFIX_SHORTLIST", "Selection", "ccf", "scores", "select",
            "solution"]
@@ -47,12 +48,7 @@ def ccf(den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     den = np.asarray(den, dtype=np.float64)
     one = den.ndim == 1
     den = np.atleast_2d(den)
-    K, n = den.shape[0], den.shape[1] - 1
-    A = np.zeros((K, n, n))
-    A[:, np.arange(n - 1), np.arange(1, n)] = 1.0
-    A[:, n - 1, :] = -den[:, :0:-1]
-    b = np.zeros((K, n))
-    b[:, -1] = 1.0
+    A, b, _ = ccf_matrices(den[:, :0:-1], None)
     return (A[0], b[0]) if one else (A, b)
 
 

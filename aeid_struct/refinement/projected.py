@@ -41,6 +41,8 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from aeid_struct.structures import ccf_matrices
+
 __all__ = ["Problem", "as_arrays", "check_arguments", "projected_cost"]
 
 #: Complex step (relative to each coefficient's scale).
@@ -53,13 +55,8 @@ _DISTINCT = 1e-3
 
 def _ccf(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bottom-row CCF ``(K, n, n), (n,)`` of ``alpha (K, n)`` (real or complex)."""
-    K, n = alpha.shape
-    A = np.zeros((K, n, n), dtype=alpha.dtype)
-    A[:, np.arange(n - 1), np.arange(1, n)] = 1.0
-    A[:, n - 1, :] = -alpha
-    b = np.zeros(n)
-    b[-1] = 1.0
-    return A, b
+    A, b, _ = ccf_matrices(alpha, None)
+    return A, b[0]
 
 
 def _discrete(alpha: np.ndarray):

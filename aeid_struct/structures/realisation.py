@@ -184,21 +184,23 @@ def ccf_matrices(a: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     Parameters
     ----------
     a : (B, n) ndarray
-        ``(a_0, ..., a_{n-1})``.
-    c : (B, n) ndarray
-        ``(c_0, ..., c_{n-1})``.
+        ``(a_0, ..., a_{n-1})``, real or complex (the complex step of a derivative).
+    c : (B, n) ndarray or None
+        ``(c_0, ..., c_{n-1})``; None where only ``A, b`` are wanted.
 
     Returns
     -------
     A : (B, n, n) ndarray
-        Ones on the superdiagonal, last row ``(-a_0, ..., -a_{n-1})``.
+        Ones on the superdiagonal, last row ``(-a_0, ..., -a_{n-1})``; the one numpy
+        companion matrix of the library (the generic candidates, the separable refinement, the
+        classical baselines build theirs here).
     b : (B, n) ndarray
         ``e_n``.
     c : (B, n) ndarray
         ``c`` itself.
     """
     B, n = a.shape
-    A = np.zeros((B, n, n))
+    A = np.zeros((B, n, n), dtype=np.result_type(a, np.float64))
     A[:, np.arange(n - 1), np.arange(1, n)] = 1.0
     A[:, -1, :] = -a
     b = np.zeros((B, n))

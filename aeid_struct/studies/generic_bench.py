@@ -44,6 +44,7 @@ import numpy as np
 
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
+from aeid_struct.structures import ccf_matrices
 
 __all__ = ["METHODS", "Row", "bench_generic", "format_tables", "measured_stand_ins", "write_json"]
 
@@ -239,11 +240,8 @@ def _stand_in(rng, dt, steps, delay, a, c, y_offset, noise, kind):
     from aeid_struct.simulation import simulate
     from aeid_struct.training import generic_excitation
 
-    n = len(a)
-    A = np.zeros((n, n))
-    A[:-1, 1:] = np.eye(n - 1)
-    A[-1] = -np.asarray(a, float)
-    b = np.eye(n)[-1]
+    A, b, _ = ccf_matrices(np.asarray(a, float)[None], None)
+    A, b = A[0], b[0]
     preroll = 300
     u_all = generic_excitation(kind, 1, 2 * steps + preroll + delay, rng,
                                band=(0.01, 1.0))[0]
