@@ -36,6 +36,7 @@ import scipy.optimize
 from aeid_struct.baselines.checks import estimate, nan_model
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
 from aeid_struct.baselines.subspace_step import nfoursid_model
+from aeid_struct.generic import arx
 from aeid_struct.records import RecordBatch, Units
 from aeid_struct.simulation import fit_initial, project
 from aeid_struct.structures import ccf_matrices
@@ -169,11 +170,7 @@ def _alpha_of_poles(poles: np.ndarray, dt: float) -> np.ndarray:
 def _arx_poles(y, u, order: int, dt: float) -> np.ndarray:
     """Continuous poles of a least-squares ARX model with a constant (the start where n4sid
     fails); a discrete pole on the negative real axis is taken by its modulus."""
-    N = y.shape[0]
-    cols = [-y[order - i : N - i] for i in range(1, order + 1)]
-    cols += [u[order - i : N - i] for i in range(order + 1)] + [np.ones(N - order)]
-    theta = np.linalg.lstsq(np.stack(cols, 1), y[order:], rcond=None)[0]
-    z = np.roots(np.concatenate([[1.0], theta[:order]]))
+    z = np.roots(arx(y, u, order))
     z = np.where((np.abs(z.imag) < 1e-12) & (z.real <= 0), np.abs(z) + 1e-12, z)
     return np.log(z.astype(complex)) / dt
 

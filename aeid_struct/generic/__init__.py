@@ -12,6 +12,7 @@ projection re-scan), ``one_call`` (:func:`identify`; its steps in ``pipeline``),
 ``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
 """
 
+from aeid_struct.generic.classical import arx as arx
 from aeid_struct.generic.comparison import Comparison as Comparison
 from aeid_struct.generic.comparison import compare as compare
 from aeid_struct.generic.delay import arx_delay as arx_delay
@@ -47,6 +48,7 @@ __all__ = [
     "ORDERS",
     "ORDER_TOLERANCE",
     "Windows",
+    "arx",
     "arx_delay",
     "candidates",
     "compare",

@@ -23,12 +23,29 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
-__all__ = ["steiglitz_mcbride"]
+__all__ = ["arx", "steiglitz_mcbride"]
 
 
-def _arx(y: np.ndarray, u: np.ndarray, n: int, extra: np.ndarray | None = None) -> np.ndarray:
-    """``A`` (``(n + 1,)``, ``A[0] = 1``) of the least-squares ARX fit with a constant, or with
-    the ``extra`` columns ``(steps, m)`` in its place."""
+def arx(y: np.ndarray, u: np.ndarray, n: int, extra: np.ndarray | None = None) -> np.ndarray:
+    """The denominator of the least-squares ARX fit of order ``n`` with a constant (the one
+    ARX of the library: the Steiglitz-McBride start here, the classical least squares' start
+    where n4sid fails).
+
+    ``y_k + A_1 y_{k-1} + ... + A_n y_{k-n} = B_0 u_k + ... + B_n u_{k-n} + const``, solved
+    by ``lstsq`` with the columns scaled to unit peak.
+
+    Parameters
+    ----------
+    y, u : (steps,) arrays
+    n : int, >= 1
+    extra : (steps, m) array, optional
+        Columns in place of the constant.
+
+    Returns
+    -------
+    (n + 1,) array
+        ``A`` with ``A[0] = 1`` (the discrete denominator, highest power first).
+    """
     N = y.shape[0]
     rows = np.arange(n, N)
     cols = [-y[rows - i] for i in range(1, n + 1)] + [u[rows - j] for j in range(n + 1)]
@@ -78,7 +95,7 @@ def steiglitz_mcbride(y, u, order: int, delay: int = 0, iterations: int = 5) -> 
         return None
     yy, uu = y[delay:] - y[delay:].mean(), u[:N] - u[:N].mean()
     with np.errstate(all="ignore"):
-        a = _stable(_arx(yy, uu, order))
+        a = _stable(arx(yy, uu, order))
         impulses = np.zeros((N, order + 1))
         impulses[np.arange(order), np.arange(order)] = 1.0
         impulses[:, order] = 1.0
@@ -87,7 +104,7 @@ def steiglitz_mcbride(y, u, order: int, delay: int = 0, iterations: int = 5) -> 
             # first n equation errors and by the constant: its n impulse responses and its step
             # response are regressors, so the fixed point stays exact on noise-free data.
             extra = scipy.signal.lfilter([1.0], a, impulses, axis=0)
-            a_next = _stable(_arx(scipy.signal.lfilter([1.0], a, yy),
+            a_next = _stable(arx(scipy.signal.lfilter([1.0], a, yy),
                                   scipy.signal.lfilter([1.0], a, uu), order, extra))
             if not np.all(np.isfinite(a_next)):
                 break
