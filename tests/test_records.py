@@ -274,3 +274,21 @@ def test_require_informative_names_the_constant_signal():
         Record(np.full(20, 2.5), y, 0.1).require_informative()
     with pytest.raises(ValueError, match=r"^u is constant over the whole record"):
         Record(y, np.ones(20), 0.1).require_informative()
+
+
+def test_denormalise_scales_the_output_elements_by_the_gain_exactly():
+    from aeid_struct.records import denormalise
+
+    c = np.array([[1.0, 2.0], [3.0, -4.0]])
+    d = np.array([0.5, -0.25])
+    el = np.array([[7.0, 1.0, 2.0, 0.5], [8.0, 3.0, -4.0, -0.25]])     # a0, c0, c1, d
+    output = np.array([False, True, True, True])
+    gain = np.array([1e-44, 3.0])
+    c2, d2, el2 = denormalise(c, d, el, gain, output)
+    np.testing.assert_array_equal(c2, c * gain[:, None])
+    np.testing.assert_array_equal(d2, d * gain)
+    np.testing.assert_array_equal(el2[:, 0], el[:, 0])                  # a0 is not an output
+    np.testing.assert_array_equal(el2[:, 1:], el[:, 1:] * gain[:, None])
+    assert el2[0, 1] == 1e-44            # a product: el * (1 + (gain - 1)) would give 0 here
+    big = denormalise(c, d, el, np.array([1e308, 1.0]), output)[0]
+    assert np.isinf(big[0, 1]) and big[1, 1] == -4.0                   # left to the check

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from aeid_struct.encoder import NumpyEncoder
-from aeid_struct.records import normalise
+from aeid_struct.records import denormalise, normalise
 from aeid_struct.structures import Physical
 
 __all__ = ["Batch1", "fast_path", "warm"]
@@ -67,9 +67,7 @@ class Batch1:
         with torch.no_grad():
             A, b, c, d, el = (t.numpy() for t in self.structure(theta))
         if self.ident.scale == "denormalise":
-            c, d = c * gain, d * gain
-            # a product, not el * (1 + mask (gain - 1)), which is 0 for gain = 1e-44
-            el = np.where(self.mask > 0, el * gain, el)
+            c, d, el = denormalise(c, d, el, np.array([gain]), self.mask > 0)
         return A, b, c, d, el
 
 

@@ -15,6 +15,7 @@ from aeid_struct.records import (
     arrays_of,
     check_record,
     check_records,
+    denormalise,
     normalise,
     overflow_problem,
 )
@@ -301,12 +302,8 @@ class OnnxIdentifier:
                                     strict=True)]
         A, b, c, d, el = (np.stack(t).astype(np.float64) for t in zip(*rows, strict=True))
         if self._scale == "denormalise":
-            # Exact de-normalisation (linearity), in float64: c, d and the elements c_i, d
-            # scale with the output (Identifier._output_mask).
-            scaled = self._output_mask
-            with np.errstate(over="ignore", invalid="ignore"):   # overflow: refused below
-                c, d = c * gain[:, None], d * gain
-                el = np.where(scaled, el * gain[:, None], el)
+            # exact, in float64, as the identifier's own path (overflow: refused below)
+            c, d, el = denormalise(c, d, el, gain, self._output_mask)
         if self.head is not None:     # after the graph, as Identifier.identify runs it
             from aeid_struct.identification import apply_head, head_failure
 

@@ -17,6 +17,7 @@ from aeid_struct.records.checks import as_array as as_array
 from aeid_struct.records.checks import as_records as as_records
 from aeid_struct.records.checks import check_dt as check_dt
 from aeid_struct.records.checks import check_records as check_records
+from aeid_struct.records.checks import denormalise as denormalise
 from aeid_struct.records.checks import normalise as normalise
 from aeid_struct.records.checks import overflow_problem as overflow_problem
 from aeid_struct.records.checks import record_problems as record_problems
@@ -43,6 +44,7 @@ __all__ = [
     "check_dt",
     "check_record",
     "check_records",
+    "denormalise",
     "exact_scale",
     "normalise",
     "overflow_problem",

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Checked", "RecordError", "as_array", "as_records", "check_dt", "check_records",
-           "normalise", "overflow_problem", "record_problems", "require_finite", "unit_step"]
+           "denormalise", "normalise", "overflow_problem", "record_problems", "require_finite",
+           "unit_step"]
 
 
 class RecordError(ValueError):
@@ -338,6 +339,34 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
         return y_tilde, unit_step(y2.shape), y_bar, unit_step(y_bar.shape)
     u_bar = np.abs(u2).max(axis=1)
     return y_tilde, u2 / u_bar[:, None], y_bar, u_bar
+
+
+def denormalise(c: np.ndarray, d: np.ndarray, elements: np.ndarray, gain: np.ndarray,
+                output: np.ndarray):
+    """The exact de-normalisation of a model identified on Eq. 15-normalised records: by
+    linearity, ``y / y_bar`` answering ``u / u_bar`` means ``c``, ``d`` and the output elements
+    (``c_i``, ``d``) scale with ``gain = y_bar / u_bar``. In float64, after the encoder's pass
+    (the leg identifiers' batch-1 path and an ONNX export's runner alike).
+
+    Parameters
+    ----------
+    c : (count, n) array
+    d : (count,) array
+    elements : (count, q) array
+    gain : (count,) array
+    output : (q,) bool array
+        The elements that scale with the output.
+
+    Returns
+    -------
+    c, d, elements : arrays
+        Scaled; an overflow gives inf, for the caller's overflow check
+        (:func:`overflow_problem`).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        # a product, not el * (1 + mask (gain - 1)), which is 0 for gain = 1e-44
+        return (c * gain[:, None], d * gain,
+                np.where(output, elements * gain[:, None], elements))
 
 
 def unit_step(shape: int | tuple[int, ...]) -> np.ndarray:
