@@ -38,10 +38,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.fft
 
+from aeid_struct.refinement import core
 from aeid_struct.refinement.powers import discrete, state_rows
 
 __all__ = ["EXACT", "LAMBDA0", "LAMBDA_FACTOR", "LAMBDA_MAX", "RIDGE", "Pattern", "SeparableFit",
-           "evaluate", "iterate"]
+           "evaluate", "iterate", "rules"]
 
 #: Forward-difference step of the Jacobian, relative to each free element.
 _FD = 1e-7
@@ -344,9 +345,36 @@ def _bases(pattern: Pattern, points: list, y, u, dt: float, U) -> list:
              (Phi[i * B: (i + 1) * B], g2[i * B: (i + 1) * B])) for i in range(k)]
 
 
+class _Records:
+    """The separable problem of every record at once, for ``core.minimise``."""
+
+    lazy = False
+
+    def __init__(self, pattern: Pattern, y: np.ndarray, u: np.ndarray, dt: float) -> None:
+        self.pattern, self.y, self.u, self.dt = pattern, y, u, dt
+        self.U = _spectrum(u)
+
+    def evaluate(self, alpha, rows, jacobian, at):
+        y, u, U = (self.y, self.u, self.U) if rows is None else (
+            self.y[rows], self.u[rows], self.U[rows])
+        return evaluate(self.pattern, alpha, y, u, self.dt, U, jacobian=jacobian)
+
+
+def rules(iterations: int, tol: float | None) -> core.Rules:
+    """The damping and stopping rules of the partly fixed CCFs' pass (:func:`iterate`; the
+    compiled graph holds the same): ``iterations`` steps, or to ``tol`` where given."""
+    if tol is None:
+        return core.Rules(max_iter=int(iterations), lambda0=LAMBDA0, factor=LAMBDA_FACTOR,
+                          lambda_min=1e-12)
+    return core.Rules(max_iter=int(iterations), lambda0=LAMBDA0, factor=LAMBDA_FACTOR,
+                      lambda_min=1e-12, lambda_max=LAMBDA_MAX, cost_tol=tol, predicted_tol=tol,
+                      exact=EXACT)
+
+
 def iterate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, dt: float,
             iterations: int, tol: float | None) -> SeparableFit:
-    """``refinement.gauss_newton`` in numpy, every record at once (arguments checked).
+    """``refinement.gauss_newton`` in numpy, every record at once (arguments checked): the
+    library's Levenberg-Marquardt (``core.minimise``) on the separable problem.
 
     Parameters
     ----------
@@ -361,53 +389,9 @@ def iterate(pattern: Pattern, alpha: np.ndarray, y: np.ndarray, u: np.ndarray, d
     -------
     SeparableFit
     """
-    B = y.shape[0]
-    U = _spectrum(u)
-    now = evaluate(pattern, alpha, y, u, dt, U, jacobian=iterations > 0)
-    lam = np.full(B, LAMBDA0)
-    done = ~np.isfinite(now["cost"])
-    energy = np.mean(y * y, axis=1)
-    accepted = np.zeros(B, dtype=int)
-    for it in range(iterations):
-        active = np.flatnonzero(~done)
-        if active.size == 0:
-            break
-        if active.size == B:          # views, not copies (the fixed-cost pass)
-            sub, ya, ua, Ua = now, y, u, U
-        else:
-            sub = {k: (v[active] if isinstance(v, np.ndarray) and v.shape[:1] == (B,) else v)
-                   for k, v in now.items()}
-            ya, ua, Ua = y[active], u[active], U[active]
-        J = sub["J"]
-        g = (J @ sub["r"][:, :, None])[:, :, 0]
-        H = J @ J.transpose(0, 2, 1)
-        diag = np.einsum("bjj->bj", H) + 1e-300
-        step = -np.linalg.solve(H + lam[active, None, None] * diag[:, :, None] *
-                                np.eye(H.shape[1]), g[:, :, None])[:, :, 0]
-        new = evaluate(pattern, sub["alpha"] + step, ya, ua, dt, Ua,
-                       jacobian=it < iterations - 1)
-        better = new["cost"] < sub["cost"]
-        if tol is not None:
-            # converged: an accepted step or the Gauss-Newton prediction lowers the cost by
-            # less than tol (relative), no damped step descends, or the fit is exact
-            N = y.shape[1]
-            predicted = -(2.0 * np.einsum("bj,bj->b", g, step)
-                          + np.einsum("bj,bjk,bk->b", step, H, step)) / N
-            flat = (better & (sub["cost"] - new["cost"] <= tol * sub["cost"])) | (
-                predicted <= tol * sub["cost"]) | (lam[active] > LAMBDA_MAX) | (
-                np.minimum(sub["cost"], new["cost"]) <= EXACT * energy[active])
-            done[active[flat]] = True
-        rows = active[better]
-        if rows.size == B:            # every record took its step (the fixed-cost pass)
-            now = new
-        elif rows.size:
-            for k, v in new.items():
-                if isinstance(v, np.ndarray) and v.shape[:1] == (active.size,):
-                    now[k][rows] = v[better]
-        accepted[rows] += 1
-        lam[rows] = np.maximum(lam[rows] / LAMBDA_FACTOR, 1e-12)
-        lam[active[~better]] *= LAMBDA_FACTOR
-    return _fit(pattern, now, u, accepted, done)
+    out = core.minimise(_Records(pattern, y, u, dt), alpha, rules(iterations, tol),
+                        energy=np.mean(y * y, axis=1))
+    return _fit(pattern, out.evaluation, u, out.accepted, out.converged)
 
 
 def _fit(pattern: Pattern, e: dict, u: np.ndarray, iterations, converged) -> SeparableFit:

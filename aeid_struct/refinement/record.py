@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import casadi
 import numpy as np
 
-from aeid_struct.refinement import nlp
+from aeid_struct.refinement import core, nlp
 from aeid_struct.refinement.config import RefineConfig
 from aeid_struct.simulation import augmented, expm, squarings_for
 from aeid_struct.structures import Structure
@@ -257,47 +257,49 @@ class _Delay:
             return float(r @ r), r, Jr, theta, forced, O
 
 
+class _Row:
+    """One delay's projected residual in the scaled free elements ``z`` as a one-row problem of
+    ``core.minimise`` (the graph gives the residual and the Jacobian in one call)."""
+
+    lazy = False
+
+    def __init__(self, problem: _Delay, scale: np.ndarray) -> None:
+        self.problem, self.scale = problem, scale
+
+    def evaluate(self, z, rows, jacobian, at):
+        n = self.problem.n
+        if at is None:
+            got = self.problem.evaluate(z[0], self.scale, np.zeros(n))
+            if math.isfinite(got[0]):
+                # Kaufman's Jacobian needs x0: evaluate again with the start's least-squares
+                # state (from x0 = 0 the first direction misses d(O x0)/dz and overshoots)
+                got = self.problem.evaluate(z[0], self.scale, got[3][:n])
+        else:
+            got = self.problem.evaluate(z[0], self.scale, at["theta"][0][:n])
+        cost, r, J, theta = got[:4]
+        return {"cost": np.array([cost]), "r": None if r is None else r[None],
+                "J": None if J is None else J.T[None],
+                "theta": None if theta is None else theta[None], "got": got}
+
+
 def _levenberg_marquardt(problem: _Delay, z, scale, lbz, ubz, config: RefineConfig):
-    """Minimise ``||r(z)||^2`` in the box ``[lbz, ubz]`` (projected steps):
+    """Minimise ``||r(z)||^2`` in the box ``[lbz, ubz]`` (``core.minimise``, projected steps):
     ``(z, evaluation at z, iterations, converged)``.
 
     Stops converged on a gradient below ``config.tol``, a step below ``config.step_tol``
     (relative units), a cost decrease below :data:`_FLAT` relative (a flat optimum: noise, a
     wrong delay) or a damping beyond :data:`_LAMBDA_MAX` (no damped step descends)."""
-    now = problem.evaluate(z, scale, np.zeros(problem.n))
-    if not math.isfinite(now[0]):
-        return z, now, 0, False
-    # Kaufman's Jacobian needs x0: evaluate again with the start's least-squares state (from
-    # x0 = 0 the first direction misses d(O x0)/dz and overshoots).
-    now = problem.evaluate(z, scale, now[3][:problem.n])
-    lam, iterations = _LAMBDA0, 0
-    while iterations < config.max_iter:
-        iterations += 1
-        cost, r, J, theta = now[:4]
-        g, H = J.T @ r, J.T @ J
-        if np.max(np.abs(g), initial=0.0) <= config.tol:
-            return z, now, iterations, True
-        diag = np.diag(H) + 1e-300
-        try:
-            step = np.linalg.solve(H + lam * np.diag(diag), -g)
-        except np.linalg.LinAlgError:
-            step = -g / (lam * diag)
-        z_new = np.clip(z + step, lbz, ubz)
-        if np.max(np.abs(z_new - z), initial=0.0) <= config.step_tol:
-            return z, now, iterations, True
-        trial = problem.evaluate(z_new, scale, theta[:problem.n])
-        if trial[0] < cost:
-            z, now = z_new, trial
-            lam = max(lam / _LAMBDA_FACTOR, 1e-15)
-            if config.verbose:
-                print(f"refine_record: iteration {iterations}, cost {trial[0]:.6e}")
-            if cost - trial[0] <= _FLAT * cost:
-                return z, now, iterations, True
-        else:
-            lam *= _LAMBDA_FACTOR
-            if lam > _LAMBDA_MAX:
-                return z, now, iterations, True
-    return z, now, iterations, False
+    rules = core.Rules(max_iter=int(config.max_iter), lambda0=_LAMBDA0, factor=_LAMBDA_FACTOR,
+                       lambda_min=1e-15, lambda_max=_LAMBDA_MAX, cost_tol=_FLAT,
+                       gradient_tol=float(config.tol), step_tol=float(config.step_tol))
+
+    def progress(iteration, cost):
+        print(f"refine_record: iteration {iteration}, cost {cost:.6e}")
+
+    out = core.minimise(_Row(problem, scale), z[None], rules, lower=lbz[None],
+                        upper=ubz[None], progress=progress if config.verbose else None)
+    return (out.x[0], out.evaluation["got"], int(out.iterations[0]),
+            bool(out.converged[0]))
 
 
 # ---------------------------------------------------------------------------------------------

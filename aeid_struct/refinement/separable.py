@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from aeid_struct.refinement import core
 from aeid_struct.refinement.projected import Problem, as_arrays, check_arguments, projected_cost
 from aeid_struct.refinement.record import RecordFit
 from aeid_struct.simulation import project
@@ -28,51 +29,44 @@ from aeid_struct.simulation import project
 # projected_cost was defined here before the problem moved to projected.py: still exported here
 __all__ = ["projected_cost", "refine_separable"]
 
-#: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, give-up value.
-_LAMBDA0, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-3, 10.0, 1e10
+#: The damping and stopping rules (``core.Rules``) besides the tolerances: start (relative to
+#: diag(J^T J)), factor, floor and give-up value.
+_LAMBDA0, _LAMBDA_FACTOR, _LAMBDA_MIN, _LAMBDA_MAX = 1e-3, 10.0, 1e-15, 1e10
+
+
+class _One:
+    """The projected problem of one record as a one-row problem of ``core.minimise``: the
+    Jacobian (an eigenvalue problem, an IIR filter and a projection) only at accepted points."""
+
+    lazy = True
+
+    def __init__(self, problem: Problem) -> None:
+        self.problem = problem
+
+    def evaluate(self, alpha, rows, jacobian, at):
+        e = self.problem.evaluate(alpha[0])
+        return {"cost": np.array([e["cost"]]), "r": e["r"][None] if "r" in e else None,
+                "one": e}
+
+    def jacobian(self, e: dict) -> np.ndarray:
+        return self.problem.jacobian(e["one"]).T[None]
 
 
 def _levenberg_marquardt(problem: Problem, alpha, max_iter, cost_tol, step_tol):
-    """Minimise ``V`` from ``alpha``: ``(alpha, cost, iterations, converged)``.
+    """Minimise ``V`` from ``alpha`` (``core.minimise``): ``(alpha, iterations, converged)``.
 
     Converged: a step below ``step_tol`` (relative), an accepted step or the Gauss-Newton
     prediction lowering the cost by less than ``cost_tol`` (relative), or a damping beyond
     :data:`_LAMBDA_MAX` (no damped step descends)."""
-    now = problem.evaluate(alpha)
-    if not math.isfinite(now["cost"]):
-        return alpha, now["cost"], 0, False
     # relative units: alpha_j ~ |p|^(n-j) spans decades; Marquardt's diag(J^T J) damping is
     # scale-free, the step test is relative
     scale = np.maximum(np.abs(alpha), 1e-6 * np.abs(alpha).max())
-    J = problem.jacobian(now) * scale
-    lam, iterations = _LAMBDA0, 0
-    while iterations < max_iter:
-        iterations += 1
-        r = now["r"]
-        g, H = J.T @ r, J.T @ J
-        diag = np.diag(H) + 1e-300
-        try:
-            step = np.linalg.solve(H + lam * np.diag(diag), -g)
-        except np.linalg.LinAlgError:
-            step = -g / (lam * diag)
-        # the linear model's decrease of ||r||^2: below cost_tol, no step can do better
-        predicted = -(2.0 * g @ step + step @ H @ step)
-        if np.max(np.abs(step)) <= step_tol or predicted <= cost_tol * float(r @ r):
-            return alpha, now["cost"], iterations, True
-        trial = alpha + scale * step
-        new = problem.evaluate(trial)
-        if new["cost"] < now["cost"]:
-            flat = now["cost"] - new["cost"] <= cost_tol * now["cost"]
-            alpha, now = trial, new
-            lam = max(lam / _LAMBDA_FACTOR, 1e-15)
-            if flat:
-                return alpha, now["cost"], iterations, True
-            J = problem.jacobian(now) * scale
-        else:
-            lam *= _LAMBDA_FACTOR
-            if lam > _LAMBDA_MAX:
-                return alpha, now["cost"], iterations, True
-    return alpha, now["cost"], iterations, False
+    rules = core.Rules(max_iter=max_iter, lambda0=_LAMBDA0, factor=_LAMBDA_FACTOR,
+                       lambda_min=_LAMBDA_MIN, lambda_max=_LAMBDA_MAX, cost_tol=cost_tol,
+                       predicted_tol=cost_tol, step_tol=step_tol,
+                       predicted_first=True)
+    out = core.minimise(_One(problem), alpha[None], rules, scale=scale[None])
+    return out.x[0], int(out.iterations[0]), bool(out.converged[0])
 
 
 def _controllability(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -139,8 +133,8 @@ def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough:
     powers = float(dt) ** np.arange(n + 1)
     problem = Problem(y, u, int(delay), bool(feedthrough), bool(offset))
     alpha = (den * powers)[:0:-1].copy()
-    alpha, _, iterations, converged = _levenberg_marquardt(problem, alpha, int(max_iter),
-                                                           cost_tol, step_tol)
+    alpha, iterations, converged = _levenberg_marquardt(problem, alpha, int(max_iter),
+                                                        float(cost_tol), float(step_tol))
     den_n = np.concatenate([[1.0], alpha[::-1]])
     return _result(den_n, y, u, float(dt), int(delay), feedthrough, offset, iterations,
                    converged, t0)
