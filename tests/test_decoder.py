@@ -1015,3 +1015,30 @@ def test_simulate_takes_reversed_views():
     u = np.linspace(0.0, 1.0, 50)
     y = ae.simulate(A, b, c[::-1], 0.0, u[::-1], 0.01)
     np.testing.assert_array_equal(y, ae.simulate(A, b, c[::-1].copy(), 0.0, u[::-1].copy(), 0.01))
+
+
+def test_discrete_foh_is_scipys_first_order_hold():
+    """simulation.discrete_foh (the numpy Eq. 10 of the library) against
+    scipy.signal.cont2discrete(method="foh"): Ad = Phi, Dd = c^T gamma2 (c = I) and
+    Bd = gamma1 - gamma2 + Phi gamma2, one system and a batch, and its complex step."""
+    from aeid_struct.simulation import discrete_foh
+
+    rng = np.random.default_rng(11)
+    A = rng.standard_normal((4, 3, 3)) - 2.0 * np.eye(3)
+    b = rng.standard_normal((4, 3))
+    Phi, gamma1, gamma2 = discrete_foh(A, b, 0.07)
+    for k in range(4):
+        Ad, Bd, _, Dd, _ = scipy.signal.cont2discrete(
+            (A[k], b[k][:, None], np.eye(3), np.zeros((3, 1))), 0.07, method="foh")
+        np.testing.assert_allclose(Phi[k], Ad, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(gamma2[k], Dd[:, 0], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(gamma1[k] - gamma2[k] + Phi[k] @ gamma2[k], Bd[:, 0],
+                                   rtol=1e-12, atol=1e-14)
+        one = discrete_foh(A[k], b[k], 0.07)
+        for x, y in zip(one, (Phi[k], gamma1[k], gamma2[k]), strict=True):
+            np.testing.assert_array_equal(x, y)
+    h = 1e-20
+    step = discrete_foh(A[0] + 1j * h * np.eye(3), b[0].astype(complex), 0.07)[0].imag / h
+    fd = (discrete_foh(A[0] + 1e-6 * np.eye(3), b[0], 0.07)[0]
+          - discrete_foh(A[0] - 1e-6 * np.eye(3), b[0], 0.07)[0]) / 2e-6
+    np.testing.assert_allclose(step, fd, rtol=1e-7, atol=1e-10)

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from aeid_struct.simulation import Projection
+from aeid_struct.simulation import Projection, discrete_foh
 from aeid_struct.structures import ccf_matrices
 
 __all__ = ["BLOCK_BYTES", "PREFIX", "PREFIX_SHORTLIST", "Selection", "ccf", "scores", "select",
@@ -58,10 +58,7 @@ def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: boo
     A, b = ccf(dens)
     K, n = b.shape
     N = uu.shape[0]
-    E = np.zeros((K, n + 2, n + 2))
-    E[:, :n, :n], E[:, :n, n], E[:, n, n + 1] = A, b, 1.0
-    X = scipy.linalg.expm(E)
-    Phi, gamma1, gamma2 = X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
+    Phi, gamma1, gamma2 = discrete_foh(A, b)
     Bd = gamma1 - gamma2 + np.einsum("kij,kj->ki", Phi, gamma2)
     # discrete denominator from the poles (exp of the continuous ones), as np.poly would
     z = np.exp(np.linalg.eigvals(A))

@@ -41,6 +41,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from aeid_struct.simulation import discrete_foh
 from aeid_struct.structures import ccf_matrices
 
 __all__ = ["Problem", "as_arrays", "check_arguments", "projected_cost"]
@@ -65,10 +66,7 @@ def _discrete(alpha: np.ndarray):
     forced states (as ``simulation.project``) and ``gamma2 (K, n)``."""
     K, n = alpha.shape
     A, b = _ccf(alpha)
-    E = np.zeros((K, n + 2, n + 2), dtype=alpha.dtype)
-    E[:, :n, :n], E[:, :n, n], E[:, n, n + 1] = A, b, 1.0
-    X = scipy.linalg.expm(E)
-    Phi, gamma1, gamma2 = X[:, :n, :n], X[:, :n, n], X[:, :n, n + 1]
+    Phi, gamma1, gamma2 = discrete_foh(A, b)
     Bd = gamma1 - gamma2 + np.einsum("kij,kj->ki", Phi, gamma2)
     # characteristic polynomial of Phi by Faddeev-LeVerrier: only products and traces, so the
     # complex step goes through it (np.poly of the eigenvalues does not)

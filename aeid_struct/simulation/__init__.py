@@ -28,6 +28,7 @@ from aeid_struct.simulation.foh import states as states
 from aeid_struct.simulation.initial import fit_initial_state as fit_initial_state
 from aeid_struct.simulation.initial import free_response as free_response
 from aeid_struct.simulation.initial import initial_state as initial_state
+from aeid_struct.simulation.kernels import discrete_foh as discrete_foh
 from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
 from aeid_struct.simulation.kernels import foh_columns as foh_columns
 from aeid_struct.simulation.kernels import free_basis as free_basis
@@ -59,6 +60,7 @@ __all__ = [
     # checked: numpy or torch in, the same out
     "Discrete",
     "denormalise",
+    "discrete_foh",
     "discretise",
     "initial_state",
     "loss",

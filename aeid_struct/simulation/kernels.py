@@ -43,6 +43,7 @@ import torch.nn.functional as F
 
 __all__ = [
     "chunk_length",
+    "discrete_foh",
     "discretise_batch",
     "foh_columns",
     "free_basis",
@@ -339,12 +340,7 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
         :func:`~aeid_struct.simulation.simulate` to rounding.
     """
     n, r, steps = A.shape[0], C.shape[0], u.shape[0]
-    M = np.zeros((n + 2, n + 2))
-    M[:n, :n] = A * dt
-    M[:n, n] = b * dt
-    M[n, n + 1] = 1.0
-    X = scipy.linalg.expm(M)
-    Phi, gamma1, gamma2 = X[:n, :n], X[:n, n], X[:n, n + 1]
+    Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
     E = gamma1 - gamma2
     Bd = E + Phi @ gamma2
     O = free_basis(Phi, C, max(steps - 1, 1))                 # O[m] = C Phi^m
@@ -357,6 +353,31 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
         for i in range(r):
             Y[i] += np.convolve(tk[i], later)[:steps]
     return Y
+
+
+def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0):
+    """Eq. 10 in numpy: ``Phi, gamma1, gamma2`` by one matrix exponential of
+    ``[[A dt, b dt, 0], [0, 0, 1], [0, 0, 0]]`` (``scipy.linalg.expm``), for one system or a
+    batch, real or complex (the complex step of ``refinement.projected`` goes through it).
+
+    Parameters
+    ----------
+    A : (..., n, n) array
+    b : (..., n) array
+    dt : float, > 0
+
+    Returns
+    -------
+    Phi : (..., n, n) array
+    gamma1, gamma2 : (..., n) arrays
+    """
+    n = A.shape[-1]
+    M = np.zeros(A.shape[:-2] + (n + 2, n + 2), dtype=np.result_type(A, b, np.float64))
+    M[..., :n, :n] = A * dt
+    M[..., :n, n] = b * dt
+    M[..., n, n + 1] = 1.0
+    X = scipy.linalg.expm(M)
+    return X[..., :n, :n], X[..., :n, n], X[..., :n, n + 1]
 
 
 def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from aeid_struct.simulation.kernels import free_basis
+from aeid_struct.simulation.kernels import discrete_foh, free_basis
 
 __all__ = ["Projection", "fit_initial", "forced_states", "project"]
 
@@ -72,17 +72,6 @@ class Projection:
     delay: int
 
 
-def _discrete(A: np.ndarray, b: np.ndarray, dt: float):
-    """``Phi, gamma1, gamma2`` of Eq. 10 by one matrix exponential (float64)."""
-    n = A.shape[0]
-    M = np.zeros((n + 2, n + 2))
-    M[:n, :n] = A * dt
-    M[:n, n] = b * dt
-    M[n, n + 1] = 1.0
-    X = scipy.linalg.expm(M)
-    return X[:n, :n], X[:n, n], X[:n, n + 1]
-
-
 def forced_states(A, b, u, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """States forced by ``u`` (Eq. 12), from ``x_0 = gamma2 u_0``, by one IIR filter.
 
@@ -114,7 +103,7 @@ def _forced(A, b, u, dt: float):
     b = np.asarray(b, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
     n = A.shape[0]
-    Phi, gamma1, gamma2 = _discrete(A, b, dt)
+    Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
     if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(gamma1))):
         # e^{A dt} overflowed (a fast unstable pole): no response to fit
         return np.full((u.shape[0], n), np.nan), gamma2, Phi
