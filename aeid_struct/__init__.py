@@ -60,7 +60,7 @@ _SOURCES = {
     "EncoderConfig": "encoder",
     "compare": "generic",
     "identify": "generic",
-    "Estimate": "identification",
+    "Estimate": "estimates",
     "Head": "identification",
     "Identifier": "identification",
     "Identifies": "identification",

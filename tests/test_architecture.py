@@ -27,7 +27,8 @@ FUNCTION_LINES = 80     # a function: from its first decorator to its last line,
 # ``load`` of every identifier kind) sits above the kinds it reads
 LAYERS = [
     "cli", "studies", "loading", "online", "evaluation", "baselines", "training", "generic",
-    "identification", "refinement", "encoder", "simulation", "structures", "records | metrics",
+    "identification", "refinement", "estimates", "encoder", "simulation", "structures",
+    "records | metrics",
 ]
 
 

@@ -85,7 +85,7 @@ def test_one_pass_is_refine_separable_with_max_iter_from_the_candidate():
                        identifier=double)
         r = refine_separable(double.den, rec.y, rec.u, 1.0, delay=DELAY, max_iter=k,
                              cost_tol=1e-8)
-        assert est.info["iterations"] == r.iterations <= k
+        assert est.info["iterations"] == r.info["iterations"] <= k
         assert est.fit == pytest.approx(r.fit, abs=1e-9)
         np.testing.assert_allclose(np.poly(est.A), np.poly(r.A / DT), rtol=1e-8)
 

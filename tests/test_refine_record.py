@@ -76,8 +76,8 @@ def test_recovers_elements_state_offset_and_picks_the_delay():
     got = np.array([fit.elements[nm] for nm in CCF(3).element_names])
     assert np.max(np.abs(got - x) / np.abs(x)) < 1e-6
     assert np.max(np.abs(fit.x0 - X0)) < 1e-6
-    assert abs(fit.y_offset - 0.7) < 1e-6
-    assert fit.converged and fit.fit > 99.9999 and fit.cost < 1e-12
+    assert abs(fit.offset - 0.7) < 1e-6
+    assert fit.info["converged"] and fit.fit > 99.9999 and fit.info["cost"] < 1e-12
     assert np.all(np.isnan(fit.y_hat[:2])) and np.all(np.isfinite(fit.y_hat[2:]))
 
 
@@ -86,12 +86,12 @@ def test_y_hat_and_cost_are_an_expm_simulation_of_the_returned_model():
     x, u, y = ccf3_record(N=900, delay=3)
     y[3:] += 0.05 * np.random.default_rng(5).standard_normal(897)
     fit = refine_record(CCF(3), off_by(x, 0.05), y, u, 0.01, delay=3)
-    oracle = simulate(fit.A, fit.b, fit.c, fit.d, u, 0.01, fit.x0, 3, fit.y_offset)
+    oracle = simulate(fit.A, fit.b, fit.c, fit.d, u, 0.01, fit.x0, 3, fit.offset)
     scale = np.max(np.abs(y))
     assert np.max(np.abs(fit.y_hat[3:] - oracle[3:])) < 1e-9 * scale
     resid, spread = y[3:] - oracle[3:], y[3:] - y[3:].mean()
-    assert fit.cost == pytest.approx(resid @ resid / (spread @ spread), rel=1e-9)
-    assert fit.fit == pytest.approx(100 * (1 - np.sqrt(fit.cost)), rel=1e-12)
+    assert fit.info["cost"] == pytest.approx(resid @ resid / (spread @ spread), rel=1e-9)
+    assert fit.fit == pytest.approx(100 * (1 - np.sqrt(fit.info["cost"])), rel=1e-12)
     # A, b, c are the structure's assembly of the returned elements.
     a = np.array([fit.elements[f"a{i}"] for i in range(3)])
     assert np.array_equal(fit.A[-1], -a) and np.array_equal(fit.b, [0.0, 0.0, 1.0])
@@ -100,7 +100,7 @@ def test_y_hat_and_cost_are_an_expm_simulation_of_the_returned_model():
 def test_without_offset_the_offset_is_zero_and_the_delay_is_used_as_given():
     x, u, y = ccf3_record(delay=1, offset=0.0)
     fit = refine_record(CCF(3), off_by(x, 0.05), y, u, 0.01, delay=1, offset=False)
-    assert fit.y_offset == 0.0 and fit.delay == 1
+    assert fit.offset == 0.0 and fit.delay == 1
     got = np.array([fit.elements[nm] for nm in CCF(3).element_names])
     assert np.max(np.abs(got - x) / np.abs(x)) < 1e-6
 
@@ -154,6 +154,7 @@ def test_one_graph_serves_every_length_and_dt_in_a_bucket():
     for N, dt in ((700, 0.01), (1000, 0.01), (700, 0.3), (1000, 0.3)):
         u = excitation(N)
         y = simulate(A, b, c, 0.0, u, dt, X0, 1, 0.1)
+        y[0] = 0.1                        # before the delay: not fitted, but must be finite
         fit = refine_record(CCF(3), off_by(x, 0.05), y, u, dt, delay=1)
         got = np.array([fit.elements[nm] for nm in CCF(3).element_names])
         assert np.max(np.abs(got - x) / np.abs(x)) < 1e-6, (N, dt)
@@ -218,3 +219,26 @@ def test_bad_arguments_are_named():
     long = np.ones(BUCKETS[-1] + 1)
     with pytest.raises(ValueError, match=rf"at most {BUCKETS[-1]} samples after the delay"):
         refine_record(CCF(3), CCF3[0], long, long, 0.01)
+
+
+def test_the_result_is_an_estimate_of_the_record_in_its_structure():
+    """refine_record returns the one Estimate: of the record it was given, in the structure,
+    with the model and the fields of a record with a delay and an offset."""
+    from aeid_struct.estimates import Estimate
+
+    x, u, y = ccf3_record()
+    structure = CCF(3)
+    fit = refine_record(structure, off_by(x, 0.1), y, u, 0.01, delay=2)
+    assert isinstance(fit, Estimate) and fit.refined and fit.provenance.structure is structure
+    assert fit.provenance.initial == "fitted" and fit.record.dt == (0.01,)
+    np.testing.assert_array_equal(fit.y, y)
+    assert fit.info["method"] == "refine_record" and fit.info["iterations"] >= 1
+    np.testing.assert_allclose(fit.B[:, 0], fit.b)
+    np.testing.assert_allclose(fit.C[0], fit.c)
+
+
+def test_a_sample_that_is_not_finite_is_refused_by_name():
+    x, u, y = ccf3_record()
+    y[0] = np.nan
+    with pytest.raises(ValueError, match="y must be finite"):
+        refine_record(CCF(3), x, y, u, 0.01, delay=2)

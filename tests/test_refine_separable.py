@@ -81,12 +81,12 @@ def test_noise_free_from_a_perturbed_start_is_the_true_system(n):
     fit = refine_separable(perturbed(n), y, u, delay=2, feedthrough=True)
     poles, num, d = SYSTEMS[n]
     truth = transfer(*ccf(den), np.array(num), d, S)
-    assert fit.converged and fit.delay == 2
+    assert fit.info["converged"] and fit.delay == 2
     np.testing.assert_allclose(transfer(fit.A, fit.b, fit.c, fit.d, S), truth, rtol=1e-6)
-    assert fit.y_offset == pytest.approx(0.7, abs=1e-6) and fit.fit > 99.999
+    assert fit.offset == pytest.approx(0.7, abs=1e-6) and fit.fit > 99.999
     # x0 reproduces the record: the CCF state at sample 2 of the truth
     again = simulate(np.concatenate([[1.0], -fit.A[-1, ::-1]]), fit.c, fit.d, u, fit.x0, 2,
-                     fit.y_offset)
+                     fit.offset)
     np.testing.assert_allclose(again[2:], y[2:], atol=1e-6 * np.ptp(y))
 
 
@@ -140,7 +140,7 @@ def test_noisy_optimum_is_casadis_optimum(n):
     p = project(*ccf(start), y, u, 1.0, delay=2)
     x = np.concatenate([start[:0:-1], p.c, [p.d]])
     ref = refine_record(CCF(n, feedthrough=True), x, y, u, 1.0, delay=2, offset=True)
-    assert fit.cost == pytest.approx(ref.cost, rel=1e-8)
+    assert fit.info["cost"] == pytest.approx(ref.info["cost"], rel=1e-8)
     np.testing.assert_allclose(transfer(fit.A, fit.b, fit.c, fit.d, S),
                                transfer(ref.A, ref.b, ref.c, ref.d, S), rtol=1e-3)
 

@@ -82,7 +82,7 @@ def test_a_leg_record_with_refine_walks_each_module_once():
     # forward: start (the encoder's batch-1 pass), fit (the head), result (the Estimate)
     assert walk("aeid_struct.identification.forward",
                 lambda: ident.identify(record, refine=True)) == [
-        "identification.fast_path", "identification.head", "identification.estimate"]
+        "identification.fast_path", "identification.head", "estimates.estimate"]
 
 
 def test_a_leg_record_without_a_head_is_polished_after_forward():

@@ -1,7 +1,7 @@
 """Classical baselines behind the library's ``Estimate`` type: n4sid, least squares, CasADi
 cold start, and the benchmark's failure rule.
 
-All return the library's :class:`~aeid_struct.identification.Estimate`, so that the benchmark
+All return the library's :class:`~aeid_struct.estimates.Estimate`, so that the benchmark
 treats them like the encoder. A failure that depends on the data does not raise: the estimate
 comes back with ``info["failed"] = True`` and a ``info["reason"]``; bad arguments raise
 ``ValueError`` naming the argument.

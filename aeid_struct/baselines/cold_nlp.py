@@ -52,7 +52,7 @@ def casadi_cold(y, u, dt: float, *, structure, start: dict | None = None, invers
     ValueError
         For a bad argument.
     """
-    from aeid_struct.refinement import RefineConfig, refine_elements
+    from aeid_struct.refinement import RefineConfig, refine
 
     start_time = time.perf_counter()
     y, u = check_record(y, u)
@@ -68,13 +68,15 @@ def casadi_cold(y, u, dt: float, *, structure, start: dict | None = None, invers
     info = {"method": "casadi_cold", "failed": False, "reason": "",
             "start": dict(zip(names, x.tolist(), strict=True))}
     try:
-        result = refine_elements(structure, x, y, u, dt, config)
+        # the start as an Estimate, polished by the one refinement of estimates
+        begin = estimate(model.system(x), dict(zip(names, x.tolist(), strict=True)), y, u, dt,
+                         start_time, info, source)
+        result = refine(begin, structure=structure, config=config)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as err:  # CasADi: RuntimeError
         return estimate(nan_model(structure.n), {}, y, u, dt, start_time,
                         {**info, "failed": True,
                          "reason": f"CasADi NLP failed: {type(err).__name__}: {err}"}, None)
-    x = np.asarray(result.elements, dtype=np.float64)
-    info |= {"iterations": result.iterations, "success": result.success,
-             "status": result.status, "loss": result.loss, "loss_start": result.loss_start,
-             "solver": result.solver}
+    x = np.array([result.elements[nm] for nm in names], dtype=np.float64)
+    info |= {k: result.info[k] for k in ("iterations", "success", "status", "loss", "loss_start",
+                                         "solver")}
     return finish(structure, model, names, x, y, u, dt, start_time, info, source)

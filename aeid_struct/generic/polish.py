@@ -51,15 +51,15 @@ def refine_casadi(structure: Structure, m: Model, data, max_delay: int):
         return None, {"refinement": f"skipped: more than {BUCKETS[-1]} samples"}
     r = refine_record(structure, start.to(torch.float64).numpy(), data.y, data.u, dt,
                       delay=D, delays=delays, offset=True)
-    if not np.isfinite(r.cost):
+    if not np.isfinite(r.info["cost"]):
         return None, {"refinement": "failed: no finite cost"}
     y_hat = np.asarray(r.y_hat, dtype=np.float64)
     used = ~np.isnan(y_hat)
     cost = float(np.mean((data.y[used] - y_hat[used]) ** 2))
     A, b = np.asarray(r.A, float) * scale, np.asarray(r.b, float) * scale
     model = Model(A, b, np.asarray(r.c, float), float(r.d), np.asarray(r.x0, float),
-                   float(r.y_offset), int(r.delay), y_hat, float(r.fit), cost)
-    return model, {"iterations": r.iterations, "converged": r.converged,
+                   r.offset, r.delay, y_hat, float(r.fit), cost)
+    return model, {"iterations": r.info["iterations"], "converged": r.info["converged"],
                    "refine_seconds": r.seconds}
 
 
@@ -101,10 +101,11 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
         nonlocal seconds, iterations
         r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough,
                              cost_tol=COST_TOL, max_iter=max_iter)
-        seconds, iterations = seconds + r.seconds, iterations + r.iterations
+        seconds, iterations = seconds + r.seconds, iterations + r.info["iterations"]
         y_hat = np.asarray(r.y_hat, dtype=np.float64)
         cost = float(np.mean((data.y[D:] - y_hat[D:]) ** 2))
-        return Model(r.A, r.b, r.c, r.d, r.x0, r.y_offset, D, y_hat, r.fit, cost), r.converged
+        return (Model(r.A, r.b, r.c, float(r.d), r.x0, r.offset, D, y_hat, r.fit, cost),
+                r.info["converged"])
 
     best, converged = run(denominator_of(m.A), m.delay)
     if search and data.delay is None and max_delay > 0:

@@ -5,15 +5,17 @@ identifiers.
 Layer: above ``refinement`` (``identify(refine=True)`` calls down into it), below ``training``.
 """
 
-from aeid_struct.identification.calibration import FLAG_FALSE_RATE as FLAG_FALSE_RATE
-from aeid_struct.identification.calibration import excess as excess
+from aeid_struct.estimates import FLAG_FALSE_RATE as FLAG_FALSE_RATE
+from aeid_struct.estimates import Estimate as Estimate
+from aeid_struct.estimates import Provenance as Provenance
+from aeid_struct.estimates import excess as excess
+from aeid_struct.estimates import inverse_of_models as inverse_of_models
+from aeid_struct.estimates import through_ccf as through_ccf
 from aeid_struct.identification.container import KINDS as KINDS
 from aeid_struct.identification.container import kind_of as kind_of
 from aeid_struct.identification.container import read_safetensors as read_safetensors
 from aeid_struct.identification.container import refuse_other as refuse_other
 from aeid_struct.identification.container import stamp as stamp
-from aeid_struct.identification.estimate import Estimate as Estimate
-from aeid_struct.identification.estimate import Provenance as Provenance
 from aeid_struct.identification.files import FORMAT as FORMAT
 from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
 from aeid_struct.identification.files import FORMAT_2 as FORMAT_2
@@ -26,8 +28,6 @@ from aeid_struct.identification.identifier import ERROR_MODES as ERROR_MODES
 from aeid_struct.identification.identifier import INITIAL_STATES as INITIAL_STATES
 from aeid_struct.identification.identifier import SCALE_MODES as SCALE_MODES
 from aeid_struct.identification.identifier import Identifier as Identifier
-from aeid_struct.identification.physical import inverse_of_models as inverse_of_models
-from aeid_struct.identification.physical import through_ccf as through_ccf
 from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
 from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
 from aeid_struct.identification.protocol import Identifies as Identifies

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import torch
 
-from aeid_struct.identification.estimate import Estimate
+from aeid_struct.estimates import Estimate
 from aeid_struct.identification.fast_path import fast_path
 from aeid_struct.identification.head import apply_head, head_failure
 from aeid_struct.records import RecordBatch, normalise, overflow_problem

@@ -12,8 +12,8 @@ import numpy as np
 import torch
 
 from aeid_struct.encoder import Encoder
+from aeid_struct.estimates import Estimate, Provenance
 from aeid_struct.identification import files, forward
-from aeid_struct.identification.estimate import Estimate, Provenance
 from aeid_struct.identification.fast_path import fast_path
 from aeid_struct.identification.head import Head, HeadSlot
 from aeid_struct.identification.polish import polish

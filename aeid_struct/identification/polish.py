@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from aeid_struct.identification.estimate import Estimate
+from aeid_struct.estimates import Estimate
 from aeid_struct.refinement import refine
 
 __all__ = ["polish"]

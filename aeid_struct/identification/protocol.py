@@ -5,7 +5,7 @@ batch-1 path), the generic identifiers (``generic.GenericIdentifier``), an expor
 (``online.OnnxIdentifier``) and the classical methods behind an identifier's interface
 (``baselines.Classical``) all take a measured ``records.Record`` (or the arrays each has always
 taken, converted once at its boundary by ``records.arrays_of``) and return one
-:class:`~aeid_struct.identification.Estimate`; code that identifies (the tracker, scorecards,
+:class:`~aeid_struct.estimates.Estimate`; code that identifies (the tracker, scorecards,
 benchmarks) is written against this protocol and takes any of them.
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Protocol, runtime_checkable
 
-from aeid_struct.identification.estimate import Estimate
+from aeid_struct.estimates import Estimate
 
 __all__ = ["Identifies"]
 

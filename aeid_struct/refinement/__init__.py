@@ -1,8 +1,11 @@
-"""Refinement: the CasADi NLP that polishes an estimate in its own structure, and the separable
-Gauss-Newton (numpy, batched) of the partly fixed CCFs.
+"""Refinement: fits of a model to the least-squares / output-error optimum, in its own
+structure. One Levenberg-Marquardt (``core``) over three problems: the partly fixed CCFs of many
+records at once (``batched``; compiled to C by ``compiled``), the variable projection of a free
+CCF (``projected``, ``separable``) and any structure over a CasADi graph with its delay, offset
+and initial state (``record``); and the CasADi NLP (``nlp``, ``solve``) for the constraints that
+loop does not know. A fit over a record returns an :class:`~aeid_struct.estimates.Estimate`.
 
-Layer: below ``identification`` (an estimate is taken duck-typed and returned through
-``dataclasses.replace``).
+Layer: below ``identification``, above ``estimates`` (a refinement returns the one Estimate).
 """
 
 from aeid_struct.refinement.batched import Pattern as Pattern
@@ -19,7 +22,6 @@ from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate
 from aeid_struct.refinement.nlp import clear_cache as clear_cache
 from aeid_struct.refinement.nlp import expm as expm
 from aeid_struct.refinement.record import BUCKETS as BUCKETS
-from aeid_struct.refinement.record import RecordFit as RecordFit
 from aeid_struct.refinement.record import refine_record as refine_record
 from aeid_struct.refinement.separable import projected_cost as projected_cost
 from aeid_struct.refinement.separable import refine_separable as refine_separable
@@ -32,7 +34,6 @@ __all__ = [
     "CacheInfo",
     "Numeric",
     "Pattern",
-    "RecordFit",
     "RefineConfig",
     "RefineResult",
     "SOLVERS",

@@ -39,7 +39,7 @@ import numpy as np
 
 from aeid_struct.refinement import batched
 from aeid_struct.refinement.compiled_graph import MAX_ITERATIONS, graph
-from aeid_struct.refinement.nlp import Numeric
+from aeid_struct.structures import Numeric
 from symbolic.codegen import compile_c, generate_c
 
 __all__ = ["ENABLED", "ENV", "MAX_ITERATIONS", "available", "clear", "gauss_newton_rows",

@@ -37,17 +37,19 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import casadi
 import numpy as np
 
+from aeid_struct.estimates import Estimate
+from aeid_struct.records import require_finite
 from aeid_struct.refinement import core, nlp
 from aeid_struct.refinement.config import RefineConfig
+from aeid_struct.refinement.result import fitted
 from aeid_struct.simulation import augmented, expm, squarings_for
 from aeid_struct.structures import Structure
 
-__all__ = ["BUCKETS", "MAX_SQUARINGS", "RecordFit", "refine_record"]
+__all__ = ["BUCKETS", "MAX_SQUARINGS", "refine_record"]
 
 #: Record lengths (samples after the delay) that one graph serves: the smallest bucket that
 #: holds ``N - D``. Longer records are refused (a larger bucket takes seconds to build).
@@ -60,55 +62,6 @@ _NORM_MARGIN = 8.0
 _LAMBDA0, _LAMBDA_FACTOR, _LAMBDA_MAX = 1e-3, 10.0, 1e12
 #: A cost decrease below this fraction ends the iterations (a flat optimum).
 _FLAT = 1e-10
-
-
-@dataclass(frozen=True)
-class RecordFit:
-    """The refinement of one record (:func:`refine_record`).
-
-    Attributes
-    ----------
-    elements : dict name -> float
-        All elements of the structure (fixed ones at their values), within its bounds.
-    A : (n, n) float64 array
-        The model in physical time units (the structure's assembly of ``elements``).
-    b : (n,) float64 array
-    c : (n,) float64 array
-    d : float
-    x0 : (n,) float64 array
-        The state at sample ``delay`` (least squares).
-    y_offset : float
-        The output offset (least squares; 0 without ``offset``).
-    delay : int
-        The input delay ``D`` in samples (the best of the candidates by ``cost``).
-    cost : float
-        ``||y - yhat||^2 / ||y - mean y||^2`` over the used samples ``y[D:]``.
-    fit : float
-        NRMSE fit in percent on the used samples, ``100 (1 - sqrt(cost))``.
-    y_hat : (N,) float64 array
-        The model's output; NaN before ``delay``.
-    iterations : int
-        Levenberg-Marquardt iterations, summed over the candidate delays.
-    seconds : float
-        Wall time of the call.
-    converged : bool
-        The iterations at ``delay`` stopped on a tolerance (not ``max_iter`` or a failure).
-    """
-
-    elements: dict
-    A: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: float
-    x0: np.ndarray
-    y_offset: float
-    delay: int
-    cost: float
-    fit: float
-    y_hat: np.ndarray
-    iterations: int
-    seconds: float
-    converged: bool
 
 
 # ---------------------------------------------------------------------------------------------
@@ -351,9 +304,9 @@ def _fit(problem: _Delay, x, config):
     return x, now, iterations, converged
 
 
-def _result(structure, problem: _Delay, x, now, delay, iterations, converged, y, seconds):
-    """The :class:`RecordFit` at elements ``x`` from its evaluation ``now``: ``x0`` and the
-    offset by least squares (SVD) on the unweighted record."""
+def _result(structure, problem: _Delay, x, now, delay, iterations, converged, y, u, seconds):
+    """The Estimate at elements ``x`` from its evaluation ``now``: ``x0`` and the offset by
+    least squares (SVD) on the unweighted record."""
     n = structure.n
     A, b, c, d = problem.asm.system(x, np.array([problem.dt]))[:4]
     forced, O = now[4], now[5]
@@ -363,17 +316,17 @@ def _result(structure, problem: _Delay, x, now, delay, iterations, converged, y,
     y_hat = np.full(y.shape[0], np.nan)
     y_hat[delay:] = model
     cost = float(np.sum((problem.y - model) ** 2) * problem.w ** 2)
-    return RecordFit(
-        elements={nm: float(v) for nm, v in zip(structure.element_names, x, strict=True)},
-        A=A.reshape(n, n, order="F"), b=b, c=c, d=float(d[0]), x0=theta[:n],
-        y_offset=float(theta[n]) if problem.offset else 0.0, delay=int(delay), cost=cost,
-        fit=100.0 * (1.0 - math.sqrt(cost)), y_hat=y_hat, iterations=iterations,
-        seconds=seconds, converged=converged)
+    return fitted(structure, (A.reshape(n, n, order="F"), b, c, float(d[0])),
+                  {nm: float(v) for nm, v in zip(structure.element_names, x, strict=True)},
+                  y, u, problem.dt, seconds=seconds, method="refine_record", delay=int(delay),
+                  x0=theta[:n], y_offset=float(theta[n]) if problem.offset else 0.0,
+                  fit=100.0 * (1.0 - math.sqrt(cost)), y_hat=y_hat, cost=cost,
+                  iterations=iterations, converged=converged)
 
 
 def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt: float, *,
                   delay: int = 0, delays=None, offset: bool = True,
-                  config: RefineConfig | None = None) -> RecordFit:
+                  config: RefineConfig | None = None) -> Estimate:
     """Refine a structure's elements on a whole record with its initial state, an output
     offset and an input delay (the module docstring's model; docs/architecture.md).
 
@@ -402,14 +355,21 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
 
     Returns
     -------
-    RecordFit
+    Estimate
+        Of the record, in ``structure`` (``elements``, ``A, b, c, d`` in the time unit of
+        ``dt``); ``delay`` (the best of the candidates by cost), ``x0`` (the state at sample
+        ``delay``), ``offset``, ``fit`` (NRMSE % on the used samples ``y[delay:]``) and
+        ``y_hat`` (NaN before ``delay``) from ``info``, which also holds ``cost``
+        (``||y - yhat||^2 / ||y - mean y||^2`` on the used samples, ``(1 - fit / 100)^2``),
+        ``iterations`` (summed over the candidate delays) and ``converged`` (the iterations at
+        ``delay`` stopped on a tolerance).
 
     Raises
     ------
     ValueError
         Naming the argument: a structure of several records, a start without the free
         elements, delays outside ``0 .. N - n - 2``, a record longer than ``max(BUCKETS)``
-        after the delay, ``y`` and ``u`` of different lengths.
+        after the delay, ``y`` and ``u`` of different lengths or not finite.
     """
     t0 = time.perf_counter()
     config = RefineConfig() if config is None else config
@@ -419,6 +379,8 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
     u = np.ascontiguousarray(u, dtype=np.float64)
     if y.ndim != 1 or u.shape != y.shape:
         raise ValueError(f"y and u must have the same shape (N,); got {y.shape} and {u.shape}")
+    require_finite("y", y)
+    require_finite("u", u)
     candidates = _candidates(delay, delays, y.shape[0], structure.n)
     if y.shape[0] - min(candidates) > BUCKETS[-1]:
         raise ValueError(f"y must have at most {BUCKETS[-1]} samples after the delay (the "
@@ -443,5 +405,5 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
         raise ValueError(f"start: the model of these elements overflows on this record "
                          f"(dt={dt}); start from a model that does not")
     x, problem, now, D, converged = best
-    return _result(structure, problem, x, now, D, iterations, converged, y,
+    return _result(structure, problem, x, now, D, iterations, converged, y, u,
                    time.perf_counter() - t0)

@@ -16,15 +16,18 @@ bounds (an MCF's ``Re < 0``), and for every structure that is not a CCF in disgu
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
 import numpy as np
 
+from aeid_struct.estimates import Estimate
 from aeid_struct.refinement import core
 from aeid_struct.refinement.projected import Problem, as_arrays, check_arguments, projected_cost
-from aeid_struct.refinement.record import RecordFit
+from aeid_struct.refinement.result import fitted
 from aeid_struct.simulation import project
+from aeid_struct.structures import CCF
 
 # projected_cost was defined here before the problem moved to projected.py: still exported here
 __all__ = ["projected_cost", "refine_separable"]
@@ -83,7 +86,7 @@ def _controllability(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 # both reaching the same cost (tests/test_refine_separable.py checks it to 1e-8 relative).
 def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough: bool = True,
                      offset: bool = True, max_iter: int = 100, cost_tol: float = 1e-10,
-                     step_tol: float = 1e-10) -> RecordFit:
+                     step_tol: float = 1e-10) -> Estimate:
     """Refine a free CCF (denominator and, by projection, ``c, d, x_0, y_offset``) on a whole
     record by separable least squares (module docstring).
 
@@ -107,10 +110,10 @@ def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough:
 
     Returns
     -------
-    RecordFit
-        As :func:`~aeid_struct.refinement.refine_record` for ``CCF(n, feedthrough)``:
+    Estimate
+        As :func:`~aeid_struct.refinement.refine_record`'s for ``CCF(n, feedthrough)``:
         ``elements`` ``a_j, c_j`` (and ``d``) in the time unit of ``dt``, ``A, b, c, d`` that
-        CCF, ``x0`` its state at sample ``delay``; ``cost`` normalised
+        CCF, ``x0`` its state at sample ``delay``; ``info["cost"]`` normalised
         (``(1 - fit / 100)^2``).
 
     Raises
@@ -140,8 +143,15 @@ def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough:
                    converged, t0)
 
 
+@functools.lru_cache(maxsize=32)
+def _ccf_structure(n: int, feedthrough: bool) -> CCF:
+    """The free CCF an estimate of order ``n`` is in (one object per order: a structure is
+    immutable, and building one costs as much as the rest of the result)."""
+    return CCF(n, feedthrough=feedthrough)
+
+
 def _result(den_n, y, u, dt, delay, feedthrough, offset, iterations, converged, t0):
-    """The :class:`RecordFit` of the normalised denominator ``den_n``: ``project`` for the
+    """The Estimate of the normalised denominator ``den_n``: ``project`` for the
     linear part, then the physical-time CCF (``a_j / dt^(n-j)``, the state transformed)."""
     n = den_n.shape[0] - 1
     An = np.zeros((n, n))
@@ -164,8 +174,8 @@ def _result(den_n, y, u, dt, delay, feedthrough, offset, iterations, converged, 
     if feedthrough:
         names.append("d")
         values.append(p.d)
-    return RecordFit(elements={k: float(v) for k, v in zip(names, values, strict=True)},
-                     A=As, b=bn, c=c, d=float(p.d), x0=T @ p.x0, y_offset=p.y_offset,
-                     delay=delay, cost=float(cost), fit=float(p.fit), y_hat=p.y_hat,
-                     iterations=iterations, seconds=time.perf_counter() - t0,
-                     converged=converged)
+    return fitted(_ccf_structure(n, bool(feedthrough)), (As, bn, c, float(p.d)),
+                  {k: float(v) for k, v in zip(names, values, strict=True)}, y, u, dt,
+                  seconds=time.perf_counter() - t0, method="refine_separable", delay=delay,
+                  x0=T @ p.x0, y_offset=p.y_offset, fit=float(p.fit), y_hat=p.y_hat,
+                  cost=float(cost), iterations=iterations, converged=converged)

@@ -210,8 +210,8 @@ def _refine_one(structure, key, x, y, u, dt, config, start,
 # ---------------------------------------------------------------------------------------------
 # An estimate, record by record
 # ---------------------------------------------------------------------------------------------
-#: What ``refine`` reads of an estimate (``identification.Estimate``, taken duck-typed: the
-#: refinement sits below identification).
+#: What ``refine`` reads of an estimate (an ``estimates.Estimate``, or anything that reads the
+#: same: taken duck-typed).
 _ESTIMATE = ("A", "elements", "record", "structure", "initial", "batched", "seconds")
 
 
@@ -323,7 +323,7 @@ def refine(estimate, y=None, u=None, dt=None, *, structure: Structure | None = N
     Parameters
     ----------
     estimate : Estimate
-        The start (``identification.Estimate``, read duck-typed: ``A``, ``elements``,
+        The start (``estimates.Estimate``, read duck-typed: ``A``, ``elements``,
         ``record``, ``structure``, ``initial``, ``batched``, ``seconds``); its ``elements``
         must hold every element of ``structure``.
     y, u, dt : deprecated

@@ -5,7 +5,8 @@ Modules: ``system`` (the assembled model), ``constraints`` (elementwise maps), `
 (``theta`` <-> elements), ``config`` (a structure as data), ``base`` (``Structure``),
 ``canonical`` (``CCF``, ``MCF``), ``physical`` (``Physical``), ``realisation`` (a model in any
 realisation -> CCF coefficients), ``casadi_torch`` (a CasADi Function as a torch operation),
-``maps`` (named CasADi maps in model files).
+``maps`` (named CasADi maps in model files), ``numeric`` (a CasADi Function evaluated on numpy
+arrays).
 """
 
 from aeid_struct.structures.base import Structure as Structure
@@ -19,6 +20,7 @@ from aeid_struct.structures.maps import reference as reference
 from aeid_struct.structures.maps import resolve as resolve
 from aeid_struct.structures.maps import sha256 as sha256
 from aeid_struct.structures.maps import to_entry as to_entry
+from aeid_struct.structures.numeric import Numeric as Numeric
 from aeid_struct.structures.physical import Physical as Physical
 from aeid_struct.structures.realisation import ccf_coefficients as ccf_coefficients
 from aeid_struct.structures.realisation import ccf_matrices as ccf_matrices
@@ -28,6 +30,7 @@ __all__ = [
     "CCF",
     "CasadiOp",
     "MCF",
+    "Numeric",
     "Physical",
     "Structure",
     "System",

@@ -105,7 +105,7 @@ def baseline_calls(ident, subsystem: str) -> dict:
     -------
     dict
         :data:`BASELINES` name -> ``call(y, u)`` with ``y, u (steps,)``, returning the
-        baseline's estimate (an ``Estimate`` or ``refinement.RecordFit``).
+        baseline's ``Estimate``.
     """
     from aeid_struct import baselines, refinement
     from aeid_struct.records import Record

@@ -25,9 +25,9 @@ from functools import cached_property
 
 import numpy as np
 
-from aeid_struct.identification import calibration, old_forms
-from aeid_struct.identification.conversions import physical_parameters, state_spaces
-from aeid_struct.identification.estimate_fields import EstimateFields, from_info
+from aeid_struct.estimates import calibration, old_forms
+from aeid_struct.estimates.conversions import physical_parameters, state_spaces
+from aeid_struct.estimates.estimate_fields import EstimateFields, from_info
 from aeid_struct.metrics import nrmse_fit
 from aeid_struct.records import RecordBatch
 from aeid_struct.simulation import initial_state, simulate

@@ -1,4 +1,4 @@
-"""What an :class:`~aeid_struct.identification.Estimate` reads rather than computes: the base
+"""What an :class:`~aeid_struct.estimates.Estimate` reads rather than computes: the base
 class of its fields taken from its ``info``, its record and its provenance (and its model in the
 shapes of several channels), and the decorator of the derived properties that a generic
 estimate carries in ``info``. The seam: reading what the estimate holds, apart from deriving

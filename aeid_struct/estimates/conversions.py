@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aeid_struct.identification.physical import inverse_of_models
+from aeid_struct.estimates.physical import inverse_of_models
 from aeid_struct.structures import CCF
 
 __all__ = ["physical_parameters", "state_spaces"]

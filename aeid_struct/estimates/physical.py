@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from aeid_struct.refinement import Numeric
+from aeid_struct.structures import Numeric
 
 __all__ = ["apply_inverse", "inverse_of_models", "through_ccf"]
 
