@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.signal
 from helpers import rel_max_error
 from problems import modal_system
@@ -571,3 +572,52 @@ def test_record_forms_reject_array_arguments():
     for call, match in cases:
         with pytest.raises(ValueError, match=match):
             call()
+
+
+def _mid_motion_record(seed=3, steps=400, dt=0.05):
+    """A second-order record that starts mid-motion, with an output offset."""
+    rng = np.random.default_rng(seed)
+    u = _prbs(steps, rng)
+    A = np.array([[0.0, 1.0], [-4.0, -1.2]])
+    b, c = np.array([0.0, 1.0]), np.array([[3.0, 0.5]])
+    x0 = np.array([0.8, -0.3])
+    y = simulate_outputs(A, b, c, np.zeros(1), u, dt)[0]
+    Phi = scipy.linalg.expm(A * dt * np.arange(steps)[:, None, None])
+    y = y + (c @ Phi @ x0)[:, 0] + 0.4 + 0.002 * rng.standard_normal(steps)
+    return y, u, dt
+
+
+@pytest.mark.parametrize("method", ["least_squares", "n4sid"])
+def test_the_model_follows_initial_not_the_form_of_the_record(method):
+    """``initial`` chooses the model: arrays with initial="fitted" are the Record's fit, a
+    Record with initial="rest" is the arrays' fit, number for number."""
+    fit = getattr(bl, method)
+    y, u, dt = _mid_motion_record()
+    as_record = fit(Record(y, u, dt), order=2)
+    as_arrays = fit(y, u, dt, order=2, initial="fitted")
+    np.testing.assert_array_equal(as_arrays.A, as_record.A)
+    np.testing.assert_array_equal(as_arrays.c, as_record.c)
+    assert as_record.fit > 99.0 and as_record.offset == pytest.approx(0.4, abs=0.02)
+    rest = dict(structure=ae.CCF(2)) if method == "least_squares" else dict(order=2)
+    from_arrays = fit(y, u, dt, **rest)
+    from_record = fit(Record(y, u, dt), **rest, initial="rest")
+    np.testing.assert_array_equal(from_record.A, from_arrays.A)
+    np.testing.assert_array_equal(from_record.c, from_arrays.c)
+    # from rest the mid-motion record is fitted worse: a different model, not a relabelling
+    assert not np.allclose(from_arrays.A, as_record.A, rtol=1e-3)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(initial="moving"), "initial must be one of"),
+    (dict(initial="fitted", structure=ae.CCF(2)), "structure must not be given with"),
+])
+def test_initial_is_checked_by_name(kwargs, match):
+    y, u, dt = _mid_motion_record()
+    with pytest.raises(ValueError, match=match):
+        bl.least_squares(y, u, dt, order=2, **kwargs)
+
+
+def test_a_known_delay_is_not_fitted_from_rest():
+    y, u, dt = _mid_motion_record()
+    with pytest.raises(ValueError, match="known input delay of 2"):
+        bl.n4sid(Record(y, u, dt, delay=2), order=2, initial="rest")

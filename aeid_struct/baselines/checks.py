@@ -17,8 +17,8 @@ import numpy as np
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.records import Record, RecordBatch, as_array, require_finite, unit_step
 
-__all__ = ["as_measured", "check_int", "check_record", "estimate", "in_structure", "nan_model",
-           "only_record", "physical_source"]
+__all__ = ["INITIALS", "as_measured", "check_int", "check_record", "estimate", "in_structure",
+           "initial_form", "nan_model", "only_record", "physical_source"]
 
 
 def check_int(name: str, value, lowest: int) -> int:
@@ -93,6 +93,54 @@ def as_measured(y, what: str):
         return None
     y.require_siso(what)
     return y
+
+
+#: What a baseline is told about a record's start: from rest (``x(0) = 0``, no offset, no
+#: delay), or mid-motion (the initial state, an output offset and a known delay fitted).
+INITIALS = ("rest", "fitted")
+
+
+def initial_form(method: str, y, u, dt, initial):
+    """The model a baseline fits, chosen by what the caller states about the record
+    (``initial``), not by the form it comes in: ``("fitted", record)`` or ``("rest", (y, u,
+    dt))``.
+
+    Parameters
+    ----------
+    method : str
+        The baseline's name in messages.
+    y : array, Record or (y, u[, dt]) tuple
+    u, dt : as given
+    initial : {"rest", "fitted"} or None
+        None: ``"fitted"`` for a ``Record`` (a measured record), ``"rest"`` for arrays (the
+        meaning they have everywhere in the library).
+
+    Returns
+    -------
+    (str, Record or tuple)
+
+    Raises
+    ------
+    ValueError
+        An unknown ``initial``; ``u`` or ``dt`` beside a ``Record``; a record with a known
+        input delay fitted from rest.
+    """
+    measured = as_measured(y, method)
+    if initial is None:
+        initial = "rest" if measured is None else "fitted"
+    if initial not in INITIALS:
+        raise ValueError(f"initial must be one of {INITIALS} or None; got {initial!r}")
+    if measured is not None:
+        only_record(method, u=u, dt=dt)
+    if initial == "fitted":
+        return "fitted", Record(y, u, dt) if measured is None else measured
+    if measured is None:
+        return "rest", (y, u, dt)
+    if measured.delay:
+        raise ValueError(f"initial='rest' fits the record from its first sample; this record "
+                         f"has a known input delay of {measured.delay} samples: "
+                         f"{method}(record, ..., initial='fitted') fits with it")
+    return "rest", (measured.y, measured.u, measured.dt)
 
 
 def only_record(method: str, **given) -> None:

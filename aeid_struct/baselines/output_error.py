@@ -29,12 +29,11 @@ import numpy as np
 import scipy.optimize
 
 from aeid_struct.baselines.checks import (
-    as_measured,
     check_int,
     check_record,
     estimate,
+    initial_form,
     nan_model,
-    only_record,
     physical_source,
 )
 from aeid_struct.baselines.free_initial import least_squares_record
@@ -160,21 +159,23 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
                   start: dict | None = None, inverse=None, jac: str = "exact",
                   solver: str = "auto", xtol: float = 1e-12, ftol: float = 1e-12,
                   gtol: float = 1e-12, max_nfev: int = 200, order: int | None = None,
-                  feedthrough: bool = False) -> Estimate:
+                  feedthrough: bool = False, initial: str | None = None) -> Estimate:
     """Output-error least squares on the structure's free elements from a generic start.
 
     Minimises ``sum_k ((y_hat_k - y_k) / max|y|)^2`` with ``y_hat`` the exact FOH response from
     rest (Eq. 10-13) by ``scipy.optimize.least_squares`` within the structure's bounds (module
-    docstring: solver, Jacobian). ``least_squares(record, order=n)`` on a
-    :class:`~aeid_struct.records.Record` not at rest fits a CCF of order ``n`` with the initial
-    state, the output offset and a known delay
-    (:func:`~aeid_struct.baselines.free_initial.least_squares_record`).
+    docstring: solver, Jacobian). ``least_squares(record, order=n)`` on a record not at rest
+    (``initial="fitted"``, the default for a :class:`~aeid_struct.records.Record`) fits a CCF of
+    order ``n`` with the initial state, the output offset and a known delay
+    (:func:`~aeid_struct.baselines.free_initial.least_squares_record`). The model follows
+    ``initial``, not the form of ``y``: arrays fitted with ``initial="fitted"`` are that record,
+    a ``Record`` fitted with ``initial="rest"`` is its samples from rest.
 
     Parameters
     ----------
     y : (steps,) or Record
-        A record from rest, or a measured ``Record`` (then only ``order``, ``feedthrough`` and
-        ``max_nfev`` apply).
+        A record's output, or a measured ``Record`` (then ``u`` and ``dt`` come from it). With
+        ``initial="fitted"`` only ``order``, ``feedthrough`` and ``max_nfev`` apply.
     u : (steps,), or None for a unit step
     dt : float, > 0
     structure : CCF, MCF or Physical
@@ -196,6 +197,10 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
         ``Record`` form: the CCF's order (required there, not given otherwise).
     feedthrough : bool
         ``Record`` form: estimate ``d`` (else 0).
+    initial : {"rest", "fitted"}, optional
+        What the record is: from rest (the structure's output error, ``x(0) = 0``) or
+        mid-motion (``x0``, the offset and a known delay fitted, a CCF of ``order``). Default:
+        ``"fitted"`` for a ``Record``, ``"rest"`` for arrays.
 
     Returns
     -------
@@ -210,18 +215,24 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
     ValueError
         For a bad argument, or a record shorter than the number of free elements.
     """
-    measured = as_measured(y, "least_squares")
-    if measured is not None:
-        only_record("least_squares", u=u, dt=dt, structure=structure, start=start,
-                    inverse=inverse)
+    form, data = initial_form("least_squares", y, u, dt, initial)
+    if form == "fitted":
+        for name, value in (("structure", structure), ("start", start), ("inverse", inverse)):
+            if value is not None:
+                raise ValueError(f"{name} must not be given with a Record or initial='fitted' "
+                                 f"(a record not at rest is fitted in a free CCF: "
+                                 f"least_squares(record, order=n)); got {value!r}")
         if order is None:
-            raise ValueError("order must be given with a Record: least_squares(record, order=n)")
-        return least_squares_record(measured, order=check_int("order", order, 1),
+            raise ValueError("order must be given with a Record or initial='fitted': "
+                             "least_squares(record, order=n)")
+        return least_squares_record(data, order=check_int("order", order, 1),
                                     feedthrough=feedthrough,
                                     max_nfev=check_int("max_nfev", max_nfev, 1))
     if order is not None:
-        raise ValueError(f"order is for a Record (least_squares(record, order=n)); with arrays "
-                         f"the structure gives the order; got order={order!r}")
+        raise ValueError(f"order is for a Record or initial='fitted' (least_squares(record, "
+                         f"order=n)); from rest the structure gives the order; got "
+                         f"order={order!r}")
+    y, u, dt = data
     start_time = time.perf_counter()
     y, u = check_record(y, u)
     dt = check_dt(dt)

@@ -42,13 +42,12 @@ import time
 import numpy as np
 
 from aeid_struct.baselines.checks import (
-    as_measured,
     check_int,
     check_record,
     estimate,
     in_structure,
+    initial_form,
     nan_model,
-    only_record,
     physical_source,
 )
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
@@ -62,19 +61,22 @@ __all__ = ["n4sid"]
 
 def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inverse=None,
           feedthrough: bool = False, pre_zeros: int | None = None,
-          block_rows: int | None = None, offset: str = "channel") -> Estimate:
+          block_rows: int | None = None, offset: str = "channel",
+          initial: str | None = None) -> Estimate:
     """Subspace identification (nfoursid's PO-MOESP/N4SID) converted exactly to continuous time.
 
-    Two forms: ``n4sid(y, u, dt, order=n)``, a record from rest (module docstring), and
-    ``n4sid(record, order=n)`` for a :class:`~aeid_struct.records.Record` not at rest: no zero
-    padding, a constant input channel for the offset, the initial state and the output offset
-    fitted, a known delay applied (:func:`~aeid_struct.baselines.free_initial.n4sid_record`).
+    Two models, chosen by ``initial``: a record from rest (``"rest"``, the default for arrays:
+    ``n4sid(y, u, dt, order=n)``, module docstring), and a record not at rest (``"fitted"``,
+    the default for a :class:`~aeid_struct.records.Record`: ``n4sid(record, order=n)``): no
+    zero padding, a constant input channel for the offset, the initial state and the output
+    offset fitted, a known delay applied
+    (:func:`~aeid_struct.baselines.free_initial.n4sid_record`).
 
     Parameters
     ----------
     y : (steps,) or Record
-        One record from rest (``x(0) = 0``), or a measured ``Record`` (then ``u``, ``dt``,
-        ``structure``, ``inverse`` and ``pre_zeros`` are not given).
+        A record's output, or a measured ``Record`` (then ``u`` and ``dt`` come from it; with
+        ``initial="fitted"`` ``structure``, ``inverse`` and ``pre_zeros`` are not given).
     u : (steps,), or None for a unit step
     dt : float, > 0
     order : int >= 1
@@ -96,6 +98,9 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     offset : {"channel", "mean"}
         ``Record`` form only: a constant input channel absorbs the output offset, or the means
         are removed first (biased; :mod:`aeid_struct.baselines.free_initial`).
+    initial : {"rest", "fitted"}, optional
+        What the record is: from rest (``x(0) = 0``) or mid-motion (``x0``, the offset and a
+        known delay fitted). Default: ``"fitted"`` for a ``Record``, ``"rest"`` for arrays.
 
     Returns
     -------
@@ -113,13 +118,18 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
-    measured = as_measured(y, "n4sid")
-    if measured is not None:
-        only_record("n4sid", u=u, dt=dt, structure=structure, inverse=inverse,
-                     pre_zeros=pre_zeros)
-        return n4sid_record(measured, order=check_int("order", order, 1),
+    form, data = initial_form("n4sid", y, u, dt, initial)
+    if form == "fitted":
+        for name, value in (("structure", structure), ("inverse", inverse),
+                            ("pre_zeros", pre_zeros)):
+            if value is not None:
+                raise ValueError(f"{name} must not be given with a Record or initial='fitted' "
+                                 f"(a record not at rest: n4sid(record, order=n)); got "
+                                 f"{value!r}")
+        return n4sid_record(data, order=check_int("order", order, 1),
                             feedthrough=feedthrough,
                             block_rows=_check_sizes(order, None, block_rows)[1], offset=offset)
+    y, u, dt = data
     start = time.perf_counter()
     y, u_in = check_record(y, u)
     dt = check_dt(dt)
