@@ -142,6 +142,40 @@ def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
         np.testing.assert_allclose(batch[name], every[name], rtol=1e-5)
 
 
+@pytest.mark.parametrize("name", ["leg-stable", "leg-stable-any"])
+def test_onnx_identifier_answers_the_protocol_without_torch(tmp_path, name):
+    """The ONNX back end reads its file, identifies a record into an Estimate (its separable
+    head included) and gives the physical parameters with torch not importable, number for
+    number what it gives with torch."""
+    from aeid_struct.online import OnnxIdentifier, to_onnx
+
+    ident = ae.load_pretrained(name)
+    assert (ident.head is None) == (name == "leg-stable")
+    path = to_onnx(ident, tmp_path / "leg.onnx")
+    rec = ae.data.records(ae.LegFamily(subsystem="stable"), 1, steps=300, dt=0.01,
+                          excitation_kind="step" if name == "leg-stable" else "prbs", seed=4,
+                          noise=0.0)
+    y, u = rec.y[0], rec.u[0]
+    np.save(tmp_path / "y.npy", y)
+    np.save(tmp_path / "u.npy", u)
+    out = _run_without(("torch",), (
+        "import numpy as np\n"
+        "from aeid_struct.records import Record\n"
+        "from aeid_struct.online.onnx import OnnxIdentifier\n"
+        f"runner = OnnxIdentifier({str(path)!r})\n"
+        f"y, u = np.load({str(tmp_path / 'y.npy')!r}), np.load({str(tmp_path / 'u.npy')!r})\n"
+        "est = runner.identify(Record(y, u, 0.01))\n"
+        "print(type(est).__name__, ' '.join(repr(float(v)) for v in est.A.ravel()),\n"
+        "      ' '.join(repr(est.physical[k]) for k in ('k', 'd', 'm')))\n"
+        "print('torch-imported', sys.modules['torch'] is not None)\n"), tmp_path)
+    est = OnnxIdentifier(path).identify(ae.Record(y, u, 0.01))
+    assert out[0] == "Estimate" and out[-2:] == ["torch-imported", "False"]
+    np.testing.assert_array_equal(np.array(out[1:5], dtype=float), est.A.ravel())
+    np.testing.assert_array_equal(np.array(out[5:8], dtype=float),
+                                  [est.physical[k] for k in ("k", "d", "m")])
+    assert est.physical["k"] == pytest.approx(rec.systems.params["k"][0], rel=0.05)
+
+
 def _bad_inputs():
     """(what, y, u, message) that both the identifier and its ONNX export must refuse alike."""
     ok = np.arange(1.0, 61.0)

@@ -843,3 +843,19 @@ def test_old_module_paths_still_resolve():
     assert old_maps is maps
     assert (structures.CCF, structures.MCF, structures.Physical) == (CCF, MCF, Physical)
     assert structures.ccf_coefficients is ccf_coefficients
+
+
+def test_a_fresh_interpreter_reads_every_structure_type_whichever_name_came_first():
+    """The package imports its structures on first use of a name: the registry that reads a
+    config knows every type however the structures were reached."""
+    import subprocess
+    import sys
+
+    script = ("from aeid_struct.structures import Structure\n"
+              "for t in ({'type': 'CCF', 'n': 2, 'descartes': False, 'feedthrough': False,"
+              " 'fixed': {}}, {'type': 'MCF', 'real': 1, 'pairs': 1, 'feedthrough': False,"
+              " 'fixed': {}}):\n"
+              "    print(type(Structure.from_config(t)).__name__)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["CCF", "MCF"]

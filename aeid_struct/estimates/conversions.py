@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from aeid_struct.estimates.physical import inverse_of_models
-from aeid_struct.structures import CCF
+from aeid_struct.structures import type_of
 
 __all__ = ["physical_parameters", "state_spaces"]
 
@@ -45,7 +45,7 @@ def physical_parameters(est) -> dict:
     b = np.asarray(est.b, dtype=np.float64).reshape(count, n)
     c = np.asarray(est.c, dtype=np.float64).reshape(count, n)
     d = np.asarray(est.d, dtype=np.float64).reshape(count)
-    result = inverse_of_models(inverse, A, b, c, d, isinstance(est.structure, CCF))
+    result = inverse_of_models(inverse, A, b, c, d, type_of(est.structure) == "CCF")
     if not est.batched:
         result = {k: float(v[0]) for k, v in result.items()}
     return result

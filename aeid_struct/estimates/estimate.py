@@ -22,6 +22,7 @@ import dataclasses
 import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
+from importlib import import_module
 
 import numpy as np
 
@@ -30,9 +31,15 @@ from aeid_struct.estimates.conversions import physical_parameters, state_spaces
 from aeid_struct.estimates.estimate_fields import EstimateFields, from_info
 from aeid_struct.metrics import nrmse_fit
 from aeid_struct.records import RecordBatch
-from aeid_struct.simulation import initial_state, simulate
 
 __all__ = ["Estimate", "Provenance"]
+
+
+def _simulation():
+    """The decoder (torch), imported where an estimate simulates its record: an estimate that
+    carries its response and initial state (a generic one, the ONNX runner's) is built and read
+    without torch."""
+    return import_module("aeid_struct.simulation")
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,7 +147,7 @@ class Estimate(EstimateFields):
     def y_hat(self):
         """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
         return self._per_record(
-            lambda A, b, c, d, u, y, x, dt: simulate(A, b, c, d, u, dt, x0=x),
+            lambda A, b, c, d, u, y, x, dt: _simulation().simulate(A, b, c, d, u, dt, x0=x),
             lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
 
     @cached_property
@@ -278,7 +285,8 @@ class Estimate(EstimateFields):
             return None
         if "_x0_fitted" not in self.__dict__:
             self.__dict__["_x0_fitted"] = self._per_record(
-                lambda A, b, c, d, u, y, x, dt: initial_state(A, b, c, d, u, y, dt),
+                lambda A, b, c, d, u, y, x, dt: _simulation().initial_state(A, b, c, d, u, y,
+                                                                           dt),
                 lambda r: np.shape(self.b if self.records == 1 else self.b[..., r, :]))
         return self.__dict__["_x0_fitted"]
 

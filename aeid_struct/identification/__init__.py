@@ -3,7 +3,17 @@
 identifiers.
 
 Layer: above ``refinement`` (``identify(refine=True)`` calls down into it), below ``training``.
+
+The file container (``kind_of``, ``refuse_other``, ``read_safetensors``, ``stamp``), the
+protocol and the estimate's names need no torch and are imported with the package; the
+identifier and its files (torch) on first use of their names, so that the ONNX runner reads
+its header and returns Estimates without torch.
 """
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING
 
 from aeid_struct.estimates import FLAG_FALSE_RATE as FLAG_FALSE_RATE
 from aeid_struct.estimates import Estimate as Estimate
@@ -16,22 +26,42 @@ from aeid_struct.identification.container import kind_of as kind_of
 from aeid_struct.identification.container import read_safetensors as read_safetensors
 from aeid_struct.identification.container import refuse_other as refuse_other
 from aeid_struct.identification.container import stamp as stamp
-from aeid_struct.identification.files import FORMAT as FORMAT
-from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
-from aeid_struct.identification.files import FORMAT_2 as FORMAT_2
-from aeid_struct.identification.files import writable_file as writable_file
-from aeid_struct.identification.head import Head as Head
-from aeid_struct.identification.head import apply_head as apply_head
-from aeid_struct.identification.head import head_failure as head_failure
-from aeid_struct.identification.head import pattern_of as pattern_of
-from aeid_struct.identification.identifier import ERROR_MODES as ERROR_MODES
-from aeid_struct.identification.identifier import INITIAL_STATES as INITIAL_STATES
-from aeid_struct.identification.identifier import SCALE_MODES as SCALE_MODES
-from aeid_struct.identification.identifier import Identifier as Identifier
-from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
-from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
 from aeid_struct.identification.protocol import Identifies as Identifies
 from aeid_struct.records import RecordBatch as RecordBatch
+
+if TYPE_CHECKING:
+    from aeid_struct.identification.files import FORMAT as FORMAT
+    from aeid_struct.identification.files import FORMAT_1 as FORMAT_1
+    from aeid_struct.identification.files import FORMAT_2 as FORMAT_2
+    from aeid_struct.identification.files import writable_file as writable_file
+    from aeid_struct.identification.head import Head as Head
+    from aeid_struct.identification.head import apply_head as apply_head
+    from aeid_struct.identification.head import head_failure as head_failure
+    from aeid_struct.identification.head import pattern_of as pattern_of
+    from aeid_struct.identification.identifier import ERROR_MODES as ERROR_MODES
+    from aeid_struct.identification.identifier import INITIAL_STATES as INITIAL_STATES
+    from aeid_struct.identification.identifier import SCALE_MODES as SCALE_MODES
+    from aeid_struct.identification.identifier import Identifier as Identifier
+    from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
+    from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
+
+#: name -> the module (of this package, needing torch) that defines it
+_LAZY = {
+    "FORMAT": "files",
+    "FORMAT_1": "files",
+    "FORMAT_2": "files",
+    "writable_file": "files",
+    "Head": "head",
+    "apply_head": "head",
+    "head_failure": "head",
+    "pattern_of": "head",
+    "ERROR_MODES": "identifier",
+    "INITIAL_STATES": "identifier",
+    "SCALE_MODES": "identifier",
+    "Identifier": "identifier",
+    "PRETRAINED": "pretrained",
+    "load_pretrained": "pretrained",
+}
 
 __all__ = [
     "ERROR_MODES",
@@ -62,3 +92,17 @@ __all__ = [
     "through_ccf",
     "writable_file",
 ]
+
+
+def __getattr__(name: str):
+    """Import an identifier's module on first use of its name and keep the name here."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -19,7 +19,7 @@ import numpy as np
 
 from aeid_struct.records import RecordError
 from aeid_struct.refinement import MAX_ITERATIONS, Pattern, gauss_newton
-from aeid_struct.structures import CCF
+from aeid_struct.structures import type_of
 
 __all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "head_failure", "pattern_of"]
 
@@ -177,7 +177,7 @@ def pattern_of(ident, head: Head) -> Pattern:
         or a ``fixed`` name the structure does not have.
     """
     structure = ident.structure
-    if not isinstance(structure, CCF) or ident.records != 1:
+    if type_of(structure) != "CCF" or ident.records != 1:
         raise ValueError(f"head: the separable head needs a single-record identifier in a "
                          f"(partly fixed) CCF; this one has {structure!r} over "
                          f"{ident.records} record(s)")

@@ -1,5 +1,10 @@
-"""Identification from an exported ONNX file with onnxruntime and numpy alone (CasADi only for
-the physical parameters): :class:`OnnxIdentifier` reads what ``online.to_onnx`` writes."""
+"""Identification from an exported ONNX file with onnxruntime and numpy alone (CasADi for the
+separable head and the physical parameters): :class:`OnnxIdentifier` reads what
+``online.to_onnx`` writes and answers the identifier protocol, ``identify(record) -> Estimate``,
+without torch installed (``tests/test_export.py`` runs it with torch blocked). Where torch is
+absent, the structure is known by its description (``structures.Described``): enough for the
+head and the physical parameters; an estimate's simulated response (``fit``, ``y_hat``) and
+``refine`` need torch."""
 
 from __future__ import annotations
 
@@ -103,11 +108,17 @@ def _read_head(runner, header: dict, source: str) -> None:
     """Set ``runner.head`` and ``runner.structure`` from the metadata (a ValueError naming
     ``source`` for a malformed entry or a head the structure refuses)."""
     from aeid_struct.identification import Head, pattern_of
-    from aeid_struct.structures import Structure
+    from aeid_struct.structures import Described
 
     try:
         runner.head = Head.from_dict(header["head"])
-        runner.structure = Structure.from_config(header.get("structure"))
+        try:
+            from aeid_struct.structures import Structure
+
+            runner.structure = Structure.from_config(header.get("structure"))
+        except ImportError:
+            # torch is not installed: the head needs the structure's description alone
+            runner.structure = Described(header.get("structure"), header["elements"])
         pattern_of(runner, runner.head)
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{source}: 'aeid' metadata entry 'head': {err}") from None
@@ -254,7 +265,7 @@ class OnnxIdentifier:
         ValueError
             As :meth:`__call__`; a ``dt`` other than the export's.
         """
-        from aeid_struct.identification import Estimate, Provenance
+        from aeid_struct.estimates import Estimate, Provenance
 
         start = time.perf_counter()
         y, u, dt = arrays_of(y, u, dt, what="OnnxIdentifier.identify")
@@ -363,7 +374,7 @@ def _physical(runner: OnnxIdentifier, model: dict) -> dict:
     elif runner._inverse is None:
         return {}
     else:
-        from aeid_struct.identification import inverse_of_models
+        from aeid_struct.estimates import inverse_of_models
 
         A = np.asarray(model["A"], dtype=np.float64)
         n = A.shape[-1]

@@ -6,7 +6,16 @@ and initial state (``record``); and the CasADi NLP (``nlp``, ``solve``) for the 
 loop does not know. A fit over a record returns an :class:`~aeid_struct.estimates.Estimate`.
 
 Layer: below ``identification``, above ``estimates`` (a refinement returns the one Estimate).
+
+The separable pass of the partly fixed CCFs (``batched``, ``compiled``, ``levenberg``: the
+identifiers' head) needs numpy and CasADi alone and is imported with the package; the NLP and
+the fits over a record (torch through the structures) on first use of their names.
 """
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING
 
 from aeid_struct.refinement.batched import Pattern as Pattern
 from aeid_struct.refinement.batched import SeparableFit as SeparableFit
@@ -16,17 +25,33 @@ from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
 from aeid_struct.refinement.config import RefineResult as RefineResult
 from aeid_struct.refinement.levenberg import gauss_newton as gauss_newton
-from aeid_struct.refinement.nlp import Numeric as Numeric
-from aeid_struct.refinement.nlp import cache_info as cache_info
-from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate
-from aeid_struct.refinement.nlp import clear_cache as clear_cache
-from aeid_struct.refinement.nlp import expm as expm
-from aeid_struct.refinement.record import BUCKETS as BUCKETS
-from aeid_struct.refinement.record import refine_record as refine_record
-from aeid_struct.refinement.separable import projected_cost as projected_cost
-from aeid_struct.refinement.separable import refine_separable as refine_separable
-from aeid_struct.refinement.solve import refine as refine
-from aeid_struct.refinement.solve import refine_elements as refine_elements
+from aeid_struct.structures import Numeric as Numeric
+
+if TYPE_CHECKING:
+    from aeid_struct.refinement.nlp import cache_info as cache_info
+    from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate
+    from aeid_struct.refinement.nlp import clear_cache as clear_cache
+    from aeid_struct.refinement.nlp import expm as expm
+    from aeid_struct.refinement.record import BUCKETS as BUCKETS
+    from aeid_struct.refinement.record import refine_record as refine_record
+    from aeid_struct.refinement.separable import projected_cost as projected_cost
+    from aeid_struct.refinement.separable import refine_separable as refine_separable
+    from aeid_struct.refinement.solve import refine as refine
+    from aeid_struct.refinement.solve import refine_elements as refine_elements
+
+#: name -> the module (of this package) that defines it, imported on first use
+_LAZY = {
+    "cache_info": "nlp",
+    "casadi_simulate": "nlp",
+    "clear_cache": "nlp",
+    "expm": "nlp",
+    "BUCKETS": "record",
+    "refine_record": "record",
+    "projected_cost": "separable",
+    "refine_separable": "separable",
+    "refine": "solve",
+    "refine_elements": "solve",
+}
 
 __all__ = [
     "BUCKETS",
@@ -49,3 +74,17 @@ __all__ = [
     "refine_record",
     "refine_separable",
 ]
+
+
+def __getattr__(name: str):
+    """Import a fit's module on first use of its name and keep the name here."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -25,7 +25,7 @@ import casadi
 import numpy as np
 
 from aeid_struct.refinement import batched
-from aeid_struct.refinement.record import MAX_SQUARINGS
+from aeid_struct.refinement.config import MAX_SQUARINGS
 from aeid_struct.simulation import THETA13, augmented, expm
 
 __all__ = ["BLOCK", "MAX_ITERATIONS", "graph"]

@@ -8,7 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SOLVERS", "CacheInfo", "RefineConfig", "RefineResult"]
+__all__ = ["MAX_SQUARINGS", "SOLVERS", "CacheInfo", "RefineConfig", "RefineResult"]
+
+#: Squarings of the matrix exponential available at run time in the refinement's graphs
+#: (``record.py``, ``compiled_graph.py``): ``||M||_1 <= theta_13 2^16``.
+MAX_SQUARINGS = 16
 
 #: The NLP solvers: CasADi's Gauss-Newton SQP (the default) and IPOPT with the same Hessian.
 SOLVERS = ("sqpmethod", "ipopt")

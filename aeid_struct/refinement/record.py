@@ -44,7 +44,7 @@ import numpy as np
 from aeid_struct.estimates import Estimate
 from aeid_struct.records import require_finite
 from aeid_struct.refinement import core, nlp
-from aeid_struct.refinement.config import RefineConfig
+from aeid_struct.refinement.config import MAX_SQUARINGS, RefineConfig
 from aeid_struct.refinement.result import fitted
 from aeid_struct.simulation import augmented, expm, squarings_for
 from aeid_struct.structures import Structure
@@ -54,8 +54,6 @@ __all__ = ["BUCKETS", "MAX_SQUARINGS", "refine_record"]
 #: Record lengths (samples after the delay) that one graph serves: the smallest bucket that
 #: holds ``N - D``. Longer records are refused (a larger bucket takes seconds to build).
 BUCKETS = (256, 512, 1024, 2048, 4096, 8192)
-#: Squarings of the matrix exponential available at run time: ``||M||_1 <= theta_13 2^16``.
-MAX_SQUARINGS = 16
 #: Headroom of the squarings over the current ``||M||_1`` (three spare doublings).
 _NORM_MARGIN = 8.0
 #: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, give-up value.

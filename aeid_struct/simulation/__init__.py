@@ -13,48 +13,98 @@ kernels), ``initial`` (:func:`initial_state`), ``normalise`` (Eq. 4, 14, 15), ``
 :func:`expm`), ``projection`` (:func:`project`, :func:`fit_initial`: the linear part of a
 record's model by least squares), ``projection_torch`` (:func:`project_batch`: the same, batched
 and differentiable, for training).
+
+The CasADi form (``casadi_foh``) needs no torch and is imported with the package; the torch
+and numpy kernels on first use of their names, so that the compiled head of an ONNX export
+runs without torch.
 """
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING
 
 from aeid_struct.simulation.casadi_foh import THETA13 as THETA13
 from aeid_struct.simulation.casadi_foh import augmented as augmented
 from aeid_struct.simulation.casadi_foh import casadi_simulate as casadi_simulate
 from aeid_struct.simulation.casadi_foh import expm as expm
 from aeid_struct.simulation.casadi_foh import squarings_for as squarings_for
-from aeid_struct.simulation.checks import check_dt as check_dt
-from aeid_struct.simulation.foh import Discrete as Discrete
-from aeid_struct.simulation.foh import discretise as discretise
-from aeid_struct.simulation.foh import simulate as simulate
-from aeid_struct.simulation.foh import states as states
-from aeid_struct.simulation.initial import fit_initial_state as fit_initial_state
-from aeid_struct.simulation.initial import free_response as free_response
-from aeid_struct.simulation.initial import initial_state as initial_state
-from aeid_struct.simulation.kernels import discrete_foh as discrete_foh
-from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
-from aeid_struct.simulation.kernels import foh_columns as foh_columns
-from aeid_struct.simulation.kernels import free_basis as free_basis
-from aeid_struct.simulation.kernels import powers as powers
-from aeid_struct.simulation.kernels import scan as scan
-from aeid_struct.simulation.kernels import simulate_batch as simulate_batch
-from aeid_struct.simulation.kernels import simulate_loop as simulate_loop
-from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
-from aeid_struct.simulation.kernels import states_batch as states_batch
-from aeid_struct.simulation.kernels import states_loop as states_loop
-from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
-from aeid_struct.simulation.projection import Projection as Projection
-from aeid_struct.simulation.projection import fit_initial as fit_initial
-from aeid_struct.simulation.projection import forced_states as forced_states
-from aeid_struct.simulation.projection import project as project
-from aeid_struct.simulation.projection_torch import BatchProjection as BatchProjection
-from aeid_struct.simulation.projection_torch import initial_states_batch as initial_states_batch
-from aeid_struct.simulation.projection_torch import project_batch as project_batch
-from aeid_struct.simulation.scaling import denormalise as denormalise
-from aeid_struct.simulation.scaling import loss as loss
-from aeid_struct.simulation.scaling import loss_batch as loss_batch
-from aeid_struct.simulation.scaling import normalise as normalise
-from aeid_struct.simulation.scaling import record_scale as record_scale
-from aeid_struct.simulation.scaling import record_scale_batch as record_scale_batch
-from aeid_struct.simulation.scaling import stationary_value as stationary_value
-from aeid_struct.simulation.scaling import stationary_value_batch as stationary_value_batch
+
+if TYPE_CHECKING:
+    from aeid_struct.simulation.checks import check_dt as check_dt
+    from aeid_struct.simulation.foh import Discrete as Discrete
+    from aeid_struct.simulation.foh import discretise as discretise
+    from aeid_struct.simulation.foh import simulate as simulate
+    from aeid_struct.simulation.foh import states as states
+    from aeid_struct.simulation.initial import fit_initial_state as fit_initial_state
+    from aeid_struct.simulation.initial import free_response as free_response
+    from aeid_struct.simulation.initial import initial_state as initial_state
+    from aeid_struct.simulation.kernels import discrete_foh as discrete_foh
+    from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
+    from aeid_struct.simulation.kernels import foh_columns as foh_columns
+    from aeid_struct.simulation.kernels import free_basis as free_basis
+    from aeid_struct.simulation.kernels import powers as powers
+    from aeid_struct.simulation.kernels import scan as scan
+    from aeid_struct.simulation.kernels import simulate_batch as simulate_batch
+    from aeid_struct.simulation.kernels import simulate_loop as simulate_loop
+    from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
+    from aeid_struct.simulation.kernels import states_batch as states_batch
+    from aeid_struct.simulation.kernels import states_loop as states_loop
+    from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
+    from aeid_struct.simulation.projection import Projection as Projection
+    from aeid_struct.simulation.projection import fit_initial as fit_initial
+    from aeid_struct.simulation.projection import forced_states as forced_states
+    from aeid_struct.simulation.projection import project as project
+    from aeid_struct.simulation.projection_torch import BatchProjection as BatchProjection
+    from aeid_struct.simulation.projection_torch import initial_states_batch as initial_states_batch
+    from aeid_struct.simulation.projection_torch import project_batch as project_batch
+    from aeid_struct.simulation.scaling import denormalise as denormalise
+    from aeid_struct.simulation.scaling import loss as loss
+    from aeid_struct.simulation.scaling import loss_batch as loss_batch
+    from aeid_struct.simulation.scaling import normalise as normalise
+    from aeid_struct.simulation.scaling import record_scale as record_scale
+    from aeid_struct.simulation.scaling import record_scale_batch as record_scale_batch
+    from aeid_struct.simulation.scaling import stationary_value as stationary_value
+    from aeid_struct.simulation.scaling import stationary_value_batch as stationary_value_batch
+
+#: name -> the module (of this package) that defines it, imported on first use
+_LAZY = {
+    "check_dt": "checks",
+    "Discrete": "foh",
+    "discretise": "foh",
+    "simulate": "foh",
+    "states": "foh",
+    "fit_initial_state": "initial",
+    "free_response": "initial",
+    "initial_state": "initial",
+    "discrete_foh": "kernels",
+    "discretise_batch": "kernels",
+    "foh_columns": "kernels",
+    "free_basis": "kernels",
+    "powers": "kernels",
+    "scan": "kernels",
+    "simulate_batch": "kernels",
+    "simulate_loop": "kernels",
+    "simulate_outputs": "kernels",
+    "states_batch": "kernels",
+    "states_loop": "kernels",
+    "OverflowWarning": "overflow",
+    "Projection": "projection",
+    "fit_initial": "projection",
+    "forced_states": "projection",
+    "project": "projection",
+    "BatchProjection": "projection_torch",
+    "initial_states_batch": "projection_torch",
+    "project_batch": "projection_torch",
+    "denormalise": "scaling",
+    "loss": "scaling",
+    "loss_batch": "scaling",
+    "normalise": "scaling",
+    "record_scale": "scaling",
+    "record_scale_batch": "scaling",
+    "stationary_value": "scaling",
+    "stationary_value_batch": "scaling",
+}
 
 __all__ = [
     # checked: numpy or torch in, the same out
@@ -103,3 +153,17 @@ __all__ = [
     "expm",
     "squarings_for",
 ]
+
+
+def __getattr__(name: str):
+    """Import a kernel's module on first use of its name and keep the name here."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

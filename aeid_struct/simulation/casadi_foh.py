@@ -24,8 +24,7 @@ import math
 import casadi
 import numpy as np
 
-from aeid_struct.records import as_array
-from aeid_struct.simulation.checks import check_dt
+from aeid_struct.records import as_array, check_dt
 
 __all__ = ["THETA13", "augmented", "casadi_simulate", "expm", "squarings_for"]
 

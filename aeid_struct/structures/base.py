@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import abc
 import math
+from typing import Any
 
 import casadi
 import numpy as np
@@ -42,13 +43,30 @@ from aeid_struct.structures import constraints as cons
 from aeid_struct.structures.config import Configurable, register
 from aeid_struct.structures.constraints import ElementMap
 from aeid_struct.structures.elements import ElementSet
-from aeid_struct.structures.realisation import (
-    model_arrays,
-    model_dtype,
-)
+from aeid_struct.structures.realisation import model_arrays
 from aeid_struct.structures.system import System
 
 __all__ = ["Structure"]
+
+
+def model_dtype(A: Any) -> torch.dtype:
+    """The dtype in which elements of a given model are returned.
+
+    Parameters
+    ----------
+    A : array-like or torch.Tensor
+
+    Returns
+    -------
+    torch.dtype
+        ``A``'s dtype for a float32 or float64 tensor, float32 for a float32 numpy array,
+        else float64.
+    """
+    if isinstance(A, torch.Tensor) and A.dtype in (torch.float32, torch.float64):
+        return A.dtype
+    if isinstance(A, np.ndarray) and A.dtype == np.float32:
+        return torch.float32
+    return torch.float64
 
 class Structure(ElementSet, Configurable):
     """A parameterisation ``theta (batch, p) -> elements (batch, q) -> System``.

@@ -15,7 +15,7 @@ import json
 
 from aeid_struct.structures.maps import check_maps
 
-__all__ = ["REGISTRY", "Configurable", "register"]
+__all__ = ["REGISTRY", "Configurable", "Described", "register", "type_of"]
 
 #: Structure type name -> class: every subclass of ``Structure`` registers itself.
 REGISTRY: dict[str, type] = {}
@@ -30,6 +30,65 @@ def register(cls: type) -> None:
         A subclass of ``Structure`` (``Structure.__init_subclass__`` calls this).
     """
     REGISTRY[cls.__name__] = cls
+
+
+def type_of(structure) -> str | None:
+    """The registered type name of a structure (``"CCF"``, ``"MCF"``, ``"Physical"``), or None
+    for none, read without importing the structure classes (torch): a structure known by its
+    config alone (:class:`Described`) answers too.
+
+    Parameters
+    ----------
+    structure : Structure, Described or None
+
+    Returns
+    -------
+    str or None
+    """
+    if structure is None:
+        return None
+    return getattr(structure, "type_name", None) or type(structure).__name__
+
+
+class Described:
+    """A structure known by its config alone: its type, element names and fixed values, and no
+    assembly. What the ONNX runner holds where torch is not installed: enough for the separable
+    head's pattern and an estimate's physical parameters (``refine`` needs the structure
+    itself).
+
+    Parameters
+    ----------
+    config : dict
+        The structure's config (``Structure.config()``), e.g. ``{"type": "CCF", "n": 2,
+        "feedthrough": False, "fixed": {"c1": 0.0}, ...}``.
+    names : sequence of str
+        Its element names.
+    """
+
+    records = 1
+
+    def __init__(self, config: dict, names) -> None:
+        if not (isinstance(config, dict) and isinstance(config.get("type"), str)):
+            raise ValueError(f"config must be a structure's config with a 'type'; got "
+                             f"{config!r}")
+        self._config = json.loads(json.dumps(config))
+        self.type_name = config["type"]
+        self.element_names = tuple(names)
+        self.n = int(config.get("n", 0))
+        self.feedthrough = bool(config.get("feedthrough", False))
+        self.fixed_values = dict(config.get("fixed", {}))
+
+    def config(self) -> dict:
+        """The config it was described by (a copy).
+
+        Returns
+        -------
+        dict
+        """
+        return json.loads(json.dumps(self._config))
+
+    def __repr__(self) -> str:
+        return f"Described({self._config!r})"
 
 
 def _parse_config(config) -> tuple[type, dict, dict]:

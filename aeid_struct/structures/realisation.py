@@ -20,11 +20,10 @@ from typing import Any
 
 import casadi
 import numpy as np
-import torch
 
 from symbolic.realisation import coefficients_function
 
-__all__ = ["as_float64", "ccf_coefficients", "ccf_matrices", "model_arrays", "model_dtype"]
+__all__ = ["as_float64", "ccf_coefficients", "ccf_matrices", "model_arrays"]
 
 
 def as_float64(x: Any) -> np.ndarray:
@@ -39,30 +38,12 @@ def as_float64(x: Any) -> np.ndarray:
     numpy.ndarray
         float64, the shape of ``x``.
     """
-    if isinstance(x, torch.Tensor):
+    if hasattr(x, "detach") and hasattr(x, "is_floating_point"):
+        # a torch tensor, recognised without importing torch: this numpy path also serves
+        # where torch is not installed (an estimate's physical parameters from an ONNX file)
         x = x.detach().cpu()
         return x.numpy().astype(np.float64) if x.is_floating_point() else x.double().numpy()
     return np.asarray(x, dtype=np.float64)
-
-
-def model_dtype(A: Any) -> torch.dtype:
-    """The dtype in which elements of a given model are returned.
-
-    Parameters
-    ----------
-    A : array-like or torch.Tensor
-
-    Returns
-    -------
-    torch.dtype
-        ``A``'s dtype for a float32 or float64 tensor, float32 for a float32 numpy array,
-        else float64.
-    """
-    if isinstance(A, torch.Tensor) and A.dtype in (torch.float32, torch.float64):
-        return A.dtype
-    if isinstance(A, np.ndarray) and A.dtype == np.float32:
-        return torch.float32
-    return torch.float64
 
 
 def _record_arrays(A, b, c, d, n: int, who: str, records: int):
