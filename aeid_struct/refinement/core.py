@@ -201,40 +201,78 @@ def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, e
     converged = np.zeros(B, dtype=bool)
     iterations = np.zeros(B, dtype=int)
     accepted = np.zeros(B, dtype=int)
+    every, stops = np.arange(B), rules.stops
     for it in range(rules.max_iter):
-        active = np.flatnonzero(~done)
+        # while every row is active (the usual case) the arrays are used whole: per-operation
+        # overhead, not arithmetic, is the cost of a small problem's iteration
+        active = np.flatnonzero(~done) if done.any() else every
         if active.size == 0:
             break
-        iterations[active] += 1
-        sub = now if active.size == B else _rows(now, active, B)
-        trial, stop, small = _trial(rules, x[active], sub, lam[active],
-                                    None if scale is None else scale[active],
-                                    None if lower is None else (lower[active], upper[active]))
+        whole = active.size == B
+        if whole:
+            iterations += 1
+        else:
+            iterations[active] += 1
+        sub = now if whole else _rows(now, active, B)
+        trial, stop, small = _trial(
+            rules, x if whole else x[active], sub, lam if whole else lam[active],
+            None if scale is None else scale if whole else scale[active],
+            None if lower is None else (lower, upper) if whole else (lower[active],
+                                                                     upper[active]))
         if stop.any():
             done[active[stop]] = converged[active[stop]] = True
             active, trial, small = active[~stop], trial[~stop], small[~stop]
             if active.size == 0:
                 continue
-            sub = now if active.size == B else _rows(now, active, B)
-        new = problem.evaluate(trial, None if active.size == B else active,
+            whole = active.size == B
+            sub = now if whole else _rows(now, active, B)
+        new = problem.evaluate(trial, None if whole else active,
                                not lazy and it < rules.max_iter - 1, sub)
         better = new["cost"] < sub["cost"]
-        if rules.stops:
-            flat = _flat(rules, sub["cost"], new["cost"], better, small, lam[active],
-                         None if energy is None else energy[active])
-            done[active[flat]] = converged[active[flat]] = True
-        rows = active[better]
-        if rows.size:
-            jacobian = lazy and it < rules.max_iter - 1 and not done[rows].all()
-            now = _accept(problem, now, new, better, rows, lazy, jacobian)
-            x[rows] = trial[better]
-            if progress is not None and B == 1:
-                progress(int(iterations[0]), float(now["cost"][0]))
-        accepted[rows] += 1
-        lam[rows] = np.maximum(lam[rows] / rules.factor, rules.lambda_min)
-        lam[active[~better]] *= rules.factor
+        if stops:
+            flat = _flat(rules, sub["cost"], new["cost"], better, small,
+                         lam if whole else lam[active],
+                         None if energy is None else energy if whole else energy[active])
+            if whole:
+                done |= flat
+                converged |= flat
+            else:
+                done[active[flat]] = converged[active[flat]] = True
+        if whole and better.all():
+            jacobian = lazy and it < rules.max_iter - 1 and not done.all()
+            now = _accept(problem, now, new, better, active, lazy, jacobian)
+            x, lam = trial, np.maximum(lam / rules.factor, rules.lambda_min)
+            accepted += 1
+        else:
+            rows = active[better]
+            if rows.size:
+                jacobian = lazy and it < rules.max_iter - 1 and not done[rows].all()
+                now = _accept(problem, now, new, better, rows, lazy, jacobian)
+                x[rows] = trial[better]
+            accepted[rows] += 1
+            lam[rows] = np.maximum(lam[rows] / rules.factor, rules.lambda_min)
+            lam[active[~better]] *= rules.factor
+        if progress is not None and B == 1 and better[0]:
+            progress(int(iterations[0]), float(now["cost"][0]))
     return Outcome(x=x, evaluation=now, iterations=iterations, accepted=accepted,
                    converged=converged)
+
+
+def _step_one(J: np.ndarray, r: np.ndarray, lam: float, frozen):
+    """:func:`_step` of one row: ``J (f, N)``, ``r (N,)``."""
+    g = J @ r
+    H = J @ J.T
+    if frozen is not None and frozen.any():
+        keep = ~frozen
+        g = np.where(keep, g, 0.0)
+        H = H * np.outer(keep, keep)
+        H[np.flatnonzero(frozen), np.flatnonzero(frozen)] = 1.0
+    diag = np.diag(H) + 1e-300
+    try:
+        step = np.linalg.solve(H + lam * np.diag(diag), -g)
+    except np.linalg.LinAlgError:
+        step = -g / (lam * diag)
+    return g, H, step
 
 
 def _trial(rules: Rules, x, sub: dict, lam, scale, box):
@@ -242,6 +280,8 @@ def _trial(rules: Rules, x, sub: dict, lam, scale, box):
     ``(trial (b, f), stop (b,), small (b,))``, ``stop`` the rows that end before their trial
     (gradient, step, and the prediction where it comes first), ``small`` those whose predicted
     decrease is below ``rules.predicted_tol``."""
+    if x.shape[0] == 1:
+        return _trial_one(rules, x, sub, lam, scale, box)
     J = sub["J"] if scale is None else sub["J"] * scale[:, :, None]
     frozen = None
     if box is not None:
@@ -267,6 +307,33 @@ def _trial(rules: Rules, x, sub: dict, lam, scale, box):
         moved = step if box is None else (trial - x if scale is None else (trial - x) / scale)
         stop |= np.max(np.abs(moved), axis=1, initial=0.0) <= rules.step_tol
     return trial, stop, small
+
+
+def _trial_one(rules: Rules, x, sub: dict, lam, scale, box):
+    """:func:`_trial` of one row (a single record's fit) in two-dimensional products and
+    scalars: at these sizes the stacked operations' per-call cost is most of an iteration's."""
+    J, r, x1 = sub["J"][0], sub["r"][0], x[0]
+    if scale is not None:
+        J = J * scale[0][:, None]
+    frozen = None
+    if box is not None:
+        slope = J @ r
+        frozen = ((x1 <= box[0][0]) & (slope > 0)) | ((x1 >= box[1][0]) & (slope < 0))
+    g, H, step = _step_one(J, r, float(lam[0]), frozen)
+    stop = small = False
+    if rules.gradient_tol is not None:
+        stop = float(np.abs(g).max(initial=0.0)) <= rules.gradient_tol
+    trial = x1 + (step if scale is None else scale[0] * step)
+    if box is not None:
+        trial = np.clip(trial, box[0][0], box[1][0])
+    if rules.predicted_tol is not None:
+        predicted = -(2.0 * float(g @ step) + float(step @ H @ step))
+        small = predicted <= rules.predicted_tol * float(r @ r)
+        stop = stop or (small and rules.predicted_first)
+    if rules.step_tol is not None:
+        moved = step if box is None else (trial - x1 if scale is None else (trial - x1) / scale[0])
+        stop = stop or float(np.abs(moved).max(initial=0.0)) <= rules.step_tol
+    return trial[None], np.array([stop]), np.array([small])
 
 
 def _flat(rules: Rules, cost, trial_cost, better, small, lam, energy) -> np.ndarray:
