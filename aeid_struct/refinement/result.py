@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from aeid_struct.estimates import Estimate, Provenance
-from aeid_struct.records import Record
+from aeid_struct.records import RecordBatch
 from aeid_struct.structures import Structure
 
 __all__ = ["fitted"]
@@ -40,6 +40,9 @@ def fitted(structure: Structure, model: tuple, elements: dict, y: np.ndarray, u:
         Of one record, ``initial="fitted"``, ``refined=True``.
     """
     A, b, c, d = model
-    return Estimate(A=A, b=b, c=c, d=float(d), elements=elements, record=Record(y, u, dt),
+    # the record as the checked batch of one an identifier's estimate holds: y and u were
+    # checked by the fit, and a Record would check them again
+    record = RecordBatch.of(y, u, dt, batched=False)
+    return Estimate(A=A, b=b, c=c, d=float(d), elements=elements, record=record,
                     provenance=Provenance(structure=structure, initial="fitted"),
                     seconds=seconds, refined=True, info=info)
