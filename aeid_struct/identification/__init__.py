@@ -12,7 +12,6 @@ its header and returns Estimates without torch.
 
 from __future__ import annotations
 
-from importlib import import_module
 from typing import TYPE_CHECKING
 
 from aeid_struct.estimates import FLAG_FALSE_RATE as FLAG_FALSE_RATE
@@ -27,6 +26,7 @@ from aeid_struct.identification.container import read_safetensors as read_safete
 from aeid_struct.identification.container import refuse_other as refuse_other
 from aeid_struct.identification.container import stamp as stamp
 from aeid_struct.identification.protocol import Identifies as Identifies
+from aeid_struct.lazy import attach
 from aeid_struct.records import RecordBatch as RecordBatch
 
 if TYPE_CHECKING:
@@ -94,15 +94,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """Import an identifier's module on first use of its name and keep the name here."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = attach(__name__, _LAZY)

@@ -14,9 +14,9 @@ the fits over a record (torch through the structures) on first use of their name
 
 from __future__ import annotations
 
-from importlib import import_module
 from typing import TYPE_CHECKING
 
+from aeid_struct.lazy import attach
 from aeid_struct.refinement.batched import Pattern as Pattern
 from aeid_struct.refinement.batched import SeparableFit as SeparableFit
 from aeid_struct.refinement.compiled import MAX_ITERATIONS as MAX_ITERATIONS
@@ -76,15 +76,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """Import a fit's module on first use of its name and keep the name here."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = attach(__name__, _LAZY)

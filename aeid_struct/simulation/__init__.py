@@ -21,9 +21,9 @@ runs without torch.
 
 from __future__ import annotations
 
-from importlib import import_module
 from typing import TYPE_CHECKING
 
+from aeid_struct.lazy import attach
 from aeid_struct.simulation.casadi_foh import THETA13 as THETA13
 from aeid_struct.simulation.casadi_foh import augmented as augmented
 from aeid_struct.simulation.casadi_foh import casadi_simulate as casadi_simulate
@@ -155,15 +155,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """Import a kernel's module on first use of its name and keep the name here."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = attach(__name__, _LAZY)

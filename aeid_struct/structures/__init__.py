@@ -15,9 +15,9 @@ evaluates its maps (the ONNX runner, an Estimate's physical parameters) runs wit
 
 from __future__ import annotations
 
-from importlib import import_module
 from typing import TYPE_CHECKING
 
+from aeid_struct.lazy import attach
 from aeid_struct.structures.config import Described as Described
 from aeid_struct.structures.config import type_of as type_of
 from aeid_struct.structures.maps import check_maps as check_maps
@@ -77,18 +77,4 @@ __all__ = [
 #: is read with (``Structure.from_config``) knows every type whichever name came first.
 _TYPES = ("base", "canonical", "physical")
 
-
-def __getattr__(name: str):
-    """Import a structure's module on first use of its name and keep the name here."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    for types in _TYPES if module in _TYPES else ():
-        import_module(f".{types}", __name__)
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = attach(__name__, _LAZY, together=_TYPES)
