@@ -1042,3 +1042,27 @@ def test_discrete_foh_is_scipys_first_order_hold():
     fd = (discrete_foh(A[0] + 1e-6 * np.eye(3), b[0], 0.07)[0]
           - discrete_foh(A[0] - 1e-6 * np.eye(3), b[0], 0.07)[0]) / 2e-6
     np.testing.assert_allclose(step, fd, rtol=1e-7, atol=1e-10)
+
+
+def test_numpy_decoder_gives_the_torch_decoders_response_and_initial_state():
+    """simulation.simulate_numpy / initial_state_numpy (what an estimate reads where torch is
+    not installed) against simulate / initial_state, one system and a batch."""
+    from aeid_struct.simulation import (
+        initial_state,
+        initial_state_numpy,
+        simulate,
+        simulate_numpy,
+    )
+
+    rng = np.random.default_rng(12)
+    A = np.stack([np.array([[0.0, 1.0], [-4.0 - k, -0.8]]) for k in range(3)])
+    b, c, d = np.tile([0.0, 1.0], (3, 1)), rng.standard_normal((3, 2)), rng.standard_normal(3)
+    u, x0 = rng.standard_normal((3, 400)), rng.standard_normal((3, 2))
+    want = simulate(A, b, c, d, u, 0.02, x0=x0)
+    np.testing.assert_allclose(simulate_numpy(A, b, c, d, u, 0.02, x0=x0), want, rtol=1e-10,
+                               atol=1e-12 * np.abs(want).max())
+    np.testing.assert_allclose(simulate_numpy(A[1], b[1], c[1], d[1], u[1], 0.02, x0=x0[1]),
+                               want[1], rtol=1e-10, atol=1e-12 * np.abs(want).max())
+    np.testing.assert_allclose(initial_state_numpy(A, b, c, d, u, want, 0.02), x0, rtol=1e-8)
+    np.testing.assert_allclose(initial_state_numpy(A, b, c, d, u, want, 0.02),
+                               initial_state(A, b, c, d, u, want, 0.02), rtol=1e-8)

@@ -146,7 +146,7 @@ def test_onnx_file_runs_under_bare_onnxruntime_and_gives_the_leg(tmp_path):
 def test_onnx_identifier_answers_the_protocol_without_torch(tmp_path, name):
     """The ONNX back end reads its file, identifies a record into an Estimate (its separable
     head included) and gives the physical parameters with torch not importable, number for
-    number what it gives with torch."""
+    number what it gives with torch, and the estimate's self-check (fit, initial state)."""
     from aeid_struct.online import OnnxIdentifier, to_onnx
 
     ident = ae.load_pretrained(name)
@@ -167,9 +167,13 @@ def test_onnx_identifier_answers_the_protocol_without_torch(tmp_path, name):
         "est = runner.identify(Record(y, u, 0.01))\n"
         "print(type(est).__name__, ' '.join(repr(float(v)) for v in est.A.ravel()),\n"
         "      ' '.join(repr(est.physical[k]) for k in ('k', 'd', 'm')))\n"
+        "print(repr(float(est.fit)), ' '.join(repr(float(v)) for v in est.x0))\n"
         "print('torch-imported', sys.modules['torch'] is not None)\n"), tmp_path)
     est = OnnxIdentifier(path).identify(ae.Record(y, u, 0.01))
     assert out[0] == "Estimate" and out[-2:] == ["torch-imported", "False"]
+    # the self-check reads the numpy decoder there: the torch decoder's numbers to rounding
+    assert float(out[8]) == pytest.approx(est.fit, rel=1e-9)
+    np.testing.assert_allclose(np.array(out[9:11], dtype=float), est.x0, rtol=1e-7, atol=1e-12)
     np.testing.assert_array_equal(np.array(out[1:5], dtype=float), est.A.ravel())
     np.testing.assert_array_equal(np.array(out[5:8], dtype=float),
                                   [est.physical[k] for k in ("k", "d", "m")])

@@ -35,11 +35,18 @@ from aeid_struct.records import RecordBatch
 __all__ = ["Estimate", "Provenance"]
 
 
-def _simulation():
-    """The decoder (torch), imported where an estimate simulates its record: an estimate that
-    carries its response and initial state (a generic one, the ONNX runner's) is built and read
-    without torch."""
-    return import_module("aeid_struct.simulation")
+def _decoder():
+    """``(simulate, initial_state)`` where an estimate simulates its record: the torch decoder's
+    (``simulation.simulate``, ``initial_state``: the overflow rule, float32 models), or, where
+    torch is not installed (an ONNX runner's estimates), the numpy kernels'
+    (``simulation.simulate_numpy``, ``initial_state_numpy``: the same response of a finite
+    model). Imported here, not with the module: an estimate that carries its response and
+    initial state (a generic one) is built and read without either."""
+    simulation = import_module("aeid_struct.simulation")
+    try:
+        return simulation.simulate, simulation.initial_state
+    except ImportError:
+        return simulation.simulate_numpy, simulation.initial_state_numpy
 
 
 @dataclass(frozen=True, eq=False)
@@ -147,7 +154,7 @@ class Estimate(EstimateFields):
     def y_hat(self):
         """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
         return self._per_record(
-            lambda A, b, c, d, u, y, x, dt: _simulation().simulate(A, b, c, d, u, dt, x0=x),
+            lambda A, b, c, d, u, y, x, dt: _decoder()[0](A, b, c, d, u, dt, x0=x),
             lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
 
     @cached_property
@@ -285,8 +292,7 @@ class Estimate(EstimateFields):
             return None
         if "_x0_fitted" not in self.__dict__:
             self.__dict__["_x0_fitted"] = self._per_record(
-                lambda A, b, c, d, u, y, x, dt: _simulation().initial_state(A, b, c, d, u, y,
-                                                                           dt),
+                lambda A, b, c, d, u, y, x, dt: _decoder()[1](A, b, c, d, u, y, dt),
                 lambda r: np.shape(self.b if self.records == 1 else self.b[..., r, :]))
         return self.__dict__["_x0_fitted"]
 

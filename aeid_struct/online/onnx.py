@@ -3,8 +3,8 @@ separable head and the physical parameters): :class:`OnnxIdentifier` reads what
 ``online.to_onnx`` writes and answers the identifier protocol, ``identify(record) -> Estimate``,
 without torch installed (``tests/test_export.py`` runs it with torch blocked). Where torch is
 absent, the structure is known by its description (``structures.Described``): enough for the
-head and the physical parameters; an estimate's simulated response (``fit``, ``y_hat``) and
-``refine`` need torch."""
+head and the physical parameters; an estimate's self-check (``fit``, ``y_hat``, ``x0``) reads
+the numpy decoder (``simulation.simulate_numpy``); ``refine`` needs torch."""
 
 from __future__ import annotations
 

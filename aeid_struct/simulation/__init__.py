@@ -14,9 +14,9 @@ kernels), ``initial`` (:func:`initial_state`), ``normalise`` (Eq. 4, 14, 15), ``
 record's model by least squares), ``projection_torch`` (:func:`project_batch`: the same, batched
 and differentiable, for training).
 
-The CasADi form (``casadi_foh``) needs no torch and is imported with the package; the torch
-and numpy kernels on first use of their names, so that the compiled head of an ONNX export
-runs without torch.
+The CasADi form (``casadi_foh``) and the numpy kernels (``numpy_foh``) need no torch and are
+imported with the package; the other modules on first use of their names, so that the ONNX
+runner, its head and its estimates run without torch.
 """
 
 from __future__ import annotations
@@ -29,6 +29,11 @@ from aeid_struct.simulation.casadi_foh import augmented as augmented
 from aeid_struct.simulation.casadi_foh import casadi_simulate as casadi_simulate
 from aeid_struct.simulation.casadi_foh import expm as expm
 from aeid_struct.simulation.casadi_foh import squarings_for as squarings_for
+from aeid_struct.simulation.numpy_foh import discrete_foh as discrete_foh
+from aeid_struct.simulation.numpy_foh import free_basis as free_basis
+from aeid_struct.simulation.numpy_foh import initial_state_numpy as initial_state_numpy
+from aeid_struct.simulation.numpy_foh import simulate_numpy as simulate_numpy
+from aeid_struct.simulation.numpy_foh import simulate_outputs as simulate_outputs
 
 if TYPE_CHECKING:
     from aeid_struct.simulation.checks import check_dt as check_dt
@@ -39,15 +44,12 @@ if TYPE_CHECKING:
     from aeid_struct.simulation.initial import fit_initial_state as fit_initial_state
     from aeid_struct.simulation.initial import free_response as free_response
     from aeid_struct.simulation.initial import initial_state as initial_state
-    from aeid_struct.simulation.kernels import discrete_foh as discrete_foh
     from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
     from aeid_struct.simulation.kernels import foh_columns as foh_columns
-    from aeid_struct.simulation.kernels import free_basis as free_basis
     from aeid_struct.simulation.kernels import powers as powers
     from aeid_struct.simulation.kernels import scan as scan
     from aeid_struct.simulation.kernels import simulate_batch as simulate_batch
     from aeid_struct.simulation.kernels import simulate_loop as simulate_loop
-    from aeid_struct.simulation.kernels import simulate_outputs as simulate_outputs
     from aeid_struct.simulation.kernels import states_batch as states_batch
     from aeid_struct.simulation.kernels import states_loop as states_loop
     from aeid_struct.simulation.overflow import OverflowWarning as OverflowWarning
@@ -69,6 +71,10 @@ if TYPE_CHECKING:
 
 #: name -> the module (of this package) that defines it, imported on first use
 _LAZY = {
+    "project": "projection",
+    "forced_states": "projection",
+    "fit_initial": "projection",
+    "Projection": "projection",
     "check_dt": "checks",
     "Discrete": "foh",
     "discretise": "foh",
@@ -77,22 +83,15 @@ _LAZY = {
     "fit_initial_state": "initial",
     "free_response": "initial",
     "initial_state": "initial",
-    "discrete_foh": "kernels",
     "discretise_batch": "kernels",
     "foh_columns": "kernels",
-    "free_basis": "kernels",
     "powers": "kernels",
     "scan": "kernels",
     "simulate_batch": "kernels",
     "simulate_loop": "kernels",
-    "simulate_outputs": "kernels",
     "states_batch": "kernels",
     "states_loop": "kernels",
     "OverflowWarning": "overflow",
-    "Projection": "projection",
-    "fit_initial": "projection",
-    "forced_states": "projection",
-    "project": "projection",
     "BatchProjection": "projection_torch",
     "initial_states_batch": "projection_torch",
     "project_batch": "projection_torch",
@@ -133,6 +132,9 @@ __all__ = [
     "simulate_batch",
     "simulate_loop",
     "simulate_outputs",
+    # numpy, one system or a batch, without torch: an estimate's response and initial state
+    "initial_state_numpy",
+    "simulate_numpy",
     "states_batch",
     "states_loop",
     "stationary_value_batch",

@@ -36,10 +36,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-import scipy.linalg
 import torch
 import torch.nn.functional as F
+
+from aeid_struct.simulation.numpy_foh import discrete_foh, free_basis, simulate_outputs
 
 __all__ = [
     "chunk_length",
@@ -310,99 +310,3 @@ def simulate_loop(A, b, c, d, u, dt: float, x0=None) -> torch.Tensor:
     """
     X = states_loop(A, b, u, dt, x0)
     return (X @ c[:, :, None])[..., 0] + d[:, None] * u
-
-
-def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray, u: np.ndarray,
-                     dt: float) -> np.ndarray:
-    """Eq. 10-13 in numpy float64 for one system with several outputs, from rest, unchecked.
-
-    ``y_k = t0_k u_0 + sum_{m=1}^{k} tk_{k-m} u_m`` with ``tk = (d + C gamma2, C Bd, C Phi Bd, ..)``
-    and ``t0 = (d, C E, C Phi E, ..)``, the coefficients of :func:`simulate_batch` over the whole
-    record (``E``, ``Bd``: :func:`foh_columns`), ``C Phi^m`` by doubling and a direct (not FFT)
-    convolution, so each sample keeps its own relative accuracy. Overflow is not handled: call it
-    under ``np.errstate`` and check the result.
-
-    Parameters
-    ----------
-    A : (n, n) array
-    b : (n,) array
-    C : (r, n) array
-        One output row per response wanted.
-    d : (r,) array
-    u : (steps,) array
-        Input samples at ``t_k = k dt``, linear in between.
-    dt : float, > 0
-
-    Returns
-    -------
-    Y : (r, steps) array
-        Row ``i`` is the response of ``(A, b, C[i], d[i])``, equal to
-        :func:`~aeid_struct.simulation.simulate` to rounding.
-    """
-    n, r, steps = A.shape[0], C.shape[0], u.shape[0]
-    Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
-    E = gamma1 - gamma2
-    Bd = E + Phi @ gamma2
-    O = free_basis(Phi, C, max(steps - 1, 1))                 # O[m] = C Phi^m
-    H = (O[: steps - 1].reshape(-1, n) @ np.stack([Bd, E], axis=1)).reshape(steps - 1, r, 2)
-    tk = np.concatenate([(d + C @ gamma2)[:, None], H[..., 0].T], axis=1)    # (r, steps)
-    t0 = np.concatenate([d[:, None], H[..., 1].T], axis=1)                   # (r, steps)
-    Y = t0 * u[0]
-    later = np.concatenate([[0.0], u[1:]])      # u_1, u_2, ..: u_0 enters through t0
-    if np.any(later):
-        for i in range(r):
-            Y[i] += np.convolve(tk[i], later)[:steps]
-    return Y
-
-
-def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0):
-    """Eq. 10 in numpy: ``Phi, gamma1, gamma2`` by one matrix exponential of
-    ``[[A dt, b dt, 0], [0, 0, 1], [0, 0, 0]]`` (``scipy.linalg.expm``), for one system or a
-    batch, real or complex (the complex step of ``refinement.projected`` goes through it).
-
-    Parameters
-    ----------
-    A : (..., n, n) array
-    b : (..., n) array
-    dt : float, > 0
-
-    Returns
-    -------
-    Phi : (..., n, n) array
-    gamma1, gamma2 : (..., n) arrays
-    """
-    n = A.shape[-1]
-    M = np.zeros(A.shape[:-2] + (n + 2, n + 2), dtype=np.result_type(A, b, np.float64))
-    M[..., :n, :n] = A * dt
-    M[..., :n, n] = b * dt
-    M[..., n, n + 1] = 1.0
-    X = scipy.linalg.expm(M)
-    return X[..., :n, :n], X[..., :n, n], X[..., :n, n + 1]
-
-
-def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:
-    """Rows ``C Phi^k`` for ``k < steps`` by doubling, ``O[k:2k] = O[0:k] Phi^k`` (one matrix
-    product per level), in numpy: the free response's output basis, and the Markov parameters of
-    :func:`simulate_outputs`.
-
-    Parameters
-    ----------
-    Phi : (n, n) array
-    C : (r, n) array
-    steps : int, >= 1
-
-    Returns
-    -------
-    (steps, r, n) array
-    """
-    r, n = C.shape
-    O = np.empty((steps, r, n))
-    O[0] = C
-    P, k = Phi, 1
-    while k < steps:
-        m = min(k, steps - k)
-        O[k : k + m] = (O[:m].reshape(m * r, n) @ P).reshape(m, r, n)
-        k += m
-        if k < steps:
-            P = P @ P
-    return O

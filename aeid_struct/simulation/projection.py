@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from aeid_struct.simulation.kernels import discrete_foh, free_basis
+from aeid_struct.simulation.numpy_foh import discrete_foh, free_basis
 
 __all__ = ["Projection", "fit_initial", "forced_states", "project"]
 
