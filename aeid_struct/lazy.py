@@ -8,12 +8,14 @@ where torch is not installed. Layer: the foundation (it imports nothing of the l
 from __future__ import annotations
 
 import sys
+import warnings
 from importlib import import_module
 
 __all__ = ["attach"]
 
 
-def attach(package: str, table: dict[str, str], together: tuple[str, ...] = ()):
+def attach(package: str, table: dict[str, str], together: tuple[str, ...] = (),
+           deprecated: dict[str, tuple[str, str, str]] | None = None):
     """The module-level ``__getattr__`` and ``__dir__`` of a package whose names ``table`` maps
     to the modules that define them.
 
@@ -26,6 +28,9 @@ def attach(package: str, table: dict[str, str], together: tuple[str, ...] = ()):
     together : tuple of str
         Modules imported together whenever one of them is (a registry filled on import must
         know every entry whichever name came first).
+    deprecated : dict old name -> (module, name, message), optional
+        Names that are gone: reading one warns (DeprecationWarning) with ``message`` and
+        returns ``module.name``, its replacement (not kept, so that every read warns).
 
     Returns
     -------
@@ -34,6 +39,10 @@ def attach(package: str, table: dict[str, str], together: tuple[str, ...] = ()):
         returns it (AttributeError for a name not in ``table``); ``__dir__()``.
     """
     def __getattr__(name: str):
+        if deprecated and name in deprecated:
+            module, new, message = deprecated[name]
+            warnings.warn(message, DeprecationWarning, stacklevel=2)
+            return getattr(import_module(module), new)
         module = table.get(name)
         if module is None:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")

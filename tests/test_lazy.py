@@ -49,3 +49,14 @@ def test_the_library_packages_name_their_lazy_names():
 
     assert {"CCF", "Structure", "ccf_matrices"} <= set(dir(structures))
     assert refinement.refine_record.__module__ == "aeid_struct.refinement.record"
+
+
+def test_a_name_that_is_gone_warns_with_its_replacement():
+    import aeid_struct.refinement as refinement
+    from aeid_struct.estimates import Estimate
+
+    with pytest.warns(DeprecationWarning, match="refine_record and refine_separable return an "
+                                                "Estimate"):
+        assert refinement.RecordFit is Estimate
+    with pytest.warns(DeprecationWarning):       # every read warns, not only the first
+        assert refinement.RecordFit is Estimate

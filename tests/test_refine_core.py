@@ -72,6 +72,21 @@ def test_rows_are_independent_of_the_batch():
         assert together.accepted[b] == alone.accepted[0]
 
 
+def test_rows_are_independent_of_the_batch_in_a_box():
+    """The stacked step (several rows) and the one-row step agree where bounds are active."""
+    t, y, truth = _records(rows=4, seed=8)
+    upper = np.column_stack([np.full(4, np.inf), truth[:, 1] * 0.7, np.full(4, np.inf)])
+    lower = np.full((4, 3), -np.inf)
+    x0 = np.minimum(truth * 0.5, upper * 0.99)
+    together = core.minimise(Exponentials(y, t), x0, RULES, lower=lower, upper=upper)
+    assert np.all(together.x[:, 1] <= upper[:, 1])
+    for b in range(y.shape[0]):
+        alone = core.minimise(Exponentials(y[b:b + 1], t), x0[b:b + 1], RULES,
+                              lower=lower[b:b + 1], upper=upper[b:b + 1])
+        np.testing.assert_allclose(together.x[b], alone.x[0], rtol=1e-10)
+        assert together.accepted[b] == alone.accepted[0]
+
+
 def test_lazy_jacobian_takes_the_same_steps():
     t, y, truth = _records(rows=3, seed=2)
     x0 = truth * 1.2

@@ -162,3 +162,11 @@ def test_bad_arguments_name_themselves(args, kwargs, match):
         return
     with pytest.raises(ValueError, match=match):
         refine_separable(args[0], y, u, **kwargs)
+
+
+def test_a_sample_that_is_not_finite_is_refused_by_name():
+    den, y, u = record(2)
+    u = u.copy()
+    u[3] = np.inf
+    with pytest.raises(ValueError, match="u must be finite"):
+        refine_separable(perturbed(2), y, u, delay=2)

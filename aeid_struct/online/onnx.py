@@ -111,14 +111,14 @@ def _read_head(runner, header: dict, source: str) -> None:
     from aeid_struct.structures import Described
 
     try:
+        from aeid_struct.structures import Structure
+    except ImportError:
+        Structure = None        # torch is not installed: the head needs the description alone
+    try:
         runner.head = Head.from_dict(header["head"])
-        try:
-            from aeid_struct.structures import Structure
-
-            runner.structure = Structure.from_config(header.get("structure"))
-        except ImportError:
-            # torch is not installed: the head needs the structure's description alone
-            runner.structure = Described(header.get("structure"), header["elements"])
+        runner.structure = (Described(header.get("structure"), header["elements"])
+                            if Structure is None
+                            else Structure.from_config(header.get("structure")))
         pattern_of(runner, runner.head)
     except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{source}: 'aeid' metadata entry 'head': {err}") from None

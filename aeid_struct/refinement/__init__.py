@@ -76,4 +76,12 @@ __all__ = [
 ]
 
 
-__getattr__, __dir__ = attach(__name__, _LAZY)
+#: Names that are gone, read with a DeprecationWarning naming what replaced them.
+_DEPRECATED = {
+    "RecordFit": ("aeid_struct.estimates", "Estimate",
+                  "refinement.RecordFit is gone: refine_record and refine_separable return an "
+                  "Estimate (its info holds cost, iterations and converged; Estimate.offset is "
+                  "the former y_offset)"),
+}
+
+__getattr__, __dir__ = attach(__name__, _LAZY, deprecated=_DEPRECATED)

@@ -41,14 +41,16 @@ import scipy.fft
 from aeid_struct.refinement import core
 from aeid_struct.refinement.powers import discrete, state_rows
 
-__all__ = ["EXACT", "LAMBDA0", "LAMBDA_FACTOR", "LAMBDA_MAX", "RIDGE", "Pattern", "SeparableFit",
-           "evaluate", "iterate", "rules"]
+__all__ = ["EXACT", "LAMBDA0", "LAMBDA_FACTOR", "LAMBDA_MAX", "LAMBDA_MIN", "RIDGE", "Pattern",
+           "SeparableFit", "evaluate", "iterate", "rules"]
 
 #: Forward-difference step of the Jacobian, relative to each free element.
 _FD = 1e-7
 #: Levenberg-Marquardt damping: start (relative to diag(J^T J)), factor, cap (shared with the
 #: compiled path, refinement.compiled, as are EXACT and RIDGE).
 LAMBDA0, LAMBDA_FACTOR, LAMBDA_MAX = 1e-4, 10.0, 1e8
+#: The damping's floor (shared with the compiled path).
+LAMBDA_MIN = 1e-12
 #: An exact fit: a mean squared residual below this share of the record's mean square (a
 #: residual of 1e-12 relative: rounding, where every further step is rejected).
 EXACT = 1e-24
@@ -365,9 +367,9 @@ def rules(iterations: int, tol: float | None) -> core.Rules:
     compiled graph holds the same): ``iterations`` steps, or to ``tol`` where given."""
     if tol is None:
         return core.Rules(max_iter=int(iterations), lambda0=LAMBDA0, factor=LAMBDA_FACTOR,
-                          lambda_min=1e-12)
+                          lambda_min=LAMBDA_MIN)
     return core.Rules(max_iter=int(iterations), lambda0=LAMBDA0, factor=LAMBDA_FACTOR,
-                      lambda_min=1e-12, lambda_max=LAMBDA_MAX, cost_tol=tol, predicted_tol=tol,
+                      lambda_min=LAMBDA_MIN, lambda_max=LAMBDA_MAX, cost_tol=tol, predicted_tol=tol,
                       exact=EXACT)
 
 

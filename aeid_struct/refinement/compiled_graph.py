@@ -294,7 +294,7 @@ def _step(pattern, kernels: _Kernels, N: int) -> casadi.Function:
         casadi.logic_or(lam > batched.LAMBDA_MAX, casadi.logic_and(
             trial == trial, casadi.logic_or(cost <= exact, trial <= exact))))
     done = casadi.logic_or(casadi.logic_not(finite), casadi.logic_and(stop, flat))
-    lam = casadi.if_else(better, casadi.fmax(lam / batched.LAMBDA_FACTOR, 1e-12),
+    lam = casadi.if_else(better, casadi.fmax(lam / batched.LAMBDA_FACTOR, batched.LAMBDA_MIN),
                          lam * batched.LAMBDA_FACTOR)
     x_new = casadi.vertcat(casadi.if_else(better, alpha + step, alpha), lam, done,
                            accepted + better)

@@ -165,7 +165,7 @@ def _step(J: np.ndarray, r: np.ndarray, lam: np.ndarray, frozen=None):
 
 
 def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, energy=None,
-             progress: Callable[[int, np.ndarray], None] | None = None) -> Outcome:
+             progress: Callable[[int, float], None] | None = None) -> Outcome:
     """Levenberg-Marquardt from ``x0`` on every row of ``problem`` (module docstring).
 
     Parameters

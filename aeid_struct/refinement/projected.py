@@ -41,6 +41,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from aeid_struct.records import require_finite
 from aeid_struct.simulation import discrete_foh
 from aeid_struct.structures import ccf_matrices
 
@@ -286,9 +287,13 @@ def projected_cost(den, y, u, *, delay: int = 0, feedthrough: bool = True,
 
 
 def as_arrays(y, u, den):
-    """``y, u`` as contiguous float64 arrays and ``den`` as a flat float64 array."""
-    return (np.ascontiguousarray(y, dtype=np.float64), np.ascontiguousarray(u, dtype=np.float64),
-            np.asarray(den, dtype=np.float64).reshape(-1))
+    """``y, u`` as contiguous float64 arrays (a ValueError naming one that is not finite) and
+    ``den`` as a flat float64 array."""
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    require_finite("y", y)
+    require_finite("u", u)
+    return y, u, np.asarray(den, dtype=np.float64).reshape(-1)
 
 
 def check_arguments(den: np.ndarray, y: np.ndarray, delay) -> None:

@@ -42,11 +42,17 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
         Row ``i`` is the response of ``(A, b, C[i], d[i])``, equal to
         :func:`~aeid_struct.simulation.simulate` to rounding.
     """
-    n, r, steps = A.shape[0], C.shape[0], u.shape[0]
-    Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
+    return _outputs(discrete_foh(A, b, dt), C, d, u)[0]
+
+
+def _outputs(discrete: tuple, C: np.ndarray, d: np.ndarray, u: np.ndarray):
+    """:func:`simulate_outputs` of Eq. 10's ``(Phi, gamma1, gamma2)``: ``Y (r, steps)`` and the
+    free response's basis ``O (steps, r, n)`` (``O[m] = C Phi^m``) that it was built from."""
+    Phi, gamma1, gamma2 = discrete
+    n, r, steps = Phi.shape[0], C.shape[0], u.shape[0]
     E = gamma1 - gamma2
     Bd = E + Phi @ gamma2
-    O = free_basis(Phi, C, max(steps - 1, 1))                 # O[m] = C Phi^m
+    O = free_basis(Phi, C, steps)                              # O[m] = C Phi^m
     H = (O[: steps - 1].reshape(-1, n) @ np.stack([Bd, E], axis=1)).reshape(steps - 1, r, 2)
     tk = np.concatenate([(d + C @ gamma2)[:, None], H[..., 0].T], axis=1)    # (r, steps)
     t0 = np.concatenate([d[:, None], H[..., 1].T], axis=1)                   # (r, steps)
@@ -55,7 +61,7 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
     if np.any(later):
         for i in range(r):
             Y[i] += np.convolve(tk[i], later)[:steps]
-    return Y
+    return Y, O
 
 
 def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0):
@@ -150,12 +156,11 @@ def simulate_numpy(A, b, c, d, u, dt: float, x0=None) -> np.ndarray:
     """
     rows, batched = _rows(A, b, c, d, u, x0)
     out = []
+    # one system at a time: the fallback where torch (whose batch kernel is vectorised over
+    # systems) is absent; the convolution of each is the work, not the loop
     for A_, b_, c_, d_, u_, x_ in rows:
-        y = simulate_outputs(A_, b_, c_[None], np.array([d_]), u_, dt)[0]
-        if x_ is not None:
-            Phi = discrete_foh(A_, b_, dt)[0]
-            y = y + free_basis(Phi, c_[None], u_.shape[0])[:, 0, :] @ x_
-        out.append(y)
+        Y, O = _outputs(discrete_foh(A_, b_, dt), c_[None], np.array([d_]), u_)
+        out.append(Y[0] if x_ is None else Y[0] + O[:, 0, :] @ x_)
     return np.stack(out) if batched else out[0]
 
 
@@ -179,7 +184,6 @@ def initial_state_numpy(A, b, c, d, u, y, dt: float) -> np.ndarray:
     rows, batched = _rows(A, b, c, d, u, y)
     out = []
     for A_, b_, c_, d_, u_, y_ in rows:
-        forced = simulate_outputs(A_, b_, c_[None], np.array([d_]), u_, dt)[0]
-        O = free_basis(discrete_foh(A_, b_, dt)[0], c_[None], u_.shape[0])[:, 0, :]
-        out.append(np.linalg.lstsq(O, y_ - forced, rcond=None)[0])
+        Y, O = _outputs(discrete_foh(A_, b_, dt), c_[None], np.array([d_]), u_)
+        out.append(np.linalg.lstsq(O[:, 0, :], y_ - Y[0], rcond=None)[0])
     return np.stack(out) if batched else out[0]

@@ -68,6 +68,7 @@ def model_dtype(A: Any) -> torch.dtype:
         return torch.float32
     return torch.float64
 
+
 class Structure(ElementSet, Configurable):
     """A parameterisation ``theta (batch, p) -> elements (batch, q) -> System``.
 
