@@ -1,8 +1,8 @@
 """One ``load`` for every identifier the library writes or ships (:func:`load`).
 
 It reads the kind from the file's header (the one container, ``identification.container``) and
-hands the file to that kind's reader: a leg (structured) ``Identifier``, a
-``generic.GenericIdentifier``, or an exported ``online.OnnxIdentifier``; every older format
+hands the file to that kind's reader: a leg (structured) ``Identifier`` (from its weights, or
+from an ONNX export on its ONNX back end) or a ``generic.GenericIdentifier``; every older format
 still reads. A shipped name (``"leg-stable"``, ``"generic-2"``) loads the shipped file. Whatever
 it returns answers the identifier protocol, ``identify(record) -> Estimate``.
 """
@@ -24,7 +24,7 @@ def load(source, *, maps: dict | None = None, trust: bool = False, threads: int 
         A shipped name (``identification.PRETRAINED``, ``generic.GENERIC``), an ``.aeid``
         file (a leg or a generic identifier) or an ``.onnx`` export.
     maps : dict name -> casadi.Function, optional
-        User maps the file names, passed again (``Identifier.load``, ``OnnxIdentifier``).
+        User maps the file names, passed again (``Identifier.load``, ``Identifier.from_onnx``).
     trust : bool
         Deserialise user maps from the file itself: only for files you trust
         (``Identifier.load``).
@@ -33,8 +33,9 @@ def load(source, *, maps: dict | None = None, trust: bool = False, threads: int 
 
     Returns
     -------
-    Identifier, GenericIdentifier or OnnxIdentifier
-        Each answers ``identify(record) -> Estimate`` (``identification.Identifies``).
+    Identifier or GenericIdentifier
+        An export is an ``Identifier`` whose ``backend`` is ONNX. Each answers
+        ``identify(record) -> Estimate`` (``identification.Identifies``).
 
     Raises
     ------
@@ -65,9 +66,7 @@ def load(source, *, maps: dict | None = None, trust: bool = False, threads: int 
                          f"identifier file; got {str(path)!r}"
                          + (" (a directory)" if path.is_dir() else ""))
     if not _safetensors(path):
-        from aeid_struct.online import OnnxIdentifier
-
-        return OnnxIdentifier(path, threads, maps=maps, trust=trust)
+        return Identifier.from_onnx(path, threads, maps=maps, trust=trust)
     header, _, where = read_safetensors(path, "identifier")
     kind = kind_of(header, where)
     if kind == "generic":

@@ -147,7 +147,7 @@ def test_onnx_identifier_answers_the_protocol_without_torch(tmp_path, name):
     """The ONNX back end reads its file, identifies a record into an Estimate (its separable
     head included) and gives the physical parameters with torch not importable, number for
     number what it gives with torch, and the estimate's self-check (fit, initial state)."""
-    from aeid_struct.online import OnnxIdentifier, to_onnx
+    from aeid_struct.online import to_onnx
 
     ident = ae.load_pretrained(name)
     assert (ident.head is None) == (name == "leg-stable")
@@ -160,16 +160,17 @@ def test_onnx_identifier_answers_the_protocol_without_torch(tmp_path, name):
     np.save(tmp_path / "u.npy", u)
     out = _run_without(("torch",), (
         "import numpy as np\n"
+        "from aeid_struct.identification import Identifier\n"
         "from aeid_struct.records import Record\n"
-        "from aeid_struct.online.onnx import OnnxIdentifier\n"
-        f"runner = OnnxIdentifier({str(path)!r})\n"
+        f"runner = Identifier.from_onnx({str(path)!r})\n"
+        "assert type(runner).__name__ == 'Identifier' and runner.backend.name == 'onnx'\n"
         f"y, u = np.load({str(tmp_path / 'y.npy')!r}), np.load({str(tmp_path / 'u.npy')!r})\n"
         "est = runner.identify(Record(y, u, 0.01))\n"
         "print(type(est).__name__, ' '.join(repr(float(v)) for v in est.A.ravel()),\n"
         "      ' '.join(repr(est.physical[k]) for k in ('k', 'd', 'm')))\n"
         "print(repr(float(est.fit)), ' '.join(repr(float(v)) for v in est.x0))\n"
         "print('torch-imported', sys.modules['torch'] is not None)\n"), tmp_path)
-    est = OnnxIdentifier(path).identify(ae.Record(y, u, 0.01))
+    est = ae.Identifier.from_onnx(path).identify(ae.Record(y, u, 0.01))
     assert out[0] == "Estimate" and out[-2:] == ["torch-imported", "False"]
     # the self-check reads the numpy decoder there: the torch decoder's numbers to rounding
     assert float(out[8]) == pytest.approx(est.fit, rel=1e-9)

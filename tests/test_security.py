@@ -560,11 +560,11 @@ def test_reader_options_are_checked(tmp_path):
 def test_tracker_onnx_engine_passes_its_own_user_inverse():
     from aeid_struct.online import Tracker
 
-    # the in-memory export of an identifier with a user inverse: the tracker hands the
-    # identifier's own Function to the reader, which therefore needs neither file code nor trust
+    # the identifier's ONNX back end keeps the identifier's own Function (the export is made
+    # in memory from it), so it needs neither file code nor trust
     ident = ccf_identifier(inverse=msd_inverse(), initial="fitted")
     tracker = Tracker(ident, engine="onnx")
-    assert tracker.engine == "onnx" and tracker.runner._inverse is ident.inverse
+    assert tracker.engine == "onnx" and tracker.runner.inverse is ident.inverse
 
 
 # -- exports --------------------------------------------------------------------------------------
@@ -607,7 +607,7 @@ def test_exports_refuse_a_directory_and_the_reader_refuses_non_onnx(tmp_path):
     from aeid_struct.online import ONNX_FORMAT
 
     runner = OnnxIdentifier(to_onnx(ident, tmp_path / "ok.onnx"))
-    assert maps.reference(runner._inverse) == {"map": "symbolic.leg.stable_inverse",
+    assert maps.reference(runner.inverse) == {"map": "symbolic.leg.stable_inverse",
                                                "args": {"l0": 0.8, "g": 9.81}}
     from aeid_struct.identification import container
 

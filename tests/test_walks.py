@@ -75,14 +75,19 @@ def test_a_leg_record_with_refine_walks_each_module_once():
                           excitation_kind="prbs", seed=3, warmup=200, noise=0.01)
     record = ae.Record(rec.y[0], rec.u[0], ident.dt)
     ident.identify(record, refine=True)
-    # the identifier: check (records, a kernel), the head's converged form, then forward
+    # the identifier: check (its call, and records: a kernel), the head's converged form, then
+    # the one pass that every back end walks
     assert walk("aeid_struct.identification.identifier",
-                lambda: ident.identify(record, refine=True)) == ["identification.head",
-                                                                 "identification.forward"]
-    # forward: start (the encoder's batch-1 pass), fit (the head), result (the Estimate)
-    assert walk("aeid_struct.identification.forward",
+                lambda: ident.identify(record, refine=True)) == ["identification.checks",
+                                                                 "identification.head",
+                                                                 "identification.one_pass"]
+    # one pass: start (the back end's model), fit (the head), result (the Estimate)
+    assert walk("aeid_struct.identification.one_pass",
                 lambda: ident.identify(record, refine=True)) == [
-        "identification.fast_path", "identification.head", "estimates.estimate"]
+        "identification.forward", "identification.head", "estimates.estimate"]
+    # the torch back end of one record: the numpy pass
+    assert walk("aeid_struct.identification.forward",
+                lambda: ident.identify(record, refine=True)) == ["identification.fast_path"]
 
 
 def test_a_leg_record_without_a_head_is_polished_after_forward():
@@ -91,5 +96,6 @@ def test_a_leg_record_without_a_head_is_polished_after_forward():
                           seed=3, noise=0.01)
     record = ae.Record(rec.y[0], None, ident.dt)
     assert walk("aeid_struct.identification.identifier",
-                lambda: ident.identify(record, refine=True)) == ["identification.forward",
+                lambda: ident.identify(record, refine=True)) == ["identification.checks",
+                                                                 "identification.one_pass",
                                                                  "identification.polish"]

@@ -7,7 +7,7 @@ beside its data, with the kind's own entries after those two:
   safetensors weights with the header in the ``aeid`` metadata entry (``.aeid``);
 - ``"generic"``: a ``generic.GenericIdentifier``, the same layout (``.aeid``);
 - ``"onnx"``: an exported identifier (``online.to_onnx``), the header in the ONNX model's
-  ``aeid`` metadata entry (``.onnx``).
+  ``aeid`` metadata entry (``.onnx``), read into an ``Identifier`` on its ONNX back end.
 
 Files are data only: JSON and raw tensors (or an ONNX graph, which runs no Python), never a
 pickle or a CasADi Function read without ``trust``. Every older format still reads: its
@@ -28,7 +28,7 @@ __all__ = ["FORMAT", "KINDS", "OLD_FORMATS", "kind_of", "read_safetensors", "ref
 FORMAT = "aeid-struct/3"
 #: The kinds of identifier a container holds, and what reads each.
 KINDS = {"identifier": "ae.Identifier.load", "generic": "ae.generic.load_generic",
-         "onnx": "ae.online.OnnxIdentifier"}
+         "onnx": "ae.Identifier.from_onnx"}
 #: What each kind is, in messages.
 NAMES = {"identifier": "a structured identifier (aeid_struct.Identifier)",
          "generic": "a generic identifier (any SISO record)",

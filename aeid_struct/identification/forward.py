@@ -1,24 +1,22 @@
-"""The identification pass of checked records: Eq. 15 per record in float64, the encoder, the
-structure, the exact de-normalisation, and the :class:`Estimate` (records that cannot be
-identified set aside with NaN model rows)."""
+"""The torch back end of an identifier: Eq. 15 per record in float64, the encoder, the
+structure and the exact de-normalisation, batched in torch or, for one record, through the numpy
+pass (``fast_path``); and the differentiable pass that training uses."""
 
 from __future__ import annotations
-
-import dataclasses
-import math
-import time
 
 import numpy as np
 import torch
 
-from aeid_struct.estimates import Estimate
 from aeid_struct.identification.fast_path import fast_path
-from aeid_struct.identification.head import apply_head, head_failure
-from aeid_struct.records import RecordBatch, normalise, overflow_problem
+from aeid_struct.records import normalise
 from aeid_struct.structures import System
 
-__all__ = ["CHUNK", "differentiable", "encode", "estimate_of", "identify_record",
-           "refine_with_head"]
+__all__ = ["CHUNK", "TORCH_BACKENDS", "TorchBackend", "decode", "differentiable", "encode"]
+
+#: The back ends of an identifier built from an encoder (``Identifier.with_backend``):
+#: ``"auto"``, the numpy pass for one record and torch for a batch (the default); ``"torch"``,
+#: torch for every call; ``"numpy"``, the numpy pass record by record.
+TORCH_BACKENDS = ("auto", "torch", "numpy")
 
 #: Records through the encoder at once in a batched call.
 CHUNK = 256
@@ -54,7 +52,7 @@ def differentiable(ident, y, u, *, raw: bool = False):
     if ident.scale == "feature":
         mean, spread = (f.to(gain.device, gain.dtype) for f in ident._features)
         features = (torch.log(gain) - mean) / spread
-    sys, elements, z = ident._decode(x, features)
+    sys, elements, z = decode(ident, x, features)
     if ident.scale == "denormalise":
         gain = gain[:, 0]
         # Exact de-normalisation: the structure described u/u_bar -> y/y_bar (linearity).
@@ -65,105 +63,27 @@ def differentiable(ident, y, u, *, raw: bool = False):
     return (sys, elements, z) if raw else (sys, elements)
 
 
-def identify_record(ident, record: RecordBatch, start: float, errors: str,
-                    head=None, provenance=None) -> Estimate:
-    """The Estimate of a checked record (``Identifier.identify`` after its checks).
+def decode(ident, x: list, features):
+    """The encoder and the structure on normalised records, before any de-normalisation.
 
     Parameters
     ----------
     ident : Identifier
-    record : RecordBatch
-        From ``records.check_record``, with each system's problem.
-    start : float
-        ``time.perf_counter()`` when the identification began.
-    errors : {"raise", "collect"}
-    head : Head, optional
-        In place of ``ident.head`` (``Head.converged()`` for the refinement).
-    provenance : Provenance, optional
-        ``ident.provenance``, read by the caller (the identifier hands it over, so that this
-        module's walk never calls back into the identifier's module).
+    x : list of R (batch, channels, steps_r) tensors
+        Normalised records (Eq. 15).
+    features : (batch, F) tensor or None
+        Standardised scale features.
 
     Returns
     -------
-    Estimate
+    System, elements (batch, q), z (batch, p)
+        As the structure outputs them, with the encoder's standardised output ``z``.
     """
-    if errors == "raise":
-        record.raise_first()
-    good = record.good
-    with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
-        model, missed = _on_rows(ident, record, good, ident.head if head is None else head)
-    if missed.any():
-        out = list(record.problems)
-        used = ident.head if head is None else head
-        for r in np.flatnonzero(missed):
-            out[r] = head_failure(int(r), used)
-        record = dataclasses.replace(record, problems=tuple(out))
-        good = good & ~missed
-        if errors == "raise":
-            record.raise_first()
-    if record.records == 1:
-        record = dataclasses.replace(record, problems=_overflowed(record, good, model))
-        if errors == "raise":
-            record.raise_first()
-    return estimate_of(ident, record, model, start, None if errors == "raise"
-                       else record.problems, provenance)
-
-
-def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
-                     head, provenance=None) -> Estimate:
-    """``identify(refine=True)`` of an identifier with a head: the head iterated to
-    convergence (``Head.converged``), the least-squares optimum in its structure, batched
-    (``refinement.gauss_newton``) in place of the CasADi NLP.
-
-    Parameters
-    ----------
-    ident : Identifier
-        With ``ident.head`` set.
-    record : RecordBatch
-    start : float
-    errors : {"raise", "collect"}
-    head : Head
-        ``ident.head.converged()``, made by the caller (the identifier's own step, so that
-        this module's walk never goes back to it).
-    provenance : Provenance, optional
-        As :func:`identify_record`.
-
-    Returns
-    -------
-    Estimate
-        ``refined`` True, ``info["refine"] = "separable"``.
-    """
-    est = identify_record(ident, record, start, errors, head, provenance)
-    return dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
-
-
-def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
-    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False; one
-    single record through the batch-1 path (``fast_path``), the others batched; then the
-    ``head``, if any. Returns ``(model, missed)``: ``missed (count,)`` marks the records the
-    head found no finite model for (NaN rows)."""
-    ys, us, rows = record.y, record.u, np.flatnonzero(good)
-    missed = np.zeros(good.shape, dtype=bool)
-    if not good.all():
-        ys, us = [v[rows] for v in ys], [v[rows] for v in us]
-    parts = None
-    if rows.size:
-        fast = fast_path(ident) if len(ys) == 1 and ys[0].shape[0] == 1 else None
-        parts = fast(ys[0][0], us[0][0]) if fast is not None else encode(ident, list(ys),
-                                                                             list(us))
-        if head is not None:
-            parts, missed[rows] = apply_head(ident, head, list(ys), list(us), parts)
-    if good.all():
-        return parts, missed
-    R, count = record.records, record.count
-    n, q = ident.structure.n, len(ident.structure.element_names)
-    axis = () if R == 1 else (R,)
-    model = tuple(np.full((count, *axis, *shape), math.nan)
-                  for shape in ((n, n), (n,), (n,), ())) + (np.full((count, q), math.nan),)
-    if parts is not None:
-        for whole, part in zip(model, parts, strict=True):
-            whole[rows] = part
-    return model, missed
+    z = ident.encoder(x[0] if ident.records == 1 else x, features)
+    theta = (ident.theta_mean.to(z.device, z.dtype)
+             + ident.theta_scale.to(z.device, z.dtype) * z)
+    elements = ident.structure.elements(theta)
+    return ident.structure.assemble(elements), elements, z
 
 
 def encode(ident, ys: list, us: list) -> tuple:
@@ -223,7 +143,7 @@ def _decoded(ident, x: list, features, count: int) -> tuple:
             # which load (fast_path.warm) touches once.
             parts = []
             for i in range(0, count, CHUNK):
-                sys, el, _ = ident._decode([v[i: i + CHUNK] for v in x],
+                sys, el, _ = decode(ident, [v[i: i + CHUNK] for v in x],
                                            None if features is None else features[i: i + CHUNK])
                 parts.append((sys.A, sys.b, sys.c, sys.d, el))
             return tuple(torch.cat(t).numpy().astype(np.float64)
@@ -233,57 +153,67 @@ def _decoded(ident, x: list, features, count: int) -> tuple:
             torch.set_num_threads(threads)
 
 
-def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:
-    """The record's problems with a reason added for each good record whose identified model
-    is not finite, and its model rows set to NaN (in place).
 
-    Why: the de-normalisation multiplies ``c, d`` by ``max|y| / max|u|`` (Eq. 15 and
-    linearity); a record of 1e308 has a model whose ``c`` lies beyond float64 (inf), which
-    must not come back as an estimate."""
-    problems = record.problems
-    finite = np.ones(len(problems), dtype=bool)
-    for part in model:
-        finite &= np.isfinite(part.reshape(len(problems), -1)).all(axis=1)
-    bad = good & ~finite
-    if not bad.any():
-        return problems
-    out = list(problems)
-    y2, u2 = record.y[0], record.u[0]
-    u_bar = np.abs(u2).max(axis=1)
-    for r in np.flatnonzero(bad):
-        out[r] = overflow_problem(r, np.abs(y2[r]).max() / u_bar[r])
-        for part in model:
-            part[r] = math.nan
-    return tuple(out)
-
-
-def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors,
-                provenance=None) -> Estimate:
-    """Wrap float64 ``A (count, ...), b, c, d, elements (count, q)`` of ``record`` as the
-    Estimate (unbatched where the record is).
+class TorchBackend:
+    """The back end of an identifier built from its encoder (torch installed).
 
     Parameters
     ----------
-    ident : Identifier
-    record : RecordBatch
-    model : tuple of arrays
-    start : float
-    errors : tuple or None
-    provenance : Provenance, optional
-        Default: ``ident.provenance``.
+    name : {"auto", "torch", "numpy"}
+        :data:`TORCH_BACKENDS`.
 
-    Returns
-    -------
-    Estimate
+    Notes
+    -----
+    ``"auto"`` is the fastest route by batch size: one record costs about a hundred small
+    tensor operations, which the numpy pass (``fast_path.Batch1``) runs without torch's
+    per-operation dispatch; a batch amortises it. Where the numpy pass does not apply (several
+    records, an activation numpy lacks) ``"auto"`` runs torch and ``"numpy"`` is refused.
     """
-    A, b, c, d, el = model
-    names = ident.structure.element_names
-    if record.batched:
-        elements = {name: el[:, i] for i, name in enumerate(names)}
-    else:
-        elements = dict(zip(names, el[0].tolist(), strict=True))
-        A, b, c, d = A[0], b[0], c[0], (float(d[0]) if record.records == 1 else d[0])
-    return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=record,
-                    provenance=ident.provenance if provenance is None else provenance,
-                    seconds=time.perf_counter() - start,
-                    errors=errors)
+
+    def __init__(self, name: str = "auto") -> None:
+        if name not in TORCH_BACKENDS:
+            raise ValueError(f"backend must be one of {TORCH_BACKENDS} or 'onnx'; got {name!r}")
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"TorchBackend({self.name!r})"
+
+    def check(self, ident) -> None:
+        """Refuse ``"numpy"`` for an identifier without a numpy pass.
+
+        Parameters
+        ----------
+        ident : Identifier
+
+        Raises
+        ------
+        ValueError
+            Naming why the numpy pass does not apply.
+        """
+        if self.name == "numpy" and fast_path(ident) is None:
+            raise ValueError(f"backend 'numpy' needs a one-record identifier whose encoder "
+                             f"activation numpy evaluates (tanh, relu); this one reads "
+                             f"{ident.records} record(s) with activation "
+                             f"{ident.encoder.config.activation!r}")
+
+    def model(self, ident, ys: list, us: list) -> tuple:
+        """Float64 ``A, b, c, d, elements`` of good records, in measured units (:func:`encode`).
+
+        Parameters
+        ----------
+        ident : Identifier
+        ys, us : lists of R (count, steps_r) float64 arrays
+
+        Returns
+        -------
+        tuple of arrays
+            As :func:`encode`.
+        """
+        count = ys[0].shape[0]
+        if self.name == "torch" or len(ys) > 1 or (self.name == "auto" and count > 1):
+            return encode(ident, ys, us)
+        fast = fast_path(ident)
+        if fast is None:          # "auto" where the numpy pass does not apply
+            return encode(ident, ys, us)
+        rows = [fast(ys[0][r], us[0][r]) for r in range(count)]
+        return tuple(np.concatenate(part) for part in zip(*rows, strict=True))

@@ -1,164 +1,44 @@
 """The :class:`Identifier`: a trained encoder with its structure, record format and
 normalisation (Eq. 15); one forward pass identifies a system (scale modes and the several-record
-identifiers: docs/architecture.md)."""
+identifiers: docs/architecture.md).
+
+One class, several back ends (``Identifier.backend``): the torch encoder (batched, and the
+differentiable pass of training), its numpy pass for one record, or the ONNX graph of an export
+run by onnxruntime (:meth:`Identifier.from_onnx`). Every back end walks the same checks, head and
+result (``one_pass``); this module imports no torch, so that an identifier read from an ONNX
+export runs where torch is not installed."""
 
 from __future__ import annotations
 
-import math
+import copy
 import time
-from pathlib import Path
 
 import numpy as np
-import torch
 
-from aeid_struct.encoder import Encoder
 from aeid_struct.estimates import Estimate, Provenance
-from aeid_struct.identification import files, forward
-from aeid_struct.identification.fast_path import fast_path
+from aeid_struct.identification import one_pass
+from aeid_struct.identification.checks import ERROR_MODES as ERROR_MODES
+from aeid_struct.identification.checks import INITIAL_STATES as INITIAL_STATES
+from aeid_struct.identification.checks import SCALE_MODES as SCALE_MODES
+from aeid_struct.identification.checks import (
+    cached_provenance,
+    check_call,
+    check_parts,
+    needs_weights,
+    output_mask,
+    range_of,
+    scale_features,
+    set_format,
+    thetas,
+)
 from aeid_struct.identification.head import Head, HeadSlot
-from aeid_struct.identification.polish import polish
+from aeid_struct.identification.identifier_files import IdentifierFiles
 from aeid_struct.records import arrays_of, check_record
-from aeid_struct.structures import Physical, Structure, System
 
 __all__ = ["ERROR_MODES", "INITIAL_STATES", "SCALE_MODES", "Identifier"]
 
-#: How the model's scale is handled: de-normalised exactly, or read as a feature.
-SCALE_MODES = ("denormalise", "feature")
-#: How the decoder treats a record's initial state: from rest (the paper), or fitted by least
-#: squares (records that start mid-motion; ``simulation.initial_state``).
-INITIAL_STATES = ("rest", "fitted")
-#: What ``Identifier.identify`` does with a record it cannot identify (non-finite, all zero,
-#: ...): raise (the default), or collect a reason per record and identify the good ones.
-ERROR_MODES = ("raise", "collect")
 
-
-def _features(name: str, value, records: int) -> np.ndarray:
-    """``(records,)`` float64 from a number or one finite number per record."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = np.array([np.nan])
-    if arr.ndim > 1 or arr.size not in (1, records) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be a finite number or {records} of them (one per "
-                         f"record); got {value!r}")
-    return np.broadcast_to(arr.reshape(-1), (records,)).copy()
-
-
-def _same_dt(dt, dts: tuple[float, ...]) -> bool:
-    """Whether a user's ``dt`` (a number, or a sequence for several records) is ``dts``."""
-    given = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
-    return len(given) == len(dts) and all(
-        isinstance(g, (int, float)) and math.isclose(g, t, rel_tol=1e-9)
-        for g, t in zip(given, dts, strict=True))
-
-
-def _thetas(theta_mean, theta_scale, p: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``theta_mean, theta_scale`` as finite float32 ``(p,)`` tensors."""
-    mean = torch.as_tensor(theta_mean, dtype=torch.float32).reshape(-1)
-    scale = torch.as_tensor(theta_scale, dtype=torch.float32).reshape(-1)
-    if mean.shape != (p,) or scale.shape != (p,):
-        raise ValueError(f"theta_mean and theta_scale must have shape ({p},); got "
-                         f"{tuple(mean.shape)}, {tuple(scale.shape)}")
-    if not bool(torch.isfinite(mean).all() & torch.isfinite(scale).all()):
-        raise ValueError("theta_mean and theta_scale must be finite: every estimate would be "
-                         "NaN")
-    return mean, scale
-
-
-def _scale_features(feature_mean, feature_scale, R: int) -> tuple[np.ndarray, np.ndarray]:
-    """The scale feature's standardisation, ``(R,)`` each, the spread positive."""
-    fm, fs = (_features(name, v, R) for name, v in (("feature_mean", feature_mean),
-                                                    ("feature_scale", feature_scale)))
-    if not np.all(fs > 0):
-        # the scale feature is divided by it: 0 gives inf features and NaN estimates
-        raise ValueError(f"feature_scale must be positive (one per record); got "
-                         f"{feature_scale!r}")
-    return fm, fs
-
-
-def _check_parts(encoder, structure, dt, scale: str, initial: str) -> tuple[float, ...]:
-    """The constructor's checks of the parts against each other; the sample times."""
-    if scale not in SCALE_MODES:
-        raise ValueError(f"scale must be one of {SCALE_MODES}; got {scale!r}")
-    if initial not in INITIAL_STATES:
-        raise ValueError(f"initial must be one of {INITIAL_STATES}; got {initial!r}")
-    if not isinstance(encoder, Encoder):
-        raise ValueError(f"encoder must be an Encoder; got {type(encoder).__name__}")
-    if not isinstance(structure, Structure):
-        raise ValueError(f"structure must be a Structure (CCF, MCF, Physical, ...); got "
-                         f"{type(structure).__name__}")
-    R = encoder.config.records
-    if structure.records != R:
-        raise ValueError(f"the encoder reads {R} record(s) but {structure!r} describes "
-                         f"{structure.records}: encoder.config.steps must have one entry "
-                         "per record")
-    dts = tuple(dt) if isinstance(dt, (tuple, list)) else (dt,)
-    if len(dts) != R or not all(isinstance(t, (int, float)) and math.isfinite(t) and t > 0
-                                for t in dts):
-        raise ValueError(f"dt must be {'a positive finite number' if R == 1 else f'{R} '}"
-                         f"{'' if R == 1 else 'positive finite numbers, one per record'}; "
-                         f"got {dt!r}")
-    if R > 1 and scale != "feature":
-        raise ValueError("several records need scale='feature' (one physical parameter "
-                         f"set cannot be de-normalised per record); got {scale!r}")
-    if encoder.config.outputs != structure.p:
-        raise ValueError(f"encoder.config.outputs must equal structure.p = {structure.p}; "
-                         f"got {encoder.config.outputs}")
-    if scale == "feature" and encoder.config.features != R:
-        raise ValueError(f"scale='feature' needs an encoder with features={R} (one scale "
-                         f"per record); got features={encoder.config.features}")
-    return tuple(float(t) for t in dts)
-
-
-def _provenance_of(ident) -> Provenance:
-    """The Provenance of an identifier's estimates."""
-    inverse = (("elements", tuple(ident.structure.element_names))
-               if isinstance(ident.structure, Physical) else ident.inverse)
-    return Provenance(structure=ident.structure, inverse=inverse, initial=ident.initial,
-                      training_range=ident.training_range)
-
-
-def _range_of(rng) -> dict | None:
-    """The training range of ``meta["training_range"]`` with tuples for its triples."""
-    if not rng:
-        return None
-    return {g: ({k: tuple(v) for k, v in rng[g].items()} if isinstance(rng[g], dict)
-                else rng[g]) for g in rng}
-
-
-def _cached_provenance(ident) -> Provenance:
-    """``ident``'s Provenance, rebuilt only when one of its sources is another object."""
-    sources = (ident.structure, ident.inverse, ident.initial,
-               ident.meta.get("training_range"))
-    cached = ident._provenance
-    if cached is None or any(a is not b for a, b in zip(cached[0], sources, strict=True)):
-        cached = ident._provenance = (sources, _provenance_of(ident))
-    return cached[1]
-
-
-def _check_call(ident, dt, refine, errors: str) -> None:
-    """``Identifier.identify``'s options: ``refine``, ``errors``, and a ``dt`` that must be the
-    identifier's."""
-    if refine not in (True, False, "auto"):
-        raise ValueError(f"refine must be True, False or 'auto'; got {refine!r}")
-    if errors not in ERROR_MODES:
-        raise ValueError(f"errors must be one of {ERROR_MODES}; got {errors!r}")
-    if dt is not None and not _same_dt(dt, ident._dts):
-        raise ValueError(f"dt must be {ident.dt} s for this identifier (trained on records of "
-                         f"{ident.steps} samples at dt={ident.dt}); got dt={dt!r}")
-    if refine and ident.records > 1:
-        raise ValueError("refine=True is not available for a several-record identifier: "
-                         "the refinement fits one record; refine each subsystem's estimate "
-                         "in its own structure")
-
-
-def _output_mask(structure: Structure) -> torch.Tensor:
-    """``(1, q)``: 1 for the elements that scale with the output (``c_i``, ``d``), 0 elsewhere."""
-    return torch.tensor([[1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
-                          for k in structure.element_names]])
-
-
-class Identifier:
+class Identifier(IdentifierFiles):
     """A trained encoder with its structure, record format and normalisation.
 
     Parameters
@@ -190,56 +70,107 @@ class Identifier:
 
     head = HeadSlot()            # may be set or cleared later; checked whenever it is set
 
-    def __init__(self, encoder: Encoder, structure: Structure, *, dt,
-                 theta_mean: torch.Tensor, theta_scale: torch.Tensor,
+    #: Elements that are physical parameters (an export's ``physical_elements``), or None.
+    physical_elements: tuple | None = None
+
+    def __init__(self, encoder, structure, *, dt, theta_mean, theta_scale,
                  scale: str = "denormalise", feature_mean=0.0,
                  feature_scale=1.0, inverse=None, meta: dict | None = None,
                  initial: str = "rest", head: Head | None = None):
-        self._dts = _check_parts(encoder, structure, dt, scale, initial)
-        R = encoder.config.records
-        self.encoder, self.structure, self.scale, self.initial = encoder, structure, scale, initial
-        #: Sample time (a tuple, one per record, for several records).
-        self.dt = self._dts[0] if R == 1 else self._dts
-        self.theta_mean, self.theta_scale = _thetas(theta_mean, theta_scale, structure.p)
-        fm, fs = _scale_features(feature_mean, feature_scale, R)
+        import torch
+
+        from aeid_struct.identification.forward import TorchBackend
+
+        dts = check_parts(encoder, structure, dt, scale, initial)
+        cfg = encoder.config
+        set_format(self, structure, dts, (cfg.steps, cfg.records, cfg.inputs), scale=scale,
+                         initial=initial, inverse=inverse, meta=meta)
+        R = cfg.records
+        self.encoder = encoder
+        self.theta_mean, self.theta_scale = thetas(theta_mean, theta_scale, structure.p)
+        fm, fs = scale_features(feature_mean, feature_scale, R)
         self.feature_mean = float(fm[0]) if R == 1 else tuple(fm.tolist())
         self.feature_scale = float(fs[0]) if R == 1 else tuple(fs.tolist())
         self._features = (torch.from_numpy(fm), torch.from_numpy(fs))   # (R,) each
-        self.inverse = inverse
-        self.meta = dict(meta or {})
-        self._fast_path = None                      # (weight versions, Batch1 or None)
-        self._provenance = None                     # (its sources, Provenance)
         self._params = list(encoder.parameters())   # cached: walking the modules is slow
-        self._output_mask = _output_mask(structure)
+        self._output_mask = output_mask(structure)
+        #: What runs the encoder pass (``with_backend``): a ``TorchBackend`` here.
+        self.backend = TorchBackend("auto")
         self.head = head
+
+    def with_backend(self, name: str, *, threads: int = 1) -> Identifier:
+        """This identifier on another back end (a shallow copy; ``self`` is not changed).
+
+        Parameters
+        ----------
+        name : {"auto", "torch", "numpy", "onnx"}
+            ``"auto"`` (the default of an identifier built from its encoder): the numpy pass
+            for one record, torch for a batch; ``"torch"``: torch for every call;
+            ``"numpy"``: the numpy pass, record by record; ``"onnx"``: the identifier exported
+            to an ONNX graph (``online.onnx_bytes``, in memory) and run by onnxruntime.
+        threads : int
+            onnxruntime's intra-op threads (``"onnx"``).
+
+        Returns
+        -------
+        Identifier
+            The same model: ``"auto"`` is bit for bit ``"numpy"`` for one record and
+            ``"torch"`` for a batch; the numpy pass (float64) and torch (float32) agree to
+            float32 precision, as ``"onnx"`` (float32) does.
+
+        Raises
+        ------
+        ValueError
+            An unknown name; a back end this identifier cannot run (``"numpy"`` without its
+            numpy pass, ``"onnx"`` for an identifier that cannot be exported, or any back end
+            but ``"onnx"`` for an identifier read from an export).
+        """
+        if name == "onnx":
+            if self.backend.name == "onnx":
+                return self
+            from aeid_struct.identification.onnx_backend import export_backend
+
+            twin = copy.copy(self)
+            twin.backend = export_backend(self, threads)
+            return twin
+        if self.backend.name == "onnx":
+            raise ValueError(f"backend must be 'onnx' for an identifier read from an ONNX "
+                             f"export (it has no encoder weights); got {name!r}")
+        from aeid_struct.identification.forward import TorchBackend
+
+        backend = TorchBackend(name)
+        backend.check(self)
+        twin = copy.copy(self)
+        twin.backend = backend
+        return twin
 
     # -- the record format ---------------------------------------------------------------------
     @property
     def steps(self):
         """Samples per record (a tuple, one per record, for several records)."""
-        return self.encoder.config.steps
+        return self._format[0]
 
     @property
     def records(self) -> int:
         """Records read together (1, or ``R`` for a several-record structure)."""
-        return self.encoder.config.records
+        return self._format[1]
 
     @property
     def inputs(self) -> bool:
         """Whether the encoder reads the input record (arbitrary excitation)."""
-        return self.encoder.config.inputs
+        return self._format[2]
 
     @property
     def training_range(self) -> dict | None:
         """``{"elements": {name: (lo, hi, err)}, "physical": {...}, "fit": f, "excess": e}``
         recorded by ``train`` (``Estimate.outside``), or None."""
-        return _range_of(self.meta.get("training_range"))
+        return range_of(self.meta.get("training_range"))
 
     @property
     def provenance(self) -> Provenance:
         """What this identifier's estimates refer to (one object, shared by its estimates;
         rebuilt only when the structure, inverse, initial mode or training range changes)."""
-        return _cached_provenance(self)
+        return cached_provenance(self)
 
     def time(self):
         """Sample instants ``t_k = k*dt``.
@@ -248,16 +179,17 @@ class Identifier:
         -------
         (steps,) array, or a tuple of R of them for several records
         """
-        grids = tuple(np.arange(s) * t for s, t in zip(self.encoder.config.record_steps,
-                                                       self._dts, strict=True))
+        steps = self.steps if isinstance(self.steps, tuple) else (self.steps,)
+        grids = tuple(np.arange(s) * t for s, t in zip(steps, self._dts, strict=True))
         return grids[0] if self.records == 1 else grids
 
     def __repr__(self) -> str:
+        backend = "" if self.backend.name == "auto" else f", backend={self.backend.name!r}"
         return (f"Identifier({self.structure!r}, dt={self.dt}, steps={self.steps}, "
-                f"inputs={self.inputs}, scale={self.scale!r})")
+                f"inputs={self.inputs}, scale={self.scale!r}{backend})")
 
     # -- the differentiable path (training uses it) --------------------------------------------
-    def system(self, y, u) -> System:
+    def system(self, y, u):
         """The identified system of checked records, ``forward(y, u)[0]``.
 
         Parameters
@@ -284,19 +216,15 @@ class Identifier:
         -------
         (System, elements (batch, q)), or (System, elements, z (batch, p)) with ``raw``
         """
-        return forward.differentiable(self, y, u, raw=raw)
+        from aeid_struct.identification.forward import differentiable
 
-    def _decode(self, x: list, features):
-        """Normalised records ``x`` (one ``(batch, channels, steps_r)`` tensor per record) and
-        scale ``features`` -> ``(System, elements, z)`` as the structure outputs them (before
-        any de-normalisation), with the encoder's standardised output ``z (batch, p)``."""
-        z = self.encoder(x[0] if self.records == 1 else x, features)
-        theta = self.theta_mean.to(z.device, z.dtype) + self.theta_scale.to(z.device, z.dtype) * z
-        elements = self.structure.elements(theta)
-        return self.structure.assemble(elements), elements, z
+        needs_weights(self, "forward")
+        return differentiable(self, y, u, raw=raw)
 
     def _fast(self):
         """The batch-1 path (``fast_path.Batch1``), or None where it does not apply."""
+        from aeid_struct.identification.fast_path import fast_path
+
         return fast_path(self)
 
     # -- public identification -----------------------------------------------------------------
@@ -343,62 +271,16 @@ class Identifier:
         """
         start = time.perf_counter()
         y, u, dt = arrays_of(y, u, dt, what="Identifier.identify", records=self.records)
-        _check_call(self, dt, refine, errors)
+        check_call(self, dt, refine, errors)
+        provenance = self.provenance
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
         if refine is True and self.head is not None:
-            return forward.refine_with_head(self, record, start, errors, self.head.converged(),
-                                            self.provenance)
-        est = forward.identify_record(self, record, start, errors, provenance=self.provenance)
-        return polish(est, refine) if refine else est
+            return one_pass.refine_with_head(self, record, start, errors,
+                                             self.head.converged(), provenance)
+        est = one_pass.identify_record(self, record, start, errors, provenance=provenance)
+        if not refine:
+            return est
+        from aeid_struct.identification.polish import polish
 
-    # -- files ---------------------------------------------------------------------------------
-    def to_dict(self) -> dict:
-        """The JSON header: everything but the weights (``files.header``).
+        return polish(est, refine)
 
-        Returns
-        -------
-        dict
-        """
-        return files.header(self)
-
-    def save(self, path) -> Path:
-        """Write the identifier to ``path`` (safetensors: weights + JSON header).
-
-        Parameters
-        ----------
-        path : str or PathLike
-
-        Returns
-        -------
-        Path
-        """
-        return files.save(self, path)
-
-    @classmethod
-    def load(cls, path, *, maps: dict | None = None, trust: bool = False) -> Identifier:
-        """Read an identifier written by ``save``. Parses JSON and raw tensors only.
-
-        Parameters
-        ----------
-        path : str or PathLike
-            The ``.aeid`` file.
-        maps : dict name -> casadi.Function, optional
-            The user maps the file names (a ``Physical`` structure's map or an inverse that is
-            not a named map of ``aeid_struct.structures.maps``), passed again; each must have
-            the SHA-256 the file recorded.
-        trust : bool
-            Deserialise the user maps, and the CasADi Functions of files in the format before
-            named maps (``FORMAT_1``), from the file itself. A serialised CasADi Function can
-            run shell commands when it is read: only for files you trust.
-
-        Returns
-        -------
-        Identifier
-
-        Raises
-        ------
-        ValueError
-            Naming the file and what is wrong: not an identifier file, a corrupted header or
-            weights, or a map the file cannot name without ``maps``/``trust``.
-        """
-        return files.load(cls, path, maps=maps, trust=trust)

@@ -1,8 +1,8 @@
 """The identifier protocol: whatever identifies answers ``identify(record) -> Estimate``.
 
-The leg identifiers (:class:`~aeid_struct.identification.Identifier`, torch or its numpy
-batch-1 path), the generic identifiers (``generic.GenericIdentifier``), an exported identifier
-(``online.OnnxIdentifier``) and the classical methods behind an identifier's interface
+The leg identifiers (:class:`~aeid_struct.identification.Identifier`, one class on its back ends:
+torch, its numpy pass for one record, or an export's ONNX graph), the generic identifiers
+(``generic.GenericIdentifier``) and the classical methods behind an identifier's interface
 (``baselines.Classical``) all take a measured ``records.Record`` (or the arrays each has always
 taken, converted once at its boundary by ``records.arrays_of``) and return one
 :class:`~aeid_struct.estimates.Estimate`; code that identifies (the tracker, scorecards,

@@ -50,14 +50,16 @@ class Tracker:
         (``steps``, ``dt``, ``initial``, ``records``) whose estimates have physical parameters
         (a physical structure, or a canonical one with a CasADi inverse), trained on windows
         that start mid-motion (``initial="fitted"``) and, for arbitrary inputs, reading ``u``:
-        an ``Identifier``, or an ``OnnxIdentifier`` (then the engine is that file).
+        an ``Identifier`` on any back end (one read from an export runs its ONNX graph), or
+        any other identifier of the protocol.
     config : TrackerConfig
         How the tracker windows, smooths and alarms; ``median`` and ``smoothing`` left None
         are set by the identifier's head (:data:`DEFAULT_SMOOTHING`, at construction), and
         ``Tracker.config`` holds the values used.
     engine : str
-        ``"auto"`` (default: onnx when onnxruntime is installed), ``"onnx"`` or
-        ``"identifier"``.
+        ``"auto"`` (default: the identifier's ONNX back end when onnxruntime is installed and
+        it can be exported, else the identifier as given), ``"onnx"`` (its ONNX back end,
+        ``Identifier.with_backend("onnx")``) or ``"identifier"`` (the identifier as given).
 
     Raises
     ------
@@ -93,32 +95,30 @@ class Tracker:
     else that fails while a window is identified (the engine itself) raises a
     :class:`PushError` that says how many samples of the chunk were consumed.
 
-    *Engine.* ``"onnx"`` exports the identifier once to ONNX (``online.onnx_bytes``) and
-    identifies each window with onnxruntime on one thread, then maps the model to physical
-    parameters with the identifier's CasADi inverse; ``"identifier"`` calls
-    ``Identifier.identify`` (a full ``Estimate``). Both give the same numbers to float32
+    *Engine.* Every window walks one path, ``identify(window) -> Estimate`` and its
+    ``physical`` parameters; the engine is the back end the identifier runs the encoder on.
+    ``"onnx"`` is the identifier's ONNX back end on one thread (exported once, in memory, where
+    the identifier holds its torch weights): onnxruntime's fused kernels run one window's
+    encoder several times faster than the numpy pass (``aeid-struct bench-online``);
+    ``"identifier"`` runs the identifier's own back end. Both give the same numbers to float32
     precision.
 
     *Head.* An identifier with a separable head (``Identifier.head``: Gauss-Newton iterations
     in its structure after the encoder, ``identification.head``) has it run on every window by
-    both engines, the ONNX engine after onnxruntime (the head the identifier had when the
-    tracker exported it); the update's time includes it.
+    both engines, after the encoder pass (the head the identifier had when the tracker was
+    built); the update's time includes it.
     """
 
     def __init__(self, identifier, config: TrackerConfig = TrackerConfig(),  # noqa: B008
                  *, engine: str = "auto") -> None:
-        from aeid_struct.identification import Identifier
-        from aeid_struct.online.onnx import OnnxIdentifier
-
         if not isinstance(config, TrackerConfig):
             raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
-        if not isinstance(identifier, OnnxIdentifier):
-            for attr in ("identify", "steps", "dt", "initial", "records"):
-                if not hasattr(identifier, attr):
-                    raise ValueError(f"identifier must answer identify(record) -> Estimate "
-                                     f"with a record format (steps, dt, initial, records), as "
-                                     f"an Identifier or an OnnxIdentifier does; got "
-                                     f"{type(identifier).__name__} (no {attr!r})")
+        for attr in ("identify", "steps", "dt", "initial", "records"):
+            if not hasattr(identifier, attr):
+                raise ValueError(f"identifier must answer identify(record) -> Estimate with a "
+                                 f"record format (steps, dt, initial, records), as an "
+                                 f"Identifier does; got {type(identifier).__name__} (no "
+                                 f"{attr!r})")
         if engine not in ("auto", "onnx", "identifier"):
             raise ValueError(f"engine must be 'auto', 'onnx' or 'identifier'; got {engine!r}")
         if identifier.records != 1:
@@ -131,18 +131,15 @@ class Tracker:
         _check_names(identifier, config)
         self.identifier, self.config = identifier, config
         self.steps, self.dt = identifier.steps, identifier.dt
-        self.runner = identifier if isinstance(identifier, OnnxIdentifier) else None
-        if self.runner is None and engine != "identifier":
-            if isinstance(identifier, Identifier):
-                self.runner = _onnx_runner(identifier, required=engine == "onnx")
-            elif engine == "onnx":
-                raise ValueError("engine='onnx' needs an Identifier to export; got "
-                                 f"{type(identifier).__name__}")
-        self.engine = "identifier" if self.runner is None else "onnx"
+        runner = identifier if engine == "identifier" else _onnx_engine(
+            identifier, required=engine == "onnx")
+        #: ``"onnx"`` where the windows run an ONNX back end, else ``"identifier"``.
+        self.engine = "onnx" if _backend_name(runner) == "onnx" else "identifier"
         if config.iterations is not None:
-            self.identifier = _capped(self.identifier, config.iterations)
-            self.runner = _capped(self.runner, config.iterations)
-        self.config = _resolved(config, self.identifier if self.runner is None else self.runner)
+            runner = _capped(runner, config.iterations)
+        #: The identifier every window goes through (``identifier`` on the engine's back end).
+        self.runner = runner
+        self.config = _resolved(config, runner)
         self.reset()
 
     def reset(self) -> None:
@@ -230,14 +227,9 @@ class Tracker:
     def _physical(self) -> tuple[dict, float]:
         """The physical parameters of the current window and the wall time it took."""
         s = self._s
-        if self.runner is not None:
-            t0 = time.perf_counter()
-            out = self.runner.physical(self.runner(s.y, s.u))
-            return out, time.perf_counter() - t0
-        est = self.identifier.identify(s.y, s.u)
         t0 = time.perf_counter()
-        out = est.physical
-        return out, est.seconds + time.perf_counter() - t0
+        out = self.runner.identify(s.y, s.u).physical
+        return out, time.perf_counter() - t0
 
     def _identify(self) -> Update:
         s, cfg = self._s, self.config
@@ -291,8 +283,8 @@ class Tracker:
 
 
 def _capped(engine, iterations: int):
-    """``engine`` (an identifier, its ONNX runner, or None), or a shallow copy of it whose
-    separable head iterates at most ``iterations`` times: the caller's object is not changed."""
+    """``engine`` (an identifier), or a shallow copy of it whose separable head iterates at
+    most ``iterations`` times: the caller's object is not changed."""
     head = getattr(engine, "head", None)
     if head is None or head.iterations <= iterations:
         return engine
@@ -305,7 +297,7 @@ def _capped(engine, iterations: int):
 
 def _resolved(config: TrackerConfig, engine) -> TrackerConfig:
     """``config`` with ``median`` and ``smoothing`` set where None, by whether ``engine`` (the
-    identifier or its ONNX runner) has a separable head that iterates
+    identifier on the tracker's back end) has a separable head that iterates
     (:data:`DEFAULT_SMOOTHING`)."""
     head = getattr(engine, "head", None)
     median, smoothing = DEFAULT_SMOOTHING[
@@ -318,10 +310,8 @@ def _resolved(config: TrackerConfig, engine) -> TrackerConfig:
 def _physical_names(identifier) -> tuple[str, ...] | None:
     """The physical parameters the identifier's estimates carry (an inverse map's outputs, or a
     Physical structure's elements), or None where that cannot be told without identifying."""
-    from aeid_struct.online.onnx import OnnxIdentifier, inverse_names
+    from aeid_struct.identification import inverse_names
 
-    if isinstance(identifier, OnnxIdentifier):
-        return identifier.physical_names
     source = identifier.provenance.inverse if hasattr(identifier, "provenance") else None
     if isinstance(source, tuple):
         return tuple(source[1])
@@ -341,23 +331,27 @@ def _check_names(identifier, config: TrackerConfig) -> None:
                              f"identifier ({', '.join(names)}); got {stray}")
 
 
-def _onnx_runner(identifier, required: bool):
-    """An ``OnnxIdentifier`` of ``identifier`` (None where onnxruntime is missing and not
-    ``required``, or the identifier cannot be exported: a Physical structure)."""
-    try:
-        import onnxruntime  # noqa: F401
-    except ImportError:
-        if required:
-            raise ValueError("engine='onnx' needs onnxruntime: pip install "
-                             "\"aeid-struct[onnx]\"") from None
-        return None
-    from aeid_struct.online.export import OnnxIdentifier, onnx_bytes
+def _backend_name(identifier) -> str | None:
+    """The name of an identifier's back end (``Identifier.backend``), or None for one
+    without back ends."""
+    return getattr(getattr(identifier, "backend", None), "name", None)
 
-    inverse = identifier.inverse       # the caller's own map, passed again (aeid_struct.maps)
+
+def _onnx_engine(identifier, required: bool):
+    """``identifier`` on its ONNX back end (``Identifier.with_backend``), or ``identifier``
+    itself where it runs one already, or (unless ``required``) where onnxruntime is missing or
+    it cannot be exported (a Physical structure, an identifier without back ends)."""
+    name = _backend_name(identifier)
+    if name == "onnx":
+        return identifier
+    if name is None:
+        if required:
+            raise ValueError("engine='onnx' needs an Identifier to export; got "
+                             f"{type(identifier).__name__}")
+        return identifier
     try:
-        return OnnxIdentifier(onnx_bytes(identifier),
-                              maps=None if inverse is None else {inverse.name(): inverse})
+        return identifier.with_backend("onnx")
     except ValueError:
         if required:
             raise
-        return None
+        return identifier

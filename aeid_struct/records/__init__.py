@@ -1,7 +1,7 @@
 """Measured records: the one place where a user's ``y`` and ``u`` become validated float64 arrays.
 
-Every entry point that reads a record -- ``Identifier.identify``, ``export.OnnxIdentifier``,
-``online.Tracker`` (both engines), ``refine`` and the baselines -- checks it here, so that a bad
+Every entry point that reads a record -- ``Identifier.identify`` (every back end, ONNX
+included), ``online.Tracker``, ``refine`` and the baselines -- checks it here, so that a bad
 input gets the same answer (the same exception, the same message) whichever way it comes in.
 :func:`check_record` checks a user's records once into a frozen :class:`RecordBatch` (``y, u,
 dt`` per record, the batch flag, each system's problem); everything behind the boundary (the

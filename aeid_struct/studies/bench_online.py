@@ -5,9 +5,11 @@ measured side by side in one run.
   running leg, k 25 -> 20 N/m, d 2.5 -> 3.5 kg/s, 1 % noise) for several seeds: RMS tracking
   error of the smoothed k, d, m, alarm time against the true 5 % crossing, and the update time
   per window (one window identified, smoothed and checked) on one core, for each engine.
-- **Latency** (:func:`bench_latency`): one record through ``Identifier.identify`` (numpy encoder),
-  the TorchScript file, the ONNX file under onnxruntime, and the ONNX file plus the physical
-  parameters; one thread, the calls taking turns, median and 95th percentile.
+- **Latency** (:func:`bench_latency`): one record through ``Identifier.identify`` on its default
+  back end (the numpy pass), the TorchScript file, the identifier on its ONNX back end
+  (``with_backend("onnx")``: the graph under onnxruntime, the head and the Estimate), and the
+  same plus the physical parameters; one thread, the calls taking turns, median and 95th
+  percentile.
 - **Arbitrary excitation** (:func:`bench_excitation`): per input kind (steps of random height and
   timing, PRBS, multisines, filtered noise) and noise level, the encoder alone and the encoder +
   refinement (variable projection of the initial state for windows): median k, d, m errors,
@@ -128,14 +130,10 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
 
         paths["TorchScript file"] = script
         try:
-            from aeid_struct.online import OnnxIdentifier, onnx_bytes
-
-            inverse = ident.inverse    # the caller's own map, passed again (aeid_struct.maps)
-            runner = OnnxIdentifier(onnx_bytes(ident), maps=None if inverse is None
-                                    else {inverse.name(): inverse})
-            paths["ONNX file (onnxruntime)"] = lambda i: runner(ys[i], us[i])
-            paths["ONNX file + physical"] = lambda i: runner.physical(runner(ys[i], us[i]))
-        except ImportError:
+            onnx = ident.with_backend("onnx")
+            paths["ONNX file (onnxruntime)"] = lambda i: onnx.identify(ys[i], us[i])
+            paths["ONNX file + physical"] = lambda i: onnx.identify(ys[i], us[i]).physical
+        except ValueError:        # onnx or onnxruntime is not installed
             pass
         times = {name: [] for name in paths}
         for call in paths.values():

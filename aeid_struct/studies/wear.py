@@ -180,8 +180,9 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
 
     Parameters
     ----------
-    identifier : Identifier or OnnxIdentifier
-        An identifier of mid-motion windows of the translational leg (as ``online.Tracker``
+    identifier : Identifier
+        On any back end (one read from an ONNX export runs its graph): an identifier of
+        mid-motion windows of the translational leg (as ``online.Tracker``
         takes it); its ``dt`` is the scenario's sample time.
     seconds : float
         Length of the scenario [s], > 0; it must cover at least one window.

@@ -1,0 +1,211 @@
+"""Deployment: an identifier as one TorchScript or ONNX file that needs neither this library nor
+Python's training code to identify a record.
+
+:func:`to_torchscript` traces the whole identification of one record (the normalisation of
+Eq. 15, the encoder, the structure's constraint maps and assembly, the exact de-normalisation)
+into a frozen TorchScript module; :func:`to_onnx` writes the same computation as an ONNX graph
+with the record format and the inverse map (a reference to a named map) in its metadata, which
+``Identifier.from_onnx`` runs with onnxruntime and numpy alone (the ONNX back end). Their
+latencies are measured by ``aeid-struct bench-online``.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import torch
+
+from aeid_struct.identification.container import stamp
+
+__all__ = ["onnx_bytes", "to_onnx", "to_torchscript"]
+
+
+class _OneRecord(torch.nn.Module):
+    """``Identifier.forward`` of one record, with tensors in and out (traceable)."""
+
+    def __init__(self, ident) -> None:
+        super().__init__()
+        self.ident = ident
+        self.encoder = ident.encoder   # registered, so that freezing inlines the weights
+
+    def forward(self, y: torch.Tensor, u: torch.Tensor):
+        sys, elements = self.ident.forward(y[None], u[None])
+        return sys.A[0], sys.b[0], sys.c[0], sys.d[0], elements[0]
+
+
+def _exportable(ident) -> None:
+    from aeid_struct.identification import Identifier
+    from aeid_struct.structures import Physical
+
+    if not isinstance(ident, Identifier):
+        raise ValueError(f"ident must be an Identifier; got {type(ident).__name__}")
+    if ident.backend.name == "onnx":
+        raise ValueError("ident was read from an ONNX export (backend 'onnx'): it is an export "
+                         "already; export the identifier it came from")
+    if ident.records != 1:
+        raise ValueError(f"ident must read one record to be exported; it reads {ident.records}")
+    if isinstance(ident.structure, Physical):
+        raise ValueError("ident's structure is Physical: its CasADi map runs as a Python "
+                         "callback, which an exported graph cannot hold; export a canonical "
+                         "identifier and the map's C code (symbolic.leg.generate_c) instead")
+
+
+def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
+    """A record to trace with: any finite record of the right length takes the same path."""
+    g = torch.Generator().manual_seed(0)
+    y = torch.cumsum(torch.rand(ident.steps, generator=g), 0)
+    u = 0.5 + torch.rand(ident.steps, generator=g)
+    return y, u
+
+
+def _file_to_write(path) -> Path:
+    """``path`` as a Path to a file that can be written (``identify.writable_file``)."""
+    from aeid_struct.identification import writable_file
+
+    return writable_file(path)
+
+
+def to_torchscript(ident, path) -> Path:
+    """Save ``ident`` as a frozen TorchScript module at ``path``.
+
+    Loaded with ``torch.jit.load`` (in Python, or in C++ through libtorch), the module maps
+    ``y (steps,)`` and ``u (steps,)`` (float32; ``u = torch.ones(steps)`` for a unit step) to
+    ``A (n, n), b (n,), c (n,), d ()`` and the structure's elements ``(q,)``, the numbers of
+    ``Identifier.identify`` to float32 precision. It identifies one record per call and does
+    not compute the fitted initial state or the physical parameters (both are cheap functions
+    of the returned model), nor the identifier's separable head (``Identifier.head``: the
+    module gives the encoder pass; the ONNX file names the head and ``Identifier.from_onnx``
+    runs it).
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record whose structure is assembled by torch operations (``CCF``,
+        ``MCF``, fixed elements). A ``Physical`` structure evaluates its CasADi map through a
+        Python callback, which TorchScript cannot hold: export the CasADi map itself (its C
+        code, ``symbolic.leg.generate_c``) beside a canonical identifier instead.
+    path : str or Path
+        The file to write (conventionally ``.pt``).
+
+    Returns
+    -------
+    Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported, or a path that cannot be written.
+
+    Notes
+    -----
+    PyTorch marks ``torch.jit`` deprecated in favour of ``torch.export``; it still loads and
+    runs, and the format is the one libtorch reads.
+    """
+    _exportable(ident)
+    path = _file_to_write(path)
+    module = _OneRecord(ident).eval()
+    y, u = _example(ident)
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")       # tracer notes on Python scalars of the config
+        traced = torch.jit.trace(module, (y, u), check_trace=False)
+        frozen = torch.jit.freeze(traced)
+    torch.jit.save(frozen, str(path))
+    return path
+
+
+def onnx_bytes(ident) -> bytes:
+    """The ONNX model of ``ident``'s identification of one record (:func:`to_onnx`), as bytes.
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record with a torch-assembled structure.
+
+    Returns
+    -------
+    bytes
+        The model (opset 17), with the record format, the inverse map (a reference,
+        ``structures.to_entry``) and the identifier's separable head (``Head.to_dict``, or
+        null) in its ``aeid`` metadata.
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported.
+
+    Notes
+    -----
+    The graph is the encoder pass (Eq. 15, the encoder, the structure, the de-normalisation);
+    the head (``identification.head``: FFTs and small solves, iterated) is not in it but named
+    in the metadata, and the ONNX back end applies it after onnxruntime in numpy, so the
+    file gives ``Identifier.identify``'s estimate with the head.
+
+    The TorchScript-based ONNX exporter (``dynamo=False``), not ``torch.export``: the
+    structures validate their elements with data-dependent branches (``if bad.any(): raise``)
+    that ``torch.export`` refuses to trace; tracing records the branch taken for valid elements,
+    which is the deployed behaviour.
+    """
+    import io
+
+    import onnx
+
+    from aeid_struct.structures import CCF, to_entry
+
+    _exportable(ident)
+    module = _OneRecord(ident).eval()
+    buffer = io.BytesIO()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")       # tracer notes, and the TorchScript deprecation
+        torch.onnx.export(module, _example(ident), buffer, input_names=["y", "u"],
+                          output_names=["A", "b", "c", "d", "elements"], opset_version=17,
+                          dynamo=False)
+    model = onnx.load_from_string(buffer.getvalue())
+    inverse = ident.provenance.inverse
+    header = stamp("onnx", {
+        "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
+        "initial": ident.initial, "elements": list(ident.structure.element_names),
+        "inverse": None if inverse is None or isinstance(inverse, tuple)
+        else to_entry(inverse),
+        "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
+        "structure": ident.structure.config(),
+        "ccf": isinstance(ident.structure, CCF),
+        "scale": ident.scale,
+        "head": None if ident.head is None else ident.head.to_dict(),
+    })
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "aeid", json.dumps(header)
+    return model.SerializeToString()
+
+
+def to_onnx(ident, path) -> Path:
+    """Save ``ident`` as an ONNX model at ``path``.
+
+    The graph's inputs are ``y, u``: float32 ``(steps,)``; its outputs ``A (n, n), b (n,),
+    c (n,), d ()`` and ``elements (q,)``. The inverse map is stored as a reference to a named
+    map (``structures.to_entry``), never as a serialised Function, which could run code when
+    read. ``Identifier.from_onnx`` (or ``aeid_struct.load``) reads it; both need the optional
+    ``onnx`` extra (``pip install "aeid-struct[onnx]"``).
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record with a torch-assembled structure.
+    path : str or Path
+        The file to write (conventionally ``.onnx``).
+
+    Returns
+    -------
+    Path
+        The path written.
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported, or a path that cannot be written.
+    """
+    path = _file_to_write(path)
+    path.write_bytes(onnx_bytes(ident))
+    return path

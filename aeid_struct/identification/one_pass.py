@@ -1,0 +1,174 @@
+"""The walk of checked records through an identifier, whatever its back end: the back end's
+model of the good records (torch, numpy or ONNX: ``Identifier.backend``), the separable head, the
+overflow check and the :class:`Estimate` (records that cannot be identified set aside with NaN
+model rows). No torch here: an identifier read from an ONNX export walks it without torch."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from aeid_struct.estimates import Estimate
+from aeid_struct.identification.head import apply_head, head_failure
+from aeid_struct.records import RecordBatch, overflow_problem
+
+__all__ = ["estimate_of", "identify_record", "refine_with_head"]
+
+def identify_record(ident, record: RecordBatch, start: float, errors: str,
+                    head=None, provenance=None) -> Estimate:
+    """The Estimate of a checked record (``Identifier.identify`` after its checks).
+
+    Parameters
+    ----------
+    ident : Identifier
+    record : RecordBatch
+        From ``records.check_record``, with each system's problem.
+    start : float
+        ``time.perf_counter()`` when the identification began.
+    errors : {"raise", "collect"}
+    head : Head, optional
+        In place of ``ident.head`` (``Head.converged()`` for the refinement).
+    provenance : Provenance, optional
+        ``ident.provenance``, read by the caller (the identifier hands it over, so that this
+        module's walk never calls back into the identifier's module).
+
+    Returns
+    -------
+    Estimate
+    """
+    if errors == "raise":
+        record.raise_first()
+    good = record.good
+    with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
+        model, missed = _on_rows(ident, record, good, ident.head if head is None else head)
+    if missed.any():
+        out = list(record.problems)
+        used = ident.head if head is None else head
+        for r in np.flatnonzero(missed):
+            out[r] = head_failure(int(r), used)
+        record = dataclasses.replace(record, problems=tuple(out))
+        good = good & ~missed
+        if errors == "raise":
+            record.raise_first()
+    if record.records == 1:
+        record = dataclasses.replace(record, problems=_overflowed(record, good, model))
+        if errors == "raise":
+            record.raise_first()
+    return estimate_of(ident, record, model, start, None if errors == "raise"
+                       else record.problems, provenance)
+
+
+def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
+                     head, provenance=None) -> Estimate:
+    """``identify(refine=True)`` of an identifier with a head: the head iterated to
+    convergence (``Head.converged``), the least-squares optimum in its structure, batched
+    (``refinement.gauss_newton``) in place of the CasADi NLP.
+
+    Parameters
+    ----------
+    ident : Identifier
+        With ``ident.head`` set.
+    record : RecordBatch
+    start : float
+    errors : {"raise", "collect"}
+    head : Head
+        ``ident.head.converged()``, made by the caller (the identifier's own step, so that
+        this module's walk never goes back to it).
+    provenance : Provenance, optional
+        As :func:`identify_record`.
+
+    Returns
+    -------
+    Estimate
+        ``refined`` True, ``info["refine"] = "separable"``.
+    """
+    est = identify_record(ident, record, start, errors, head, provenance)
+    return dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
+
+
+def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
+    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False: the
+    good records through the identifier's back end (``ident.backend``), then the ``head``, if
+    any. Returns ``(model, missed)``: ``missed (count,)`` marks the records the head found no
+    finite model for (NaN rows)."""
+    ys, us, rows = record.y, record.u, np.flatnonzero(good)
+    missed = np.zeros(good.shape, dtype=bool)
+    if not good.all():
+        ys, us = [v[rows] for v in ys], [v[rows] for v in us]
+    parts = None
+    if rows.size:
+        parts = ident.backend.model(ident, list(ys), list(us))
+        if head is not None:
+            parts, missed[rows] = apply_head(ident, head, list(ys), list(us), parts)
+    if good.all():
+        return parts, missed
+    R, count = record.records, record.count
+    n, q = ident.structure.n, len(ident.structure.element_names)
+    axis = () if R == 1 else (R,)
+    model = tuple(np.full((count, *axis, *shape), math.nan)
+                  for shape in ((n, n), (n,), (n,), ())) + (np.full((count, q), math.nan),)
+    if parts is not None:
+        for whole, part in zip(model, parts, strict=True):
+            whole[rows] = part
+    return model, missed
+
+
+def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:
+    """The record's problems with a reason added for each good record whose identified model
+    is not finite, and its model rows set to NaN (in place).
+
+    Why: the de-normalisation multiplies ``c, d`` by ``max|y| / max|u|`` (Eq. 15 and
+    linearity); a record of 1e308 has a model whose ``c`` lies beyond float64 (inf), which
+    must not come back as an estimate."""
+    problems = record.problems
+    if good.all() and all(math.isfinite(part.sum()) for part in model):
+        return problems       # the common case, in a few microseconds (a window of a stream)
+    finite = np.ones(len(problems), dtype=bool)
+    for part in model:
+        finite &= np.isfinite(part.reshape(len(problems), -1)).all(axis=1)
+    bad = good & ~finite
+    if not bad.any():
+        return problems
+    out = list(problems)
+    y2, u2 = record.y[0], record.u[0]
+    u_bar = np.abs(u2).max(axis=1)
+    for r in np.flatnonzero(bad):
+        out[r] = overflow_problem(r, np.abs(y2[r]).max() / u_bar[r])
+        for part in model:
+            part[r] = math.nan
+    return tuple(out)
+
+
+def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors,
+                provenance=None) -> Estimate:
+    """Wrap float64 ``A (count, ...), b, c, d, elements (count, q)`` of ``record`` as the
+    Estimate (unbatched where the record is).
+
+    Parameters
+    ----------
+    ident : Identifier
+    record : RecordBatch
+    model : tuple of arrays
+    start : float
+    errors : tuple or None
+    provenance : Provenance, optional
+        Default: ``ident.provenance``.
+
+    Returns
+    -------
+    Estimate
+    """
+    A, b, c, d, el = model
+    names = ident.structure.element_names
+    if record.batched:
+        elements = {name: el[:, i] for i, name in enumerate(names)}
+    else:
+        elements = dict(zip(names, el[0].tolist(), strict=True))
+        A, b, c, d = A[0], b[0], c[0], (float(d[0]) if record.records == 1 else d[0])
+    return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=record,
+                    provenance=ident.provenance if provenance is None else provenance,
+                    seconds=time.perf_counter() - start,
+                    errors=errors)
