@@ -169,7 +169,12 @@ def test_onnx_identifier_answers_the_protocol_without_torch(tmp_path, name):
         "print(type(est).__name__, ' '.join(repr(float(v)) for v in est.A.ravel()),\n"
         "      ' '.join(repr(est.physical[k]) for k in ('k', 'd', 'm')))\n"
         "print(repr(float(est.fit)), ' '.join(repr(float(v)) for v in est.x0))\n"
+        "try:\n"
+        "    runner.identify(Record(y, u, 0.01), refine='auto')\n"
+        "except ValueError as err:\n"
+        "    print('refused', str(err).startswith(\"refine='auto' needs torch installed\"))\n"
         "print('torch-imported', sys.modules['torch'] is not None)\n"), tmp_path)
+    assert out[-4:-2] == ["refused", "True"]
     est = ae.Identifier.from_onnx(path).identify(ae.Record(y, u, 0.01))
     assert out[0] == "Estimate" and out[-2:] == ["torch-imported", "False"]
     # the self-check reads the numpy decoder there: the torch decoder's numbers to rounding

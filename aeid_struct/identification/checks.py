@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from aeid_struct.estimates import Provenance
-from aeid_struct.structures import type_of
+from aeid_struct.structures import Described, type_of
 
 __all__ = ["ERROR_MODES", "INITIAL_STATES", "SCALE_MODES", "cached_provenance", "check_call",
            "check_parts", "needs_weights", "output_mask", "range_of", "scale_features",
@@ -149,6 +149,14 @@ def check_call(ident, dt, refine, errors: str) -> None:
         what = "export" if ident.backend.name == "onnx" else "identifier"
         raise ValueError(f"dt must be {ident.dt} s for this {what} (trained on records of "
                          f"{ident.steps} samples at dt={ident.dt}); got dt={dt!r}")
+    if refine and not (refine is True and ident.head is not None) and isinstance(
+            ident.structure, Described):
+        # the CasADi NLP assembles the structure itself (torch); the head needs only its
+        # description
+        raise ValueError(f"refine={refine!r} needs torch installed: the CasADi refinement "
+                         "assembles the structure, which this identifier (an ONNX export "
+                         "read without torch) knows by its description only; install torch, "
+                         "or export an identifier with a head (refine=True then iterates it)")
     if refine and ident.records > 1:
         raise ValueError("refine=True is not available for a several-record identifier: "
                          "the refinement fits one record; refine each subsystem's estimate "
