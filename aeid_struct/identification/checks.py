@@ -12,8 +12,8 @@ from aeid_struct.estimates import Provenance
 from aeid_struct.structures import Described, type_of
 
 __all__ = ["ERROR_MODES", "INITIAL_STATES", "SCALE_MODES", "cached_provenance", "check_call",
-           "check_parts", "needs_weights", "output_mask", "range_of", "scale_features",
-           "set_format", "thetas"]
+           "check_parts", "needs_weights", "output_elements", "output_mask", "range_of",
+           "scale_features", "set_format", "thetas"]
 
 #: How the model's scale is handled: de-normalised exactly, or read as a feature.
 SCALE_MODES = ("denormalise", "feature")
@@ -163,13 +163,17 @@ def check_call(ident, dt, refine, errors: str) -> None:
                          "in its own structure")
 
 
+def output_elements(names) -> np.ndarray:
+    """``(q,)`` bool: the elements that scale with the output (``c_i``, ``d``), which the exact
+    de-normalisation multiplies by ``max|y| / max|u|`` (Eq. 15 and linearity)."""
+    return np.array([k == "d" or (k[0] == "c" and k[1:].isdigit()) for k in names], dtype=bool)
+
+
 def output_mask(structure):
-    """``(1, q)`` tensor: 1 for the elements that scale with the output (``c_i``, ``d``), 0
-    elsewhere."""
+    """``(1, q)`` float tensor of :func:`output_elements` (the torch back end's mask)."""
     import torch
 
-    return torch.tensor([[1.0 if (k == "d" or (k[0] == "c" and k[1:].isdigit())) else 0.0
-                          for k in structure.element_names]])
+    return torch.from_numpy(output_elements(structure.element_names)[None].astype(np.float32))
 
 
 def set_format(ident, structure, dts: tuple, record_format: tuple, *, scale, initial,
@@ -180,7 +184,6 @@ def set_format(ident, structure, dts: tuple, record_format: tuple, *, scale, ini
     ident.structure, ident.scale, ident.initial = structure, scale, initial
     ident._dts = dts
     ident._format = record_format
-    #: Sample time (a tuple, one per record, for several records).
     ident.dt = dts[0] if len(dts) == 1 else dts
     ident.inverse = inverse
     ident.meta = dict(meta or {})

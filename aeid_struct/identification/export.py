@@ -36,12 +36,14 @@ class _OneRecord(torch.nn.Module):
 
 
 def _exportable(ident) -> None:
-    from aeid_struct.identification import Identifier
     from aeid_struct.structures import Physical
 
-    if not isinstance(ident, Identifier):
+    # the back end's name, not isinstance(Identifier): the identifier module imports this one
+    # (with_backend("onnx")), and an import back would make the two a cycle
+    backend = getattr(getattr(ident, "backend", None), "name", None)
+    if backend is None or not hasattr(ident, "structure"):
         raise ValueError(f"ident must be an Identifier; got {type(ident).__name__}")
-    if ident.backend.name == "onnx":
+    if backend == "onnx":
         raise ValueError("ident was read from an ONNX export (backend 'onnx'): it is an export "
                          "already; export the identifier it came from")
     if ident.records != 1:

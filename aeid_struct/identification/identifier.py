@@ -84,7 +84,7 @@ class Identifier(IdentifierFiles):
         dts = check_parts(encoder, structure, dt, scale, initial)
         cfg = encoder.config
         set_format(self, structure, dts, (cfg.steps, cfg.records, cfg.inputs), scale=scale,
-                         initial=initial, inverse=inverse, meta=meta)
+                   initial=initial, inverse=inverse, meta=meta)
         R = cfg.records
         self.encoder = encoder
         self.theta_mean, self.theta_scale = thetas(theta_mean, theta_scale, structure.p)
@@ -109,7 +109,7 @@ class Identifier(IdentifierFiles):
             ``"numpy"``: the numpy pass, record by record; ``"onnx"``: the identifier exported
             to an ONNX graph (``online.onnx_bytes``, in memory) and run by onnxruntime.
         threads : int
-            onnxruntime's intra-op threads (``"onnx"``).
+            onnxruntime's intra-op threads (``"onnx"``; an export read keeps its own).
 
         Returns
         -------
@@ -128,10 +128,12 @@ class Identifier(IdentifierFiles):
         if name == "onnx":
             if self.backend.name == "onnx":
                 return self
-            from aeid_struct.identification.onnx_backend import export_backend
+            from aeid_struct.identification.export import onnx_bytes
+            from aeid_struct.identification.onnx_backend import check_onnx_runtime, export_backend
 
+            check_onnx_runtime(threads)
             twin = copy.copy(self)
-            twin.backend = export_backend(self, threads)
+            twin.backend = export_backend(onnx_bytes(self), self, threads)
             return twin
         if self.backend.name == "onnx":
             raise ValueError(f"backend must be 'onnx' for an identifier read from an ONNX "

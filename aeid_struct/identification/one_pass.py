@@ -17,6 +17,7 @@ from aeid_struct.records import RecordBatch, overflow_problem
 
 __all__ = ["estimate_of", "identify_record", "refine_with_head"]
 
+
 def identify_record(ident, record: RecordBatch, start: float, errors: str,
                     head=None, provenance=None) -> Estimate:
     """The Estimate of a checked record (``Identifier.identify`` after its checks).

@@ -20,7 +20,7 @@ from aeid_struct.identification.container import FORMAT, kind_of, refuse_other
 from aeid_struct.records import denormalise, normalise
 
 __all__ = ["ONNX_FORMAT", "ONNX_FORMAT_1", "ONNX_FORMAT_2", "ONNX_FORMAT_3", "OnnxBackend",
-           "export_backend", "inverse_names", "read_onnx"]
+           "check_onnx_runtime", "export_backend", "inverse_names", "read_onnx"]
 
 #: The metadata format written: the one container of every identifier file (kind ``"onnx"``),
 #: with the entries of ``ONNX_FORMAT_3``.
@@ -151,25 +151,41 @@ def _check_threads(threads) -> None:
         raise ValueError(f"threads must be a positive integer; got {threads!r}")
 
 
-def export_backend(ident, threads: int = 1) -> OnnxBackend:
-    """The ONNX back end of an identifier built from its encoder: the identifier exported in
-    memory (``export.onnx_bytes``) and run by onnxruntime (``Identifier.with_backend``).
+def export_backend(raw: bytes, ident, threads: int = 1) -> OnnxBackend:
+    """The ONNX back end of an identifier built from its encoder, from its export in memory
+    (``export.onnx_bytes``, made by the caller: ``Identifier.with_backend``).
 
     Parameters
     ----------
+    raw : bytes
+        The identifier's ONNX model.
     ident : Identifier
-        With the torch back end, one record, a torch-assembled structure.
+        The identifier exported (its scale mode and elements).
     threads : int
         onnxruntime's intra-op threads.
 
     Returns
     -------
     OnnxBackend
+    """
+    from aeid_struct.identification.checks import output_elements
+
+    return OnnxBackend(_session(raw, "the export", threads), ident.scale,
+                       output_elements(ident.structure.element_names))
+
+
+def check_onnx_runtime(threads) -> None:
+    """Refuse ``threads`` that is not a positive integer, or a missing onnx / onnxruntime,
+    before anything is exported (``Identifier.with_backend("onnx")``).
+
+    Parameters
+    ----------
+    threads : int
 
     Raises
     ------
     ValueError
-        An identifier that cannot be exported, or onnxruntime missing.
+        Naming ``threads``, or the extra to install.
     """
     _check_threads(threads)
     try:
@@ -178,10 +194,6 @@ def export_backend(ident, threads: int = 1) -> OnnxBackend:
     except ImportError:
         raise ValueError("backend 'onnx' needs onnx and onnxruntime: pip install "
                          "\"aeid-struct[onnx]\"") from None
-    from aeid_struct.identification.export import onnx_bytes
-
-    return OnnxBackend(_session(onnx_bytes(ident), "the export", threads), ident.scale,
-                       ident._output_mask.numpy()[0] > 0)
 
 
 def _model_bytes(model) -> tuple[bytes, str]:
@@ -292,7 +304,7 @@ def read_onnx(ident, model, threads: int = 1, *, maps: dict | None = None,
     ValueError
         Naming the source and what is wrong.
     """
-    from aeid_struct.identification.checks import set_format
+    from aeid_struct.identification.checks import output_elements, set_format
     from aeid_struct.identification.head import Head
     from aeid_struct.structures import check_maps, from_entry
 
@@ -325,8 +337,7 @@ def read_onnx(ident, model, threads: int = 1, *, maps: dict | None = None,
     names = tuple(header["elements"])
     ident.physical_elements = (tuple(header["physical_elements"])
                                if header.get("physical_elements") else None)
-    mask = np.array([k == "d" or (k[0] == "c" and k[1:].isdigit()) for k in names])
-    ident.backend = OnnxBackend(session, header.get("scale"), mask)
+    ident.backend = OnnxBackend(session, header.get("scale"), output_elements(names))
     try:
         ident.head = (None if header.get("head") is None
                       else Head.from_dict(header["head"]))
