@@ -10,7 +10,7 @@ import pytest
 import aeid_struct as ae
 from aeid_struct.identification import Identifier
 from aeid_struct.identification.head import Head, pattern_of
-from aeid_struct.refinement import gauss_newton
+from aeid_struct.refinement.levenberg import gauss_newton
 from aeid_struct.training import LegFamily, records
 
 RANGES = {"k": (19, 27), "d": (1.5, 5.5), "m": (0.5, 1.5)}

@@ -221,8 +221,9 @@ def test_a_loaded_identifier_has_built_and_run_its_batch1_path(tmp_path, monkeyp
 
 
 def test_chunked_batches_equal_one_pass(monkeypatch):
-    # the encoder's and the head's chunks (forward.CHUNK, head.CHUNK) bound memory only
+    # the encoder's and the head's chunks (forward.CHUNK, levenberg.CHUNK) bound memory only
     from aeid_struct.identification import forward, head
+    from aeid_struct.refinement import levenberg
 
     ident = ae.load_pretrained("leg-stable-window")
     ident.head = head.Head(iterations=2, fixed={"c1": 0.0})
@@ -230,7 +231,7 @@ def test_chunked_batches_equal_one_pass(monkeypatch):
                           excitation_kind="prbs", seed=2, warmup=200, noise=0.01)
     whole = ident.identify(rec.y, rec.u)
     monkeypatch.setattr(forward, "CHUNK", 3)
-    monkeypatch.setattr(head, "CHUNK", 2)
+    monkeypatch.setattr(levenberg, "CHUNK", 2)
     parts = ident.identify(rec.y, rec.u)
     np.testing.assert_allclose(parts.A, whole.A, rtol=1e-8)
     np.testing.assert_allclose(parts.c, whole.c, rtol=1e-8)

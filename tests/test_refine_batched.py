@@ -8,8 +8,9 @@ import scipy.linalg
 import scipy.optimize
 
 import aeid_struct as ae
-from aeid_struct.refinement import Pattern, gauss_newton
+from aeid_struct.refinement import Pattern
 from aeid_struct.refinement.batched import _spectrum, evaluate
+from aeid_struct.refinement.levenberg import gauss_newton
 from aeid_struct.refinement.powers import expm_batch
 from aeid_struct.training import LegFamily, records
 
@@ -212,3 +213,21 @@ def test_jacobian_gives_the_finite_difference_gradient_of_the_cost(count):
         fd = (evaluate(WINDOW, up, rec.y, rec.u, 0.01, U)["cost"]
               - evaluate(WINDOW, down, rec.y, rec.u, 0.01, U)["cost"]) / (2 * h)
         assert np.allclose(gradient[:, j], fd, rtol=1e-4, atol=1e-12)
+
+
+def test_the_fit_record_stays_in_refinement():
+    # the head reads arrays (fit_rows); the fit's own record is no public result type
+    import aeid_struct.refinement as refinement
+
+    assert "SeparableFit" not in refinement.__all__ and "gauss_newton" not in refinement.__all__
+    with pytest.warns(DeprecationWarning, match="fit_rows"):
+        old = refinement.gauss_newton
+    assert old is gauss_newton
+    a, _, u, y, _ = _legs(5, 4)
+    start = a * 1.05
+    fa, fc, fd, ok = refinement.fit_rows(STABLE, start, y, u, 0.01, iterations=3)
+    fit = gauss_newton(STABLE, start, y, u, 0.01, iterations=3)
+    assert ok.all()
+    np.testing.assert_array_equal(fa, fit.a)
+    np.testing.assert_array_equal(fc, fit.c)
+    np.testing.assert_array_equal(fd, fit.d)

@@ -12,7 +12,8 @@ import pytest
 import scipy.optimize
 
 from aeid_struct import simulate
-from aeid_struct.refinement import Pattern, compiled, gauss_newton
+from aeid_struct.refinement import Pattern, compiled
+from aeid_struct.refinement.levenberg import gauss_newton
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None,
                                 reason="no C compiler: the numpy path serves alone")

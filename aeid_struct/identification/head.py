@@ -4,7 +4,7 @@ iterations in the identifier's structure (docs/architecture.md, "One pass at the
 The encoder (paper Sec. III-A) gives the whole model; the head keeps only its poles as the start,
 projects out everything that enters the output linearly (``c``, the initial state of a
 mid-motion record: exact least squares) and moves the free denominator elements by
-``iterations`` Levenberg-Marquardt steps on the projected cost (``refinement.gauss_newton``).
+``iterations`` Levenberg-Marquardt steps on the projected cost (``refinement.fit_rows``).
 With ``iterations = 0`` it is the projection alone. Elements that ``fixed`` names are held at
 their values on top of the structure's own fixed elements: the robot leg's physics, ``c1 = 0``
 (translational) or ``a1 = c1 = 0`` (rotational), for an encoder trained in the free CCF.
@@ -18,15 +18,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeid_struct.records import RecordError
-from aeid_struct.refinement import MAX_ITERATIONS, Pattern, gauss_newton
+from aeid_struct.refinement import MAX_ITERATIONS, Pattern, fit_rows
 from aeid_struct.structures import type_of
 
 __all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "head_failure", "pattern_of"]
-
-#: The most records in one ``gauss_newton`` call: its arrays stay in cache, and a batch of any
-#: size reuses the memory of one chunk (which an identifier's load touches once).
-CHUNK = 256
-
 
 @dataclass(frozen=True)
 class Head:
@@ -259,21 +254,19 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
     failed = np.zeros(A.shape[0], dtype=bool)
     if rows.size == 0:
         return (A, b, c, d, el), failed
-    for part in np.array_split(rows, -(-rows.size // CHUNK)):
-        fit = gauss_newton(pattern, a[part][:, pattern.free_a], y[part], u[part], ident.dt,
-                           iterations=head.iterations, tol=head.tol)
-        ok = np.isfinite(fit.cost)
-        # a record the head cannot fit (a fixed value no finite model takes) gets no model:
-        # the encoder's, returned in its place, would pass for the head's (NaN rows are
-        # reported by the caller)
-        bad = part[~ok]
-        failed[bad] = True
-        A[bad], c[bad], d[bad], el[bad] = math.nan, math.nan, math.nan, math.nan
-        done, n = part[ok], pattern.n
-        A[done, -1, :] = -fit.a[ok]
-        c[done], d[done] = fit.c[ok], fit.d[ok]
-        values = {**{f"a{j}": fit.a[ok, j] for j in range(n)},
-                  **{f"c{j}": fit.c[ok, j] for j in range(n)}, "d": fit.d[ok]}
-        for i, name in enumerate(ident.structure.element_names):
-            el[done, i] = values[name]
+    fa, fc, fd, ok = fit_rows(pattern, a[rows][:, pattern.free_a], y[rows], u[rows], ident.dt,
+                              iterations=head.iterations, tol=head.tol)
+    # a record the head cannot fit (a fixed value no finite model takes) gets no model: the
+    # encoder's, returned in its place, would pass for the head's (NaN rows are reported by
+    # the caller)
+    bad = rows[~ok]
+    failed[bad] = True
+    A[bad], c[bad], d[bad], el[bad] = math.nan, math.nan, math.nan, math.nan
+    done, n = rows[ok], pattern.n
+    A[done, -1, :] = -fa[ok]
+    c[done], d[done] = fc[ok], fd[ok]
+    values = {**{f"a{j}": fa[ok, j] for j in range(n)},
+              **{f"c{j}": fc[ok, j] for j in range(n)}, "d": fd[ok]}
+    for i, name in enumerate(ident.structure.element_names):
+        el[done, i] = values[name]
     return (A, b, c, d, el), failed

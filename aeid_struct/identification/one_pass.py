@@ -55,9 +55,11 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
         if errors == "raise":
             record.raise_first()
     if record.records == 1:
-        record = dataclasses.replace(record, problems=_overflowed(record, good, model))
-        if errors == "raise":
-            record.raise_first()
+        problems = _overflowed(record, good, model)
+        if problems is not record.problems:
+            record = dataclasses.replace(record, problems=problems)
+            if errors == "raise":
+                record.raise_first()
     return estimate_of(ident, record, model, start, None if errors == "raise"
                        else record.problems, provenance)
 
@@ -66,7 +68,7 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
                      head, provenance=None) -> Estimate:
     """``identify(refine=True)`` of an identifier with a head: the head iterated to
     convergence (``Head.converged``), the least-squares optimum in its structure, batched
-    (``refinement.gauss_newton``) in place of the CasADi NLP.
+    (``refinement.fit_rows``) in place of the CasADi NLP.
 
     Parameters
     ----------

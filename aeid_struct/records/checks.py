@@ -244,20 +244,22 @@ def record_problems(y2: np.ndarray, u2: np.ndarray | None, *, reads_u: bool,
     """
     yname, uname = names
     count = y2.shape[0]
-    finite_y = np.isfinite(y2).all(axis=1)
-    zero_y = ~np.any(y2 != 0, axis=1)
-    bad = ~finite_y | zero_y
-    if u2 is not None:
-        finite_u = np.isfinite(u2).all(axis=1)
-        zero_u = ~np.any(u2 != 0, axis=1)
-        varying = np.zeros(count, bool) if reads_u else np.any(u2 != u2[:, :1], axis=1)
-        bad = bad | ~finite_u | zero_u | varying
-    # The de-normalisation multiplies c, d by max|y| / max|u| (Eq. 15 and linearity): it must
-    # be a positive float64 number (1e300 / 1e-300 is not).
+    # One reduction per signal screens every rule (a record's check runs on each tracker
+    # window): max|v| is NaN or inf exactly when v is not finite, and 0 when v is all zero.
+    # The ratio rule reads the finite samples' maxima; only a non-finite record recomputes
+    # them, and _problem says which rule a bad record breaks.
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        y_bar = np.abs(np.where(np.isfinite(y2), y2, 0.0)).max(axis=1)
-        u_bar = (unit_step(count) if u2 is None
-                 else np.abs(np.where(np.isfinite(u2), u2, 0.0)).max(axis=1))
+        y_bar = np.abs(y2).max(axis=1)
+        u_bar = unit_step(count) if u2 is None else np.abs(u2).max(axis=1)
+        bad = ~(np.isfinite(y_bar) & np.isfinite(u_bar) & (y_bar > 0) & (u_bar > 0))
+        if u2 is not None and not reads_u:
+            bad |= np.any(u2 != u2[:, :1], axis=1)
+        if bad.any():
+            y_bar = np.abs(np.where(np.isfinite(y2), y2, 0.0)).max(axis=1)
+            if u2 is not None:
+                u_bar = np.abs(np.where(np.isfinite(u2), u2, 0.0)).max(axis=1)
+        # The de-normalisation multiplies c, d by max|y| / max|u| (Eq. 15 and linearity): it
+        # must be a positive float64 number (1e300 / 1e-300 is not).
         ratio = y_bar / u_bar
     bad = bad | ~(np.isfinite(ratio) & (ratio > 0))
     if not bad.any():

@@ -18,13 +18,12 @@ from typing import TYPE_CHECKING
 
 from aeid_struct.lazy import attach
 from aeid_struct.refinement.batched import Pattern as Pattern
-from aeid_struct.refinement.batched import SeparableFit as SeparableFit
 from aeid_struct.refinement.compiled import MAX_ITERATIONS as MAX_ITERATIONS
 from aeid_struct.refinement.config import SOLVERS as SOLVERS
 from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
 from aeid_struct.refinement.config import RefineResult as RefineResult
-from aeid_struct.refinement.levenberg import gauss_newton as gauss_newton
+from aeid_struct.refinement.levenberg import fit_rows as fit_rows
 from aeid_struct.structures import Numeric as Numeric
 
 if TYPE_CHECKING:
@@ -62,12 +61,11 @@ __all__ = [
     "RefineConfig",
     "RefineResult",
     "SOLVERS",
-    "SeparableFit",
     "cache_info",
     "casadi_simulate",
     "clear_cache",
     "expm",
-    "gauss_newton",
+    "fit_rows",
     "projected_cost",
     "refine",
     "refine_elements",
@@ -78,6 +76,14 @@ __all__ = [
 
 #: Names that are gone, read with a DeprecationWarning naming what replaced them.
 _DEPRECATED = {
+    "SeparableFit": ("aeid_struct.refinement.batched", "SeparableFit",
+                     "refinement.SeparableFit is private to refinement: refine_separable and "
+                     "Identifier.identify(refine=True) return an Estimate; refinement.fit_rows "
+                     "gives a batch's CCF arrays"),
+    "gauss_newton": ("aeid_struct.refinement.levenberg", "gauss_newton",
+                     "refinement.gauss_newton (which returns the private SeparableFit) is "
+                     "deprecated: refinement.fit_rows gives the same fit as the CCF's arrays, "
+                     "refine_separable and Identifier.identify(refine=True) as an Estimate"),
     "RecordFit": ("aeid_struct.estimates", "Estimate",
                   "refinement.RecordFit is gone: refine_record and refine_separable return an "
                   "Estimate (its info holds cost, iterations and converged; Estimate.offset is "

@@ -1,4 +1,4 @@
-r"""The separable Levenberg-Marquardt of :func:`~aeid_struct.refinement.gauss_newton` compiled
+r"""The separable Levenberg-Marquardt of ``levenberg.gauss_newton`` compiled
 to C, one record per call: the identifiers' head and the refinement without numpy's
 per-operation overhead.
 

@@ -14,7 +14,11 @@ import numpy as np
 from aeid_struct.refinement import compiled
 from aeid_struct.refinement.batched import Pattern, SeparableFit, iterate
 
-__all__ = ["gauss_newton"]
+__all__ = ["CHUNK", "fit_rows", "gauss_newton"]
+
+#: The most records in one ``gauss_newton`` call of :func:`fit_rows`: its arrays stay in cache,
+#: and a batch of any size reuses the memory of one chunk.
+CHUNK = 256
 
 
 def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
@@ -56,6 +60,41 @@ def gauss_newton(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
         pattern, alpha, y, u, dt, iterations, tol,
         lambda rows: iterate(pattern, alpha[rows], y[rows], u[rows], dt, iterations, tol))
     return iterate(pattern, alpha, y, u, dt, iterations, tol) if fit is None else fit
+
+
+def fit_rows(pattern: Pattern, alpha0, y, u, dt: float, *, iterations: int,
+             tol: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`gauss_newton` in chunks of :data:`CHUNK` records, as the CCF's arrays: what the
+    identifiers' head reads (the fit's own record, ``SeparableFit``, stays in this package).
+
+    Parameters
+    ----------
+    pattern : Pattern
+    alpha0 : (B, nf) array
+        Start of the free ``a_j``.
+    y, u : (B, N) arrays
+    dt : float, > 0
+    iterations : int, >= 0
+    tol : float, optional
+
+    Returns
+    -------
+    a, c : (B, n) arrays
+        The CCF's ``a_j`` and ``c_j``, fixed ones included.
+    d : (B,) array
+    ok : (B,) bool array
+        Whether the record's fit is finite (its cost; False where the fixed values admit no
+        finite model).
+    """
+    B, n = np.shape(y)[0], pattern.n
+    a, c, d = np.empty((B, n)), np.empty((B, n)), np.empty(B)
+    ok = np.zeros(B, dtype=bool)
+    for part in np.array_split(np.arange(B), max(1, -(-B // CHUNK))):
+        fit = gauss_newton(pattern, np.asarray(alpha0)[part], np.asarray(y)[part],
+                           np.asarray(u)[part], dt, iterations=iterations, tol=tol)
+        a[part], c[part], d[part] = fit.a, fit.c, fit.d
+        ok[part] = np.isfinite(fit.cost)
+    return a, c, d, ok
 
 
 def _checked(pattern, alpha0, y, u, dt, iterations, tol):
