@@ -1,0 +1,471 @@
+r"""Your own mechanism, from its Lagrangian to the linear models the identifiers learn, in CasADi.
+
+An engineer writes what they know of their machine: generalised coordinates ``q`` and velocities
+``dq``, inputs ``u``, named physical parameters ``p``, the Lagrangian ``L(q, dq, u, p) = T - V``,
+optionally a Rayleigh dissipation ``R(q, dq, p)`` and generalised forces ``Q(q, dq, u, p)``, and
+the measured outputs ``y(q, dq, u, p)``. :class:`Mechanism` derives the rest.
+
+Equations of motion (Euler-Lagrange with dissipation and forces)::
+
+    d/dt dL/ddq - dL/dq = Q - dR/ddq
+    M(q, dq) ddq = Q - dR/ddq + dL/dq - (d/dq dL/ddq) dq,     M = d^2 L / ddq^2
+
+solved for ``ddq`` symbolically (``casadi.solve``), so that with the state ``x = (q, dq)``::
+
+    xdot = f(x, u, p) = (dq, ddq),        y = h(x, u, p).
+
+Equilibrium at an operating input ``u_e``: ``dq = 0`` and ``ddq = 0``, i.e. the generalised
+forces balance, ``Q - dR/ddq + dL/dq = 0`` at ``dq = 0``. The user names it (numbers or
+expressions of the parameters), or a CasADi rootfinder solves it where it is isolated (its
+Jacobian is regular); a rigid-body mode has a family of equilibria and is refused with the
+instruction to name one.
+
+Linearisation (paper Eq. 16 for the robot leg) at ``(x_e, u_e)``::
+
+    A = df/dx,  B = df/du,  C = dh/dx,  D = dh/du,
+
+a ``casadi.Function`` of the parameters by name with outputs ``A, B, C, D``; the linear
+model's state, input and output are deviations from the equilibrium. :meth:`Mechanism.channel`
+is the bottom-row CCF (paper Eq. 5) of one input-output channel (``symbolic.realisation.ccf``),
+of a decoupled subsystem where ``states`` names its states, the map a physical structure's
+encoder output goes through. :meth:`Mechanism.generate_c` writes them as C.
+
+Run ``python -m symbolic.mechanism`` to derive the robot leg of paper Sec. IV with this class
+and check it against ``symbolic.slip``.
+"""
+
+from __future__ import annotations
+
+import keyword
+import pathlib
+from collections.abc import Mapping, Sequence
+
+import casadi
+import numpy as np
+
+from .codegen import generate_c
+from .realisation import ccf
+
+__all__ = ["Mechanism", "euler_lagrange"]
+
+#: Names a parameter may not take: the Functions' own inputs and outputs.
+RESERVED = frozenset({"x", "u", "q", "dq", "xdot", "y", "A", "B", "C", "D", "x_eq", "u_eq"})
+
+
+def _vector(name: str, value, length: int | None = None) -> casadi.SX:
+    """``value`` as an SX column of distinct symbols (a Function input), or a ValueError."""
+    if not isinstance(value, casadi.SX):
+        raise ValueError(f"{name} must be a casadi.SX vector of symbols (casadi.SX.sym("
+                         f"'{name}', n)); got {type(value).__name__}")
+    if value.size2() != 1 or value.numel() == 0:
+        raise ValueError(f"{name} must be a non-empty column vector; got shape {value.shape}")
+    if not value.is_valid_input():
+        raise ValueError(f"{name} must hold distinct symbols only (not expressions), as "
+                         f"casadi.SX.sym('{name}', n) does")
+    if length is not None and value.numel() != length:
+        raise ValueError(f"{name} must have {length} entries, one per coordinate of q; got "
+                         f"{value.numel()}")
+    return value
+
+
+def _expression(name: str, value, allowed: casadi.SX, shape: tuple | None = None) -> casadi.SX:
+    """``value`` (an SX expression or a number) in the symbols ``allowed`` only."""
+    if isinstance(value, (int, float, np.ndarray, list, tuple, casadi.DM)):
+        value = casadi.SX(casadi.DM(value))
+    if not isinstance(value, casadi.SX):
+        raise ValueError(f"{name} must be a casadi.SX expression; got {type(value).__name__}")
+    if shape is not None and value.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}; got {value.shape}")
+    known = {s.name() for s in casadi.symvar(allowed)}
+    stray = sorted({s.name() for s in casadi.symvar(value)} - known)
+    if stray:
+        raise ValueError(f"{name} depends on symbols {stray} that are neither q, dq, u nor a "
+                         f"parameter; declare them (parameters={{'name': symbol}})")
+    return value
+
+
+def euler_lagrange(L, R, Q, q, dq, u) -> tuple[casadi.SX, casadi.SX, casadi.SX]:
+    """The equations of motion ``M ddq = Q - dR/ddq + dL/dq - (d/dq dL/ddq) dq`` (module
+    docstring), by CasADi's derivatives.
+
+    Parameters
+    ----------
+    L, R : casadi.SX (1, 1)
+        Lagrangian and Rayleigh dissipation.
+    Q : casadi.SX (nq, 1)
+        Generalised forces.
+    q, dq, u : casadi.SX
+        Coordinates, velocities, inputs (symbols).
+
+    Returns
+    -------
+    M : casadi.SX (nq, nq)
+        The mass matrix ``d^2 L / ddq^2``.
+    balance : casadi.SX (nq, 1)
+        The right-hand side; zero at rest on an equilibrium.
+    ddq : casadi.SX (nq, 1)
+        ``M^{-1} balance``, solved symbolically.
+
+    Raises
+    ------
+    ValueError
+        ``dL/ddq`` depends on ``u`` (``du/dt`` would enter the equations of motion).
+    """
+    momentum = casadi.gradient(L, dq)
+    if casadi.depends_on(momentum, u):
+        raise ValueError("lagrangian: dL/ddq depends on u, which would put du/dt in the "
+                         "equations of motion; let u enter through the potential or forces")
+    M = casadi.jacobian(momentum, dq)
+    balance = (Q - casadi.gradient(R, dq) + casadi.gradient(L, q)
+               - casadi.jtimes(momentum, q, dq))
+    return M, balance, casadi.solve(M, balance)
+
+
+class Mechanism:
+    """A mechanism from its Lagrangian (module docstring): equations of motion, equilibrium,
+    linearisation, per-channel canonical maps and C code. CasADi only; no torch.
+
+    Parameters
+    ----------
+    q, dq : casadi.SX (nq, 1)
+        Generalised coordinates and their velocities, symbols.
+    u : casadi.SX (m, 1)
+        Inputs, symbols.
+    parameters : dict str -> casadi.SX
+        Physical parameters by name, scalar symbols (``{"k": casadi.SX.sym("k")}``).
+    lagrangian : casadi.SX (1, 1)
+        ``L(q, dq, u, p) = T - V``; ``u`` enters through ``V`` or ``forces``, not ``T``.
+    outputs : casadi.SX (p, 1)
+        The measured outputs ``y(q, dq, u, p)``.
+    dissipation : casadi.SX (1, 1), optional
+        Rayleigh's ``R(q, dq, p)``; its force is ``-dR/ddq``.
+    forces : casadi.SX (nq, 1), optional
+        Generalised forces ``Q(q, dq, u, p)``, by virtual work.
+    name : str
+        A C identifier, the prefix of the Functions' names.
+
+    Raises
+    ------
+    ValueError
+        An argument not of its kind, a reserved name, undeclared symbols, ``u`` in ``T``.
+    """
+
+    def __init__(self, *, q, dq, u, parameters: Mapping, lagrangian, outputs,
+                 dissipation=None, forces=None, name: str = "mechanism") -> None:
+        if not (isinstance(name, str) and name.isidentifier() and not keyword.iskeyword(name)):
+            raise ValueError(f"name must be a C identifier; got {name!r}")
+        self.name = name
+        self.q = _vector("q", q)
+        self.dq = _vector("dq", dq, q.numel())
+        self.u = _vector("u", u)
+        self.parameters = _parameters(parameters)
+        self.p = casadi.vertcat(*self.parameters.values())
+        every = casadi.vertcat(self.q, self.dq, self.u, self.p)
+        if not every.is_valid_input():
+            raise ValueError("q, dq, u and the parameters must be distinct symbols")
+        self.lagrangian = _expression("lagrangian", lagrangian, every, (1, 1))
+        self.outputs = _expression("outputs", outputs, every)
+        if self.outputs.size2() != 1:
+            raise ValueError(f"outputs must be a column vector; got shape {self.outputs.shape}")
+        no_u = casadi.vertcat(self.q, self.dq, self.p)
+        self.dissipation = _expression("dissipation", 0 if dissipation is None else dissipation,
+                                       no_u, (1, 1))
+        nq = self.q.numel()
+        self.forces = _expression("forces", casadi.SX.zeros(nq, 1) if forces is None else forces,
+                                  every, (nq, 1))
+        self.M, self.balance, ddq = euler_lagrange(self.lagrangian, self.dissipation,
+                                                   self.forces, self.q, self.dq, self.u)
+        self.x = casadi.vertcat(self.q, self.dq)
+        self.f = casadi.vertcat(self.dq, ddq)
+        self.h = self.outputs
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The parameters' names, in the order of ``parameters``."""
+        return tuple(self.parameters)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """``(n, m, p)``: states ``2 nq``, inputs, outputs."""
+        return self.x.numel(), self.u.numel(), self.h.numel()
+
+    def dynamics(self) -> casadi.Function:
+        """``xdot = f(x, u, p)`` and ``y = h(x, u, p)``.
+
+        Returns
+        -------
+        casadi.Function
+            ``'<name>_dynamics'``: ``x (n), u (m)``, the parameters by name ->
+            ``xdot (n), y (p)``.
+        """
+        return casadi.Function(f"{self.name}_dynamics", [self.x, self.u, *self.parameters.values()],
+                               [self.f, self.h], ["x", "u", *self.names], ["xdot", "y"])
+
+    # -- equilibrium ---------------------------------------------------------------------------
+    def equilibrium(self, *, u=None, q=None, guess=None) -> casadi.Function:
+        """The rest point ``(x_e, u_e)`` at the operating input ``u_e`` (module docstring).
+
+        Parameters
+        ----------
+        u : (m,) numbers or casadi.SX of the parameters, optional
+            The operating input; zeros by default.
+        q : (nq,) numbers or casadi.SX of the parameters, optional
+            The equilibrium's coordinates, named by the user (required for a rigid-body mode);
+            solved by a Newton rootfinder from ``guess`` when omitted.
+        guess : (nq,) numbers, optional
+            The rootfinder's start (zeros by default); it finds the equilibrium nearest to it.
+
+        Returns
+        -------
+        casadi.Function
+            ``'<name>_equilibrium'``: the parameters by name -> ``x_eq (n), u_eq (m)``.
+
+        Raises
+        ------
+        ValueError
+            ``u``, ``q`` or ``guess`` of the wrong size or in other symbols; a rootfinder asked
+            for where the equilibria are not isolated (a rigid-body mode).
+        """
+        nq, m = self.q.numel(), self.u.numel()
+        params = list(self.parameters.values())
+        u_e = _expression("u", casadi.SX.zeros(m, 1) if u is None else casadi.vec(
+            casadi.SX(u) if isinstance(u, casadi.SX) else casadi.SX(casadi.DM(u))), self.p, (m, 1))
+        if q is not None:
+            q_e = _expression("q", casadi.vec(casadi.SX(q) if isinstance(q, casadi.SX)
+                                              else casadi.SX(casadi.DM(q))), self.p, (nq, 1))
+            x_e = casadi.vertcat(q_e, casadi.SX.zeros(nq, 1))
+            return casadi.Function(f"{self.name}_equilibrium", params, [x_e, u_e],
+                                   list(self.names), ["x_eq", "u_eq"])
+        return _rest_point(self, u_e, guess)
+
+    # -- linearisation -------------------------------------------------------------------------
+    def linearise(self, *, u=None, q=None, guess=None,
+                  known: Mapping[str, float] | None = None) -> casadi.Function:
+        """The Jacobian linearisation at the equilibrium (module docstring; paper Eq. 16).
+
+        Parameters
+        ----------
+        u, q, guess
+            The operating point, as :meth:`equilibrium`.
+        known : dict str -> float, optional
+            Parameters held at known values (gravity, a rest length): not inputs of the result.
+
+        Returns
+        -------
+        casadi.Function
+            ``'<name>_linearisation'``: the other parameters by name -> ``A (n, n), B (n, m),
+            C (p, n), D (p, m)``, the state ``x = (q, dq)``.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`equilibrium`; ``known`` naming no parameter or a value that is not a
+            finite number.
+        """
+        eq = self.equilibrium(u=u, q=q, guess=guess)
+        jac = casadi.Function("jacobians", [self.x, self.u, self.p], [
+            casadi.jacobian(self.f, self.x), casadi.jacobian(self.f, self.u),
+            casadi.jacobian(self.h, self.x), casadi.jacobian(self.h, self.u)])
+        free, values = self.free(known)
+        kind = casadi.SX if eq.is_a("SXFunction") else casadi.MX
+        symbols = {n: kind.sym(n) for n in free}
+        p = casadi.vertcat(*(symbols[n] if n in symbols else values[n] for n in self.names))
+        x_e, u_e = eq.call([p[i] for i in range(len(self.names))])
+        A, B, C, D = jac(x_e, u_e, p)
+        return casadi.Function(f"{self.name}_linearisation", list(symbols.values()),
+                               [A, B, C, D], list(free), ["A", "B", "C", "D"])
+
+    def free(self, known: Mapping[str, float] | None) -> tuple[tuple[str, ...], dict]:
+        """The parameters not in ``known``, and ``known`` checked as floats.
+
+        Parameters
+        ----------
+        known : dict str -> float or None
+
+        Returns
+        -------
+        free : tuple of str
+        values : dict str -> float
+        """
+        return _known(self.names, known)
+
+    def channel(self, output: int = 0, input: int = 0, *, states: Sequence[int] | None = None,
+                **operating) -> casadi.Function:
+        """The bottom-row CCF (paper Eq. 5) of one channel of the linearisation: the map from
+        the parameters into the structure an encoder outputs.
+
+        Parameters
+        ----------
+        output, input : int
+            The channel: ``y[output]`` from ``u[input]``.
+        states : sequence of int, optional
+            The states of a decoupled subsystem (the leg's translation, ``(l, dl)``): its
+            ``A[s, s], B[s, input], C[output, s]``; all ``n`` states by default (a transfer
+            function of order ``n``, with common factors where the channel does not see every
+            mode).
+        **operating
+            ``u, q, guess, known`` as :meth:`linearise`.
+
+        Returns
+        -------
+        casadi.Function
+            ``'<name>_y<output>_u<input>'``: the free parameters by name -> ``A, B, C, D`` of
+            the CCF.
+        """
+        s = _channel(self.shape, output, input, states)
+        lin = self.linearise(**operating)
+        kind = casadi.SX if lin.is_a("SXFunction") else casadi.MX
+        symbols = [kind.sym(lin.name_in(i)) for i in range(lin.n_in())]
+        A, B, C, D = lin(*symbols)
+        realised = ccf(A[s, s], B[s, input], C[output, s], D[output, input])
+        return casadi.Function(f"{self.name}_y{output}_u{input}", symbols, list(realised),
+                               lin.name_in(), ["A", "B", "C", "D"])
+
+    def generate_c(self, directory: str | pathlib.Path, *, channels: Sequence[tuple] = (),
+                   **operating) -> pathlib.Path:
+        """The dynamics, the linearisation and the named channels as one C file.
+
+        Parameters
+        ----------
+        directory : str or Path
+        channels : sequence of (output, input) or (output, input, states)
+        **operating
+            As :meth:`linearise`.
+
+        Returns
+        -------
+        pathlib.Path
+            ``directory / "<name>.c"`` (``symbolic.codegen.generate_c``).
+        """
+        functions = [self.dynamics(), self.linearise(**operating)]
+        for spec in channels:
+            out, inp, *rest = spec
+            functions.append(self.channel(out, inp, states=rest[0] if rest else None,
+                                          **operating))
+        return generate_c(directory, functions, name=self.name)
+
+    def simulate(self, parameters: Mapping[str, float], u, dt: float, *, x0=None) -> np.ndarray:
+        """The nonlinear model's outputs under ``u`` held between samples, by CasADi's
+        ``cvodes`` integrator (the oracle of the linearisation: a small excitation about the
+        equilibrium stays near the linear model).
+
+        Parameters
+        ----------
+        parameters : dict str -> float
+            Every parameter's value.
+        u : (N, m) array
+            The inputs, each held for one step (absolute, not deviations).
+        dt : float
+        x0 : (n,) array, optional
+            The state at the first sample; zeros by default.
+
+        Returns
+        -------
+        (N, p) array
+            ``y`` at each sample, before that sample's input acts.
+        """
+        return _integrate(self, parameters, u, dt, x0)
+
+
+def _parameters(parameters) -> dict[str, casadi.SX]:
+    """``parameters`` checked: identifiers the Functions do not reserve, scalar symbols."""
+    if not isinstance(parameters, Mapping) or not parameters:
+        raise ValueError("parameters must be a non-empty dict name -> casadi.SX symbol; got "
+                         f"{type(parameters).__name__}")
+    out = {}
+    for key, symbol in parameters.items():
+        if not (isinstance(key, str) and key.isidentifier()) or key in RESERVED:
+            raise ValueError(f"parameters: {key!r} must be an identifier other than "
+                             f"{sorted(RESERVED)} (the Functions' own names)")
+        if not (isinstance(symbol, casadi.SX) and symbol.is_scalar()
+                and symbol.is_valid_input()):
+            raise ValueError(f"parameters[{key!r}] must be a scalar casadi.SX symbol "
+                             f"(casadi.SX.sym({key!r})); got {symbol!r}")
+        out[key] = symbol
+    return out
+
+
+def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
+    """The rootfinder's equilibrium of the Mechanism ``self`` (``equilibrium`` without ``q``)."""
+    nq = self.q.numel()
+    start = np.zeros(nq) if guess is None else np.asarray(guess, dtype=float).ravel()
+    if start.shape != (nq,) or not np.isfinite(start).all():
+        raise ValueError(f"guess must be {nq} finite numbers (one per coordinate of q); got "
+                         f"{guess!r}")
+    rest = casadi.substitute(self.balance, self.dq, casadi.SX.zeros(nq, 1))
+    rest = casadi.substitute(rest, self.u, u_e)
+    jac = casadi.Function("j", [self.q, self.p], [casadi.jacobian(rest, self.q)])
+    probe = np.random.default_rng(0).uniform(0.5, 2.0, self.p.numel())
+    J = np.array(jac(start, probe))
+    if casadi.jacobian(rest, self.q).nnz() == 0 or np.linalg.matrix_rank(J) < nq:
+        raise ValueError(f"{self.name} has no isolated equilibrium at this input (the forces "
+                         "at rest do not pin every coordinate: a rigid-body mode); name one: "
+                         "equilibrium(q=...) or linearise(q=...)")
+    residual = casadi.Function("residual", [self.q, self.p], [rest])
+    solver = casadi.rootfinder(f"{self.name}_rest", "newton", residual,
+                               {"abstol": 1e-13, "max_iter": 100, "error_on_fail": True})
+    p = casadi.MX.sym("p", self.p.numel())
+    q_e = solver(casadi.DM(start), p)
+    u_mx = casadi.Function("u_e", [self.p], [u_e])(p)
+    x_e = casadi.vertcat(q_e, casadi.MX.zeros(nq, 1))
+    inner = casadi.Function("eq", [p], [x_e, u_mx])
+    symbols = [casadi.MX.sym(n) for n in self.names]
+    x_out, u_out = inner(casadi.vertcat(*symbols))
+    return casadi.Function(f"{self.name}_equilibrium", symbols, [x_out, u_out],
+                           list(self.names), ["x_eq", "u_eq"])
+
+
+def _known(names: tuple, known) -> tuple[tuple[str, ...], dict]:
+    """``Mechanism.free``."""
+    known = {} if known is None else known
+    if not isinstance(known, Mapping):
+        raise ValueError(f"known must be a dict name -> value; got {type(known).__name__}")
+    stray = sorted(set(known) - set(names))
+    if stray:
+        raise ValueError(f"known names {stray}, which are not parameters of the mechanism "
+                         f"({list(names)})")
+    values = {}
+    for key, value in known.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) \
+                or not np.isfinite(value):
+            raise ValueError(f"known[{key!r}] must be a finite number; got {value!r}")
+        values[key] = float(value)
+    free = tuple(n for n in names if n not in values)
+    if not free:
+        raise ValueError("known fixes every parameter: nothing is left to identify")
+    return free, values
+
+
+def _integrate(self, parameters, u, dt, x0) -> np.ndarray:
+    """``Mechanism.simulate`` of the Mechanism ``self``."""
+    n, m, _ = self.shape
+    missing = sorted(set(self.names) - set(parameters))
+    if missing:
+        raise ValueError(f"parameters must give every parameter; missing {missing}")
+    p = np.array([float(parameters[k]) for k in self.names])
+    u = np.asarray(u, dtype=float).reshape(-1, m)
+    if not (isinstance(dt, (int, float)) and dt > 0):
+        raise ValueError(f"dt must be a positive number; got {dt!r}")
+    x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).ravel()
+    up = casadi.vertcat(self.u, self.p)
+    step = casadi.integrator(f"{self.name}_step", "cvodes",
+                             {"x": self.x, "p": up, "ode": self.f}, 0.0, float(dt),
+                             {"abstol": 1e-12, "reltol": 1e-12})
+    run = step.mapaccum(u.shape[0])
+    xs = np.array(run(x0=x, p=np.vstack([u.T, np.repeat(p[:, None], u.shape[0], 1)]))["xf"])
+    states = np.hstack([x[:, None], xs[:, :-1]])
+    h = casadi.Function("h", [self.x, self.u, self.p], [self.h])
+    return np.array(h.map(u.shape[0])(states, u.T, np.repeat(p[:, None], u.shape[0], 1))).T
+
+
+def _channel(shape: tuple, output, input, states) -> list[int]:
+    """``Mechanism.channel``'s indices checked; the states of the subsystem."""
+    n, m, p = shape
+    if not (isinstance(output, int) and 0 <= output < p):
+        raise ValueError(f"output must be an int in [0, {p}); got {output!r}")
+    if not (isinstance(input, int) and 0 <= input < m):
+        raise ValueError(f"input must be an int in [0, {m}); got {input!r}")
+    s = list(range(n)) if states is None else [int(i) for i in states]
+    if not s or len(set(s)) != len(s) or not all(0 <= i < n for i in s):
+        raise ValueError(f"states must be distinct state indices in [0, {n}); got {states!r}")
+    return s

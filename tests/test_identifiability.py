@@ -1,0 +1,125 @@
+"""Tests for ``symbolic/identifiability.py``: which parameters a record determines.
+
+Oracle, independent of the code under test: the rank of central finite differences (in
+log-parameters) of the transfer-function coefficients ``scipy.signal.ss2tf`` gives for
+linearisations typed by hand (paper Eq. 16 in ``symbolic.slip``, Newton's law for the others),
+and the closed forms of the transfer functions (``G = r / (m s^2 + d s + k)`` for the lever).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from symbolic import mechanisms, slip
+from symbolic.identifiability import identifiability
+from tests.test_mechanism import _cart_pole_oracle, _two_mass_oracle
+
+LEG_BOX = {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)}
+TWO_MASS_BOX = {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}
+LEVER_BOX = {"m": (0.5, 2.0), "k": (10.0, 50.0), "d": (0.5, 3.0), "r": (0.5, 2.0)}
+CART_BOX = {"M": (0.5, 2.0), "m": (0.05, 0.5), "l": (0.2, 1.0), "b": (0.05, 1.0)}
+
+
+def _leg_rotation(k, d, m):
+    A, B = (np.array(v) for v in slip.eq16()(k, d, m, slip.L0, slip.G))
+    return A[2:, 2:], B[2:, 1:], np.array([[1.0, 0.0]]), np.zeros((1, 1))
+
+
+def _lever(m, k, d, r):
+    return np.array([[0, 1], [-k / m, -d / m]]), np.array([[0], [r / m]]), \
+        np.array([[1.0, 0]]), np.zeros((1, 1))
+
+
+def _oracle_rank(model, point: dict, rng) -> int:
+    """Rank of d(transfer-function coefficients) / d log p by central differences."""
+    names = list(point)
+
+    def coefficients(theta):
+        A, B, C, D = model(**dict(zip(names, np.exp(theta), strict=True)))
+        num, den = scipy.signal.ss2tf(A, B, C, D)
+        return np.concatenate([num.ravel() / den[0], den[1:] / den[0]])
+
+    theta = np.log(np.array(list(point.values())))
+    h = 1e-5
+    J = np.column_stack([(coefficients(theta + h * e) - coefficients(theta - h * e)) / (2 * h)
+                         for e in np.eye(len(names))])
+    s = np.linalg.svd(J / np.maximum(np.abs(coefficients(theta)), 1e-3)[:, None],
+                      compute_uv=False)
+    return int(np.sum(s > 1e-6 * s[0]))
+
+
+def _draw(box, rng):
+    return {k: float(rng.uniform(*v)) for k, v in box.items()}
+
+
+@pytest.mark.parametrize(("mechanism", "box", "oracle", "operating"), [
+    ("two_mass", TWO_MASS_BOX, _two_mass_oracle, {}),
+    ("lever", LEVER_BOX, _lever, {}),
+    ("cart_pole", CART_BOX, _cart_pole_oracle, {"q": [0, 0], "known": {"g": 9.81}}),
+])
+def test_rank_agrees_with_an_independent_rank_computation(mechanism, box, oracle, operating):
+    report = identifiability(getattr(mechanisms, mechanism)(), box, **operating)
+    rng = np.random.default_rng(3)
+    assert report.rank == max(_oracle_rank(oracle, _draw(box, rng), rng) for _ in range(3))
+
+
+def test_the_unstable_leg_record_alone_cannot_determine_d():
+    legs = mechanisms.leg()
+    report = identifiability(legs, LEG_BOX, inputs=[1], outputs=[1], **mechanisms.upright(legs))
+    assert report.rank == 2 == _oracle_rank(_leg_rotation, slip.SCENARIO, None)
+    assert report.identifiable == ("k", "m") and report.unidentifiable == ("d",)
+    assert report.combinations == ({"d": 1.0},) and report.fix == ("d",)
+    assert "d not identifiable" in str(report)
+    assert np.isfinite(report.condition) and report.condition > 1
+
+
+@pytest.mark.parametrize(("inputs", "outputs"), [([0], [0]), (None, None)])
+def test_the_translational_or_both_leg_records_determine_everything(inputs, outputs):
+    legs = mechanisms.leg()
+    report = identifiability(legs, LEG_BOX, inputs=inputs, outputs=outputs,
+                             **mechanisms.upright(legs))
+    assert report.full and report.rank == 3 and report.identifiable == ("k", "d", "m")
+    assert report.combinations == () and report.fix == ()
+
+
+def test_a_lever_of_unknown_ratio_hides_one_scaling():
+    report = identifiability(mechanisms.lever(), LEVER_BOX)
+    # G = r / (m s^2 + d s + k): only r/m, k/m, d/m; scaling all four together is unseen
+    assert report.rank == 3 and report.identifiable == ()
+    assert report.combinations == ({"m": 1.0, "k": 1.0, "d": 1.0, "r": 1.0},)
+    assert report.fix == ("r",)
+    fixed = identifiability(mechanisms.lever(), {k: v for k, v in LEVER_BOX.items() if k != "r"},
+                            known={"r": 1.0})
+    assert fixed.full and fixed.rank == 3
+
+
+def test_several_outputs_determine_more_than_one():
+    cart = mechanisms.cart_pole()
+    both = identifiability(cart, CART_BOX, q=[0, 0], known={"g": 9.81})
+    angle = identifiability(cart, CART_BOX, q=[0, 0], known={"g": 9.81}, outputs=[1])
+    assert both.full and both.rank == 4
+    assert angle.rank <= both.rank
+
+
+def test_rank_drops_are_reported_with_their_condition_number():
+    # at the centre of a box shared by all six, the two-mass parameters are all equal: a thin
+    # set where the rank drops
+    report = identifiability(mechanisms.two_mass(), TWO_MASS_BOX)
+    assert report.full and report.rank == 6
+    centre = [drop for drop in report.drops if set(drop["values"].values()) == {1.25}]
+    assert len(centre) == 1 and centre[0]["rank"] < 6 and centre[0]["condition"] > 1e8
+    assert np.isfinite(report.condition)
+
+
+@pytest.mark.parametrize(("call", "message"), [
+    ({"bounds": {"m": (1, 2)}}, "bounds must name exactly"),
+    ({"bounds": {**LEVER_BOX, "m": (2.0, 1.0)}}, r"bounds\['m'\] must be finite with low < high"),
+    ({"bounds": {**LEVER_BOX, "m": "heavy"}}, r"bounds\['m'\] must be a pair"),
+    ({"bounds": LEVER_BOX, "inputs": [1]}, r"inputs must be distinct indices in \[0, 1\)"),
+    ({"bounds": LEVER_BOX, "points": 0}, "points must be an int >= 1"),
+])
+def test_bad_arguments_are_refused_by_name(call, message):
+    with pytest.raises(ValueError, match=message):
+        identifiability(mechanisms.lever(), **call)
