@@ -28,10 +28,10 @@ from aeid_struct.refinement import (
     cache_info,
     clear_cache,
     refine,
-    refine_elements,
     solve,
 )
 from aeid_struct.refinement import nlp as R
+from aeid_struct.refinement.solve import refine_elements
 from symbolic import leg
 
 # -- records with exact answers ---------------------------------------------------------------
@@ -651,3 +651,14 @@ def test_identify_refines_windows_of_a_running_leg():
     for p in ("k", "d", "m"):
         assert np.abs(sep.physical[p] / rec.systems.params[p] - 1).max() < 1e-7
     np.testing.assert_allclose(sep.x0, rec.x0, rtol=1e-6, atol=1e-9)
+
+
+def test_the_nlp_result_stays_in_refinement():
+    # refine(Estimate) is the public call; the NLP's own record is no public result type
+    import aeid_struct.refinement as refinement
+
+    assert "RefineResult" not in refinement.__all__ and "refine_elements" not in refinement.__all__
+    with pytest.warns(DeprecationWarning, match=r"refine\(Estimate\)"):
+        assert refinement.refine_elements is refine_elements
+    with pytest.warns(DeprecationWarning, match="private to refinement"):
+        assert refinement.RefineResult is solve.RefineResult

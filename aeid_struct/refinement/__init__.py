@@ -22,7 +22,6 @@ from aeid_struct.refinement.compiled import MAX_ITERATIONS as MAX_ITERATIONS
 from aeid_struct.refinement.config import SOLVERS as SOLVERS
 from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
-from aeid_struct.refinement.config import RefineResult as RefineResult
 from aeid_struct.refinement.levenberg import fit_rows as fit_rows
 from aeid_struct.structures import Numeric as Numeric
 
@@ -36,7 +35,6 @@ if TYPE_CHECKING:
     from aeid_struct.refinement.separable import projected_cost as projected_cost
     from aeid_struct.refinement.separable import refine_separable as refine_separable
     from aeid_struct.refinement.solve import refine as refine
-    from aeid_struct.refinement.solve import refine_elements as refine_elements
 
 #: name -> the module (of this package) that defines it, imported on first use
 _LAZY = {
@@ -49,7 +47,6 @@ _LAZY = {
     "projected_cost": "separable",
     "refine_separable": "separable",
     "refine": "solve",
-    "refine_elements": "solve",
 }
 
 __all__ = [
@@ -59,7 +56,6 @@ __all__ = [
     "Numeric",
     "Pattern",
     "RefineConfig",
-    "RefineResult",
     "SOLVERS",
     "cache_info",
     "casadi_simulate",
@@ -68,7 +64,6 @@ __all__ = [
     "fit_rows",
     "projected_cost",
     "refine",
-    "refine_elements",
     "refine_record",
     "refine_separable",
 ]
@@ -76,6 +71,13 @@ __all__ = [
 
 #: Names that are gone, read with a DeprecationWarning naming what replaced them.
 _DEPRECATED = {
+    "RefineResult": ("aeid_struct.refinement.config", "RefineResult",
+                     "refinement.RefineResult is private to refinement: refine(Estimate) returns "
+                     "an Estimate (its info holds the solver's status, iterations, loss and "
+                     "success)"),
+    "refine_elements": ("aeid_struct.refinement.solve", "refine_elements",
+                        "refinement.refine_elements (which returns the private RefineResult) is "
+                        "deprecated: refine(Estimate) returns the refined Estimate"),
     "SeparableFit": ("aeid_struct.refinement.batched", "SeparableFit",
                      "refinement.SeparableFit is private to refinement: refine_separable and "
                      "Identifier.identify(refine=True) return an Estimate; refinement.fit_rows "
