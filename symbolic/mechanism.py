@@ -44,45 +44,16 @@ import casadi
 import numpy as np
 
 from .codegen import generate_c
+from .mechanism_checks import (
+    channel_indices,
+    checked_expression,
+    checked_known,
+    checked_parameters,
+    checked_vector,
+)
 from .realisation import ccf
 
 __all__ = ["Mechanism", "euler_lagrange"]
-
-#: Names a parameter may not take: the Functions' own inputs and outputs.
-RESERVED = frozenset({"x", "u", "q", "dq", "xdot", "y", "A", "B", "C", "D", "x_eq", "u_eq"})
-
-
-def _vector(name: str, value, length: int | None = None) -> casadi.SX:
-    """``value`` as an SX column of distinct symbols (a Function input), or a ValueError."""
-    if not isinstance(value, casadi.SX):
-        raise ValueError(f"{name} must be a casadi.SX vector of symbols (casadi.SX.sym("
-                         f"'{name}', n)); got {type(value).__name__}")
-    if value.size2() != 1 or value.numel() == 0:
-        raise ValueError(f"{name} must be a non-empty column vector; got shape {value.shape}")
-    if not value.is_valid_input():
-        raise ValueError(f"{name} must hold distinct symbols only (not expressions), as "
-                         f"casadi.SX.sym('{name}', n) does")
-    if length is not None and value.numel() != length:
-        raise ValueError(f"{name} must have {length} entries, one per coordinate of q; got "
-                         f"{value.numel()}")
-    return value
-
-
-def _expression(name: str, value, allowed: casadi.SX, shape: tuple | None = None) -> casadi.SX:
-    """``value`` (an SX expression or a number) in the symbols ``allowed`` only."""
-    if isinstance(value, (int, float, np.ndarray, list, tuple, casadi.DM)):
-        value = casadi.SX(casadi.DM(value))
-    if not isinstance(value, casadi.SX):
-        raise ValueError(f"{name} must be a casadi.SX expression; got {type(value).__name__}")
-    if shape is not None and value.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}; got {value.shape}")
-    known = {s.name() for s in casadi.symvar(allowed)}
-    stray = sorted({s.name() for s in casadi.symvar(value)} - known)
-    if stray:
-        raise ValueError(f"{name} depends on symbols {stray} that are neither q, dq, u nor a "
-                         f"parameter; declare them (parameters={{'name': symbol}})")
-    return value
-
 
 def euler_lagrange(L, R, Q, q, dq, u) -> tuple[casadi.SX, casadi.SX, casadi.SX]:
     """The equations of motion ``M ddq = Q - dR/ddq + dL/dq - (d/dq dL/ddq) dq`` (module
@@ -155,24 +126,24 @@ class Mechanism:
         if not (isinstance(name, str) and name.isidentifier() and not keyword.iskeyword(name)):
             raise ValueError(f"name must be a C identifier; got {name!r}")
         self.name = name
-        self.q = _vector("q", q)
-        self.dq = _vector("dq", dq, q.numel())
-        self.u = _vector("u", u)
-        self.parameters = _parameters(parameters)
+        self.q = checked_vector("q", q)
+        self.dq = checked_vector("dq", dq, q.numel())
+        self.u = checked_vector("u", u)
+        self.parameters = checked_parameters(parameters)
         self.p = casadi.vertcat(*self.parameters.values())
         every = casadi.vertcat(self.q, self.dq, self.u, self.p)
         if not every.is_valid_input():
             raise ValueError("q, dq, u and the parameters must be distinct symbols")
-        self.lagrangian = _expression("lagrangian", lagrangian, every, (1, 1))
-        self.outputs = _expression("outputs", outputs, every)
+        self.lagrangian = checked_expression("lagrangian", lagrangian, every, (1, 1))
+        self.outputs = checked_expression("outputs", outputs, every)
         if self.outputs.size2() != 1:
             raise ValueError(f"outputs must be a column vector; got shape {self.outputs.shape}")
         no_u = casadi.vertcat(self.q, self.dq, self.p)
-        self.dissipation = _expression("dissipation", 0 if dissipation is None else dissipation,
-                                       no_u, (1, 1))
+        self.dissipation = checked_expression(
+            "dissipation", 0 if dissipation is None else dissipation, no_u, (1, 1))
         nq = self.q.numel()
-        self.forces = _expression("forces", casadi.SX.zeros(nq, 1) if forces is None else forces,
-                                  every, (nq, 1))
+        self.forces = checked_expression(
+            "forces", casadi.SX.zeros(nq, 1) if forces is None else forces, every, (nq, 1))
         self.M, self.balance, ddq = euler_lagrange(self.lagrangian, self.dissipation,
                                                    self.forces, self.q, self.dq, self.u)
         self.x = casadi.vertcat(self.q, self.dq)
@@ -228,10 +199,10 @@ class Mechanism:
         """
         nq, m = self.q.numel(), self.u.numel()
         params = list(self.parameters.values())
-        u_e = _expression("u", casadi.SX.zeros(m, 1) if u is None else casadi.vec(
+        u_e = checked_expression("u", casadi.SX.zeros(m, 1) if u is None else casadi.vec(
             casadi.SX(u) if isinstance(u, casadi.SX) else casadi.SX(casadi.DM(u))), self.p, (m, 1))
         if q is not None:
-            q_e = _expression("q", casadi.vec(casadi.SX(q) if isinstance(q, casadi.SX)
+            q_e = checked_expression("q", casadi.vec(casadi.SX(q) if isinstance(q, casadi.SX)
                                               else casadi.SX(casadi.DM(q))), self.p, (nq, 1))
             x_e = casadi.vertcat(q_e, casadi.SX.zeros(nq, 1))
             return casadi.Function(f"{self.name}_equilibrium", params, [x_e, u_e],
@@ -287,7 +258,7 @@ class Mechanism:
         free : tuple of str
         values : dict str -> float
         """
-        return _known(self.names, known)
+        return checked_known(self.names, known)
 
     def channel(self, output: int = 0, input: int = 0, *, states: Sequence[int] | None = None,
                 **operating) -> casadi.Function:
@@ -312,7 +283,7 @@ class Mechanism:
             ``'<name>_y<output>_u<input>'``: the free parameters by name -> ``A, B, C, D`` of
             the CCF.
         """
-        s = _channel(self.shape, output, input, states)
+        s = channel_indices(self.shape, output, input, states)
         lin = self.linearise(**operating)
         kind = casadi.SX if lin.is_a("SXFunction") else casadi.MX
         symbols = [kind.sym(lin.name_in(i)) for i in range(lin.n_in())]
@@ -367,24 +338,6 @@ class Mechanism:
         return _integrate(self, parameters, u, dt, x0)
 
 
-def _parameters(parameters) -> dict[str, casadi.SX]:
-    """``parameters`` checked: identifiers the Functions do not reserve, scalar symbols."""
-    if not isinstance(parameters, Mapping) or not parameters:
-        raise ValueError("parameters must be a non-empty dict name -> casadi.SX symbol; got "
-                         f"{type(parameters).__name__}")
-    out = {}
-    for key, symbol in parameters.items():
-        if not (isinstance(key, str) and key.isidentifier()) or key in RESERVED:
-            raise ValueError(f"parameters: {key!r} must be an identifier other than "
-                             f"{sorted(RESERVED)} (the Functions' own names)")
-        if not (isinstance(symbol, casadi.SX) and symbol.is_scalar()
-                and symbol.is_valid_input()):
-            raise ValueError(f"parameters[{key!r}] must be a scalar casadi.SX symbol "
-                             f"(casadi.SX.sym({key!r})); got {symbol!r}")
-        out[key] = symbol
-    return out
-
-
 def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
     """The rootfinder's equilibrium of the Mechanism ``self`` (``equilibrium`` without ``q``)."""
     nq = self.q.numel()
@@ -415,27 +368,6 @@ def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
                            list(self.names), ["x_eq", "u_eq"])
 
 
-def _known(names: tuple, known) -> tuple[tuple[str, ...], dict]:
-    """``Mechanism.free``."""
-    known = {} if known is None else known
-    if not isinstance(known, Mapping):
-        raise ValueError(f"known must be a dict name -> value; got {type(known).__name__}")
-    stray = sorted(set(known) - set(names))
-    if stray:
-        raise ValueError(f"known names {stray}, which are not parameters of the mechanism "
-                         f"({list(names)})")
-    values = {}
-    for key, value in known.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) \
-                or not np.isfinite(value):
-            raise ValueError(f"known[{key!r}] must be a finite number; got {value!r}")
-        values[key] = float(value)
-    free = tuple(n for n in names if n not in values)
-    if not free:
-        raise ValueError("known fixes every parameter: nothing is left to identify")
-    return free, values
-
-
 def _integrate(self, parameters, u, dt, x0) -> np.ndarray:
     """``Mechanism.simulate`` of the Mechanism ``self``."""
     n, m, _ = self.shape
@@ -456,16 +388,3 @@ def _integrate(self, parameters, u, dt, x0) -> np.ndarray:
     states = np.hstack([x[:, None], xs[:, :-1]])
     h = casadi.Function("h", [self.x, self.u, self.p], [self.h])
     return np.array(h.map(u.shape[0])(states, u.T, np.repeat(p[:, None], u.shape[0], 1))).T
-
-
-def _channel(shape: tuple, output, input, states) -> list[int]:
-    """``Mechanism.channel``'s indices checked; the states of the subsystem."""
-    n, m, p = shape
-    if not (isinstance(output, int) and 0 <= output < p):
-        raise ValueError(f"output must be an int in [0, {p}); got {output!r}")
-    if not (isinstance(input, int) and 0 <= input < m):
-        raise ValueError(f"input must be an int in [0, {m}); got {input!r}")
-    s = list(range(n)) if states is None else [int(i) for i in states]
-    if not s or len(set(s)) != len(s) or not all(0 <= i < n for i in s):
-        raise ValueError(f"states must be distinct state indices in [0, {n}); got {states!r}")
-    return s
