@@ -44,6 +44,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.structures import Structure as Structure
     from aeid_struct.structures import System as System
     from aeid_struct.training import LegFamily as LegFamily
+    from aeid_struct.training import ParameterFamily as ParameterFamily
     from aeid_struct.training import PoleFamily as PoleFamily
     from aeid_struct.training import TrainConfig as TrainConfig
     from aeid_struct.training import UndertrainedWarning as UndertrainedWarning
@@ -52,6 +53,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
 #: public name -> the sub-package that exports it
 _SOURCES = {
     "LegFamily": "training",
+    "ParameterFamily": "training",
     "PoleFamily": "training",
     "discretise": "simulation",
     "initial_state": "simulation",
@@ -87,6 +89,7 @@ __all__ = [
     "Identifier",
     "Identifies",
     "LegFamily",
+    "ParameterFamily",
     "Physical",
     "PoleFamily",
     "Record",

@@ -22,6 +22,7 @@ from aeid_struct.structures import maps as named_maps
 from aeid_struct.structures.base import Structure
 from aeid_struct.structures.casadi_torch import CasadiOp
 from aeid_struct.structures.constraints import ElementMap
+from aeid_struct.structures.mechanical import is_mechanism, mechanism_map
 from aeid_struct.structures.realisation import ccf_coefficients, ccf_matrices
 from aeid_struct.structures.system import System
 
@@ -36,10 +37,13 @@ class Physical(Structure):
 
     Parameters
     ----------
-    function : casadi.Function
-        Scalar inputs (the physical parameters, e.g. ``k, d, m``; their order is the element
-        order) and outputs ``"A" (n, n), "B" (n, 1), "C" (1, n), "D" (1, 1)`` (others are
-        ignored) -- or, for ``R`` systems sharing the parameters, ``"A1", .., "D1", ..,
+    function : casadi.Function or symbolic.Mechanism
+        A mechanism is turned into the CCF map of one channel (``Mechanism.channel``) of its
+        parameters not in ``known``, after a check that the channel's records determine every
+        one of them in ``bounds`` (``symbolic.identifiability``; refused by name otherwise).
+        A Function has scalar inputs (the physical parameters, e.g. ``k, d, m``; their order
+        is the element order) and outputs ``"A" (n, n), "B" (n, 1), "C" (1, n), "D" (1, 1)``
+        (others are ignored) -- or, for ``R`` systems sharing the parameters, ``"A1", .., "D1", ..,
         "AR", .., "DR"`` of those shapes (then :attr:`records` is ``R``). Evaluated through
         ``CasadiOp``, so gradients are CasADi's.
     bounds : dict name -> (lo, hi)
@@ -52,6 +56,13 @@ class Physical(Structure):
         return (e.g. ``d`` of the unstable leg, which its transfer function does not contain)
         is set to its fixed value if fixed, else to the midpoint of its bounds (``raw = 0``).
 
+    known : dict name -> float, optional
+        A mechanism's parameters held at known values (gravity, a lever ratio).
+    channel : (output, input) or (output, input, states), optional
+        A mechanism's channel the records hold; ``(0, 0)`` by default.
+    **operating
+        A mechanism's operating point: ``q``, ``u``, ``guess`` of ``Mechanism.linearise``.
+
     Raises
     ------
     ValueError
@@ -59,7 +70,13 @@ class Physical(Structure):
         outputs, or ``bounds`` does not give finite ``lo < hi`` for every input.
     """
 
-    def __init__(self, function: casadi.Function, *, bounds: dict, inverse=None) -> None:
+    def __init__(self, function: casadi.Function, *, bounds: dict, inverse=None,
+                 known: dict | None = None, channel=None, **operating) -> None:
+        if is_mechanism(function):
+            function = mechanism_map(function, bounds, known, channel, operating)
+        elif known is not None or channel is not None or operating:
+            raise ValueError("known, channel and an operating point (q, u, guess) are read "
+                             "from a symbolic.Mechanism; a casadi.Function map fixes them itself")
         if not isinstance(function, casadi.Function):
             raise ValueError(f"function must be a casadi.Function; got {type(function).__name__}")
         fname = function.name()

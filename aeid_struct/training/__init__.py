@@ -5,6 +5,7 @@ Modules: ``families`` (the true systems), ``generic_family`` (stable systems of 
 their records in normalised time, for the generic identifiers; their types in
 ``generic_systems``, the polynomial algebra in ``generic_polynomials``), ``excitation`` (the
 inputs),
+``parameter_family`` (the systems of a physical structure, its parameters drawn in a box),
 ``datasets`` (simulated records and the per-record time grid), ``config`` (``TrainConfig``),
 ``objective`` (Eq. 14 on Eq. 15-normalised records), ``tensors`` (the run's records as
 tensors), ``loop`` (``train``), ``distributed`` (data-parallel runs under ``torchrun``, the
@@ -34,6 +35,7 @@ from aeid_struct.training.generic_family import GenericFamily as GenericFamily
 from aeid_struct.training.generic_family import GenericRecords as GenericRecords
 from aeid_struct.training.generic_family import GenericSystems as GenericSystems
 from aeid_struct.training.loop import train as train
+from aeid_struct.training.parameter_family import ParameterFamily as ParameterFamily
 from aeid_struct.training.progress import UndertrainedWarning as UndertrainedWarning
 
 __all__ = [
@@ -45,6 +47,7 @@ __all__ = [
     "GenericSystems",
     "GenericTrainConfig",
     "LegFamily",
+    "ParameterFamily",
     "PoleFamily",
     "Records",
     "Systems",

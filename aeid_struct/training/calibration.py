@@ -81,7 +81,13 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
         "fit": float}``.
     """
     systems = rec.systems
-    X = ident.structure.elements_of(systems.A, systems.b, systems.c, systems.d).numpy()
+    names = ident.structure.element_names
+    if all(name in systems.params for name in names):
+        # a family of the structure's own parameters (ParameterFamily) knows the truth: no
+        # inverse map, and no conversion error
+        X = np.stack([np.asarray(systems.params[name], dtype=np.float64) for name in names], 1)
+    else:
+        X = ident.structure.elements_of(systems.A, systems.b, systems.c, systems.d).numpy()
     rng = np.random.default_rng(seed)
     y = rec.y_clean[held]
     y = y + noise * np.abs(y).max(axis=1, keepdims=True) * rng.normal(size=y.shape)

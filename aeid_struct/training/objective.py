@@ -134,6 +134,12 @@ def theta(structure: Structure, systems: Systems, gain: np.ndarray | None) -> np
     -------
     theta : (N, p) float64 array
     """
+    names = structure.element_names
+    if gain is None and all(name in systems.params for name in names):
+        # the family drew the structure's own parameters (ParameterFamily): their raw values
+        # need no inverse map from the model
+        elements = np.stack([np.asarray(systems.params[k], np.float64) for k in names], 1)
+        return structure.raw(torch.from_numpy(elements)).numpy()
     c, d = systems.c, systems.d
     if gain is not None:
         c, d = c / gain[:, None], d / gain
