@@ -182,7 +182,8 @@ class Mechanism:
             The operating input; zeros by default.
         q : (nq,) numbers or casadi.SX of the parameters, optional
             The equilibrium's coordinates, named by the user (required for a rigid-body mode);
-            solved by a Newton rootfinder from ``guess`` when omitted.
+            solved when omitted: symbolically where the forces at rest are affine in ``q``,
+            else by a Newton rootfinder from ``guess``.
         guess : (nq,) numbers, optional
             The rootfinder's start (zeros by default); it finds the equilibrium nearest to it.
 
@@ -339,7 +340,8 @@ class Mechanism:
 
 
 def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
-    """The rootfinder's equilibrium of the Mechanism ``self`` (``equilibrium`` without ``q``)."""
+    """The solved equilibrium of the Mechanism ``self`` (``equilibrium`` without ``q``): one
+    symbolic solve where the forces at rest are affine in ``q``, else a Newton rootfinder."""
     nq = self.q.numel()
     start = np.zeros(nq) if guess is None else np.asarray(guess, dtype=float).ravel()
     if start.shape != (nq,) or not np.isfinite(start).all():
@@ -354,6 +356,14 @@ def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
         raise ValueError(f"{self.name} has no isolated equilibrium at this input (the forces "
                          "at rest do not pin every coordinate: a rigid-body mode); name one: "
                          "equilibrium(q=...) or linearise(q=...)")
+    gradient = casadi.jacobian(rest, self.q)
+    if not casadi.depends_on(gradient, self.q):
+        # forces affine in q (a linear mechanism): the rest point is one symbolic solve, so the
+        # maps stay SX (exact, fast to evaluate, C code without a rootfinder)
+        q_e = casadi.solve(gradient, -casadi.substitute(rest, self.q, casadi.SX.zeros(nq, 1)))
+        x_e = casadi.vertcat(q_e, casadi.SX.zeros(nq, 1))
+        return casadi.Function(f"{self.name}_equilibrium", list(self.parameters.values()),
+                               [x_e, u_e], list(self.names), ["x_eq", "u_eq"])
     residual = casadi.Function("residual", [self.q, self.p], [rest])
     solver = casadi.rootfinder(f"{self.name}_rest", "newton", residual,
                                {"abstol": 1e-13, "max_iter": 100, "error_on_fail": True})

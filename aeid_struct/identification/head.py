@@ -21,7 +21,8 @@ from aeid_struct.records import RecordError
 from aeid_struct.refinement import MAX_ITERATIONS, Pattern, fit_rows
 from aeid_struct.structures import type_of
 
-__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "head_failure", "pattern_of"]
+__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "converges_to_optimum",
+           "head_failure", "pattern_of"]
 
 @dataclass(frozen=True)
 class Head:
@@ -168,10 +169,17 @@ def pattern_of(ident, head: Head) -> Pattern:
     Raises
     ------
     ValueError
-        For an identifier the head does not serve: not a (partly fixed) CCF, several records,
-        or a ``fixed`` name the structure does not have.
+        For an identifier the head does not serve: not a (partly fixed) CCF or a physical
+        structure, several records, or a ``fixed`` name the structure does not have.
     """
     structure = ident.structure
+    if type_of(structure) == "Physical" and ident.records == 1:
+        if head.fixed:
+            raise ValueError(f"head: fixed names {sorted(head.fixed)}, but a physical "
+                             f"structure's head holds its map's constant coefficients itself")
+        from aeid_struct.identification.physical_head import physical_head
+
+        return physical_head(structure, ident.initial == "fitted").pattern
     if type_of(structure) != "CCF" or ident.records != 1:
         raise ValueError(f"head: the separable head needs a single-record identifier in a "
                          f"(partly fixed) CCF; this one has {structure!r} over "
@@ -200,6 +208,27 @@ def _pattern(ident, head: Head) -> Pattern:
             _PATTERNS.clear()
         hit = _PATTERNS[key] = (ident.structure, pattern_of(ident, head))
     return hit[1]
+
+
+def converges_to_optimum(ident) -> bool:
+    """Whether the head iterated to convergence is the least-squares optimum in the
+    identifier's structure: always for a CCF; for a physical structure where its free CCF
+    coefficients are as many as its parameters (``physical_head``'s square map), not where
+    several parameters shape more coefficients (then ``refine=True`` polishes with the NLP).
+
+    Parameters
+    ----------
+    ident : Identifier
+
+    Returns
+    -------
+    bool
+    """
+    if type_of(ident.structure) != "Physical":
+        return True
+    from aeid_struct.identification.physical_head import physical_head
+
+    return physical_head(ident.structure, ident.initial == "fitted").square
 
 
 def head_failure(record: int, head: Head) -> RecordError:
@@ -242,6 +271,10 @@ def apply_head(ident, head: Head, ys: list, us: list, model: tuple) -> tuple:
     failed : (count,) bool array
         Those rows (:func:`head_failure` says why to the caller's user).
     """
+    if type_of(ident.structure) == "Physical":
+        from aeid_struct.identification.physical_head import apply_physical_head
+
+        return apply_physical_head(ident, head, ys, us, model)
     pattern = _pattern(ident, head)
     A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
     y = ys[0]

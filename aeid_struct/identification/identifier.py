@@ -31,7 +31,7 @@ from aeid_struct.identification.checks import (
     set_format,
     thetas,
 )
-from aeid_struct.identification.head import Head, HeadSlot
+from aeid_struct.identification.head import Head, HeadSlot, converges_to_optimum
 from aeid_struct.identification.identifier_files import IdentifierFiles
 from aeid_struct.records import arrays_of, check_record
 
@@ -256,7 +256,9 @@ class Identifier(IdentifierFiles):
             (``aeid_struct.refinement``): True for every record, ``"auto"`` for exactly the
             records flagged ``outside`` the training range (``info["refined_rows"]``). With a
             ``head``, True iterates the head to convergence instead (``info["refine"]`` is
-            ``"separable"``): the least-squares optimum in the head's structure, batched.
+            ``"separable"``): the least-squares optimum in the head's structure, batched
+            (a physical structure whose map shapes more CCF coefficients than it has
+            parameters polishes the head's estimate with the NLP instead).
         errors : {"raise", "collect"}
             A record that cannot be identified (non-finite samples, an all-zero ``y`` or ``u``,
             a varying ``u`` for an identifier that does not read it, ``max|y| / max|u|`` beyond
@@ -276,7 +278,7 @@ class Identifier(IdentifierFiles):
         check_call(self, dt, refine, errors)
         provenance = self.provenance
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
-        if refine is True and self.head is not None:
+        if refine is True and self.head is not None and converges_to_optimum(self):
             return one_pass.refine_with_head(self, record, start, errors,
                                              self.head.converged(), provenance)
         est = one_pass.identify_record(self, record, start, errors, provenance=provenance)

@@ -1,0 +1,217 @@
+r"""The separable head of a physical structure (``Physical``, e.g. a mechanism's channel): the
+one pass's few Gauss-Newton iterations, then back to the parameters.
+
+The physical map ``p -> (A, B, C, D)`` reaches a set of transfer functions; in the CCF of
+paper Eq. 5 some of their coefficients are the same for every ``p`` (a mass-spring-damper's
+``c_1 = 0``, the upright leg's ``a_1 = 0``). The head therefore runs in two steps:
+
+1. the separable Levenberg-Marquardt of the partly fixed CCF (``refinement.fit_rows``: the
+   poles from the encoder's model, the numerator, ``x0`` and the offset projected out), with
+   the structurally constant coefficients held at their values;
+2. the parameters whose coefficients are closest to the fitted ones, relatively, within the
+   bounds: least squares on ``w (k(p) - k_fit)`` from the encoder's parameters, with
+   CasADi's Jacobian of the coefficient map ``k(p)`` (Gauss-Newton with step halving).
+
+Where the free coefficients are as many as the parameters (the map is square: a lever-driven
+mass, the leg's subsystems, a two-mass system), step 2 solves ``k(p) = k_fit`` and the head's
+result is the output-error optimum of the structure itself. Where there are more coefficients
+(several parameters shape several coefficients jointly), it is the nearest parameter set, an
+approximation the refinement (``identify(refine=True)``) polishes in the parameters."""
+
+from __future__ import annotations
+
+import math
+
+import casadi
+import numpy as np
+
+from aeid_struct.refinement import Pattern, fit_rows
+from aeid_struct.structures import Numeric
+
+__all__ = ["PhysicalHead", "physical_head"]
+
+#: Points of the box on which a coefficient must not move to count as structurally constant.
+PROBES = 12
+#: Iterations of the coefficient fit (step 2); each is one evaluation of ``k(p)`` and its
+#: Jacobian per record.
+INVERSE_ITERATIONS = 30
+
+
+class PhysicalHead:
+    """The head's view of a physical structure of one record: its CCF pattern and the map
+    ``p -> k(p)`` of the free coefficients (module docstring).
+
+    Parameters
+    ----------
+    structure : Physical
+        One record.
+    initial : bool
+        Whether the records start mid-motion (``x0`` projected out).
+    """
+
+    def __init__(self, structure, initial: bool) -> None:
+        function, names = structure.function, structure.element_names
+        n, q = structure.n, len(names)
+        p = casadi.MX.sym("p", q)
+        out = function.call({k: p[i] for i, k in enumerate(function.name_in())})
+        A, B, C, D = (out[k] for k in "ABCD")
+        coefficients = casadi.vertcat(_ccf_coefficients(A, B, C), D)   # a (n), c (n), d
+        every = casadi.Function("k", [p], [coefficients])
+        lo = np.array([structure.bounds[k][0] for k in names])
+        hi = np.array([structure.bounds[k][1] for k in names])
+        probes = np.random.default_rng(0).uniform(lo, hi, (PROBES, q))
+        values = np.array(every.map(PROBES)(probes.T)).T          # (PROBES, 2 n + 1)
+        size = np.abs(values).max(axis=0)
+        # a structural zero comes out of the CCF conversion as rounding (1e-9 beside 1e4)
+        zero = size <= 1e-10 * np.abs(values).max()
+        constant = zero | (np.ptp(values, axis=0) <= 1e-10 * (1.0 + size))
+        level = np.where(zero, 0.0, values[0])
+
+        def entry(i):
+            return float(level[i]) if constant[i] else None
+
+        self.pattern = Pattern(a=tuple(entry(j) for j in range(n)),
+                               c=tuple(entry(n + j) for j in range(n)),
+                               d=entry(2 * n), initial=initial)
+        self.free = np.flatnonzero(~constant)
+        k_free = coefficients[self.free.tolist()]
+        # dense outputs: the buffer writes nonzeros only, and numpy reads full matrices
+        self.coefficients = Numeric(_expanded(casadi.Function("k_free", [p], [
+            casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))])))
+        self.model = Numeric(_expanded(casadi.Function("model", [p], [
+            casadi.densify(v) for v in (A, B, C, D)] + [casadi.densify(coefficients[:n])])))
+        self.lo, self.hi, self.n, self.q = lo, hi, n, q
+        self.square = self.free.size == q
+
+    def parameters(self, target: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """The parameters in the bounds whose free coefficients are nearest ``target``
+        (relative least squares, Gauss-Newton with step halving from ``start``).
+
+        Parameters
+        ----------
+        target : (k,) array
+            The fitted free coefficients.
+        start : (q,) array
+            The encoder's parameters.
+
+        Returns
+        -------
+        (q,) array
+        """
+        margin = 1e-9 * (self.hi - self.lo)
+        lo, hi = self.lo + margin, self.hi - margin
+        p = np.clip(np.asarray(start, dtype=np.float64), lo, hi)
+        w = 1.0 / (np.abs(target) + 1e-9 * max(np.abs(target).max(), 1e-300))
+        k, J = self.coefficients(p)
+        r = w * (k - target)
+        cost = float(r @ r)
+        # Gauss-Newton with step halving: the coefficient map is smooth and, where square,
+        # regular near its solution (quadratic convergence in a few steps)
+        for _ in range(INVERSE_ITERATIONS):
+            if not cost > 1e-28:
+                break
+            Jw = w[:, None] * J.reshape(self.q, -1).T          # column-major (k, q)
+            step = np.linalg.lstsq(Jw, -r, rcond=None)[0]
+            for _ in range(12):
+                trial = np.clip(p + step, lo, hi)
+                k2, J2 = self.coefficients(trial)
+                r2 = w * (k2 - target)
+                cost2 = float(r2 @ r2)
+                if math.isfinite(cost2) and cost2 < cost:
+                    break
+                step = 0.5 * step
+            else:
+                break                   # no descent along the Gauss-Newton direction
+            done = cost - cost2 <= 1e-14 * cost
+            p, r, J, cost = trial, r2, J2, cost2
+            if done:
+                break
+        return p
+
+
+#: PhysicalHead by (structure object, initial): built once per identifier's structure.
+_HEADS: dict = {}
+
+
+def physical_head(structure, initial: bool) -> PhysicalHead:
+    """The :class:`PhysicalHead` of ``structure``, built once (compared by identity).
+
+    Parameters
+    ----------
+    structure : Physical
+    initial : bool
+
+    Returns
+    -------
+    PhysicalHead
+    """
+    key = (id(structure), bool(initial))
+    hit = _HEADS.get(key)
+    if hit is None or hit[0] is not structure:
+        if len(_HEADS) > 64:
+            _HEADS.clear()
+        hit = _HEADS[key] = (structure, PhysicalHead(structure, bool(initial)))
+    return hit[1]
+
+
+def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
+    """:func:`~aeid_struct.identification.head.apply_head` for a physical structure (module
+    docstring): the CCF's separable fit, then the nearest parameters; rows whose encoder model
+    is not finite are left as they are.
+
+    Parameters
+    ----------
+    ident : Identifier
+    head : Head
+    ys, us : lists of one (count, steps) float64 array (``us[0]`` None: a unit step)
+    model : tuple
+        ``A (count, n, n), b (count, n), c (count, n), d (count,), elements (count, q)``.
+
+    Returns
+    -------
+    model : tuple
+    failed : (count,) bool array
+    """
+    ph = physical_head(ident.structure, ident.initial == "fitted")
+    A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
+    y = ys[0]
+    u = np.ones_like(y) if us[0] is None else np.broadcast_to(us[0], y.shape)
+    rows = np.flatnonzero(np.isfinite(el).all(axis=1) & np.isfinite(A).all(axis=(1, 2)))
+    failed = np.zeros(A.shape[0], dtype=bool)
+    if rows.size == 0:
+        return (A, b, c, d, el), failed
+    # the poles of the encoder's parameters, as the head starts from them
+    a0 = np.stack([ph.model(np.ascontiguousarray(el[row]))[4] for row in rows])
+    pattern = ph.pattern
+    fa, fc, fd, ok = fit_rows(pattern, a0[:, pattern.free_a], y[rows], u[rows], ident.dt,
+                              iterations=head.iterations, tol=head.tol)
+    fitted = np.concatenate([fa, fc, fd[:, None]], axis=1)[:, ph.free]
+    n = ph.n
+    for i, row in enumerate(rows):
+        if not ok[i]:
+            failed[row] = True
+            A[row], b[row], c[row], d[row], el[row] = (math.nan,) * 5
+            continue
+        p = ph.parameters(fitted[i], el[row])
+        Ai, Bi, Ci, Di, _ = ph.model(p)
+        A[row] = Ai.reshape(n, n).T                               # column-major
+        b[row], c[row], d[row], el[row] = Bi, Ci, Di[0], p
+    return (A, b, c, d, el), failed
+
+
+def _expanded(function: casadi.Function) -> casadi.Function:
+    """``function`` as an SX Function where it expands (a map with a rootfinder does not):
+    SX evaluates a small map in a few microseconds, MX's virtual machine in tens."""
+    try:
+        return function.expand()
+    except RuntimeError:
+        return function
+
+
+def _ccf_coefficients(A, B, C) -> casadi.MX:
+    """``(a_0 .. a_{n-1}, c_0 .. c_{n-1})`` of the CCF of ``(A, B, C)`` (paper Eq. 5), in
+    CasADi (``symbolic.realisation.ccf``)."""
+    from symbolic.realisation import ccf
+
+    Ac, _, Cc, _ = ccf(A, B, C, casadi.MX(1, 1))
+    return casadi.vertcat(-Ac[-1, :].T, Cc.T)
