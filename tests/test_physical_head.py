@@ -107,3 +107,18 @@ def test_a_map_of_more_coefficients_than_parameters_is_polished_by_the_nlp():
     from aeid_struct.identification.head import converges_to_optimum
 
     assert not converges_to_optimum(SimpleNamespace(structure=structure, initial="rest"))
+
+
+def test_records_left_on_a_bound_are_polished_by_the_nlp(lever):
+    # a record whose CCF optimum lies beyond the box: the head's nearest parameters stop on a
+    # bound, and refine=True hands that record to the NLP (the optimum within the bounds)
+    ident, family = lever
+    rec = ae.data.records(family, 2, steps=200, dt=0.02, excitation_kind="prbs", seed=5)
+    y = np.array(rec.y)
+    y[1] = y[1] * 3.0          # a gain beyond the box: m = r / c0 would fall below 0.5
+    refined = ident.identify(y, rec.u, refine=True)
+    np.testing.assert_array_equal(refined.info["refined_rows"], [False, True])
+    oracle = baselines.least_squares(y[1], rec.u[1], 0.02, structure=ident.structure,
+                                     start={k: float(refined.physical[k][1]) for k in NAMES})
+    cost = np.mean((refined.take([1]).y_hat[0] - y[1]) ** 2)
+    assert cost <= np.mean((oracle.y_hat - y[1]) ** 2) * (1 + 1e-6)

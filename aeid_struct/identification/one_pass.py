@@ -14,6 +14,7 @@ import numpy as np
 from aeid_struct.estimates import Estimate
 from aeid_struct.identification.head import apply_head, head_failure
 from aeid_struct.records import RecordBatch, overflow_problem
+from aeid_struct.structures import type_of
 
 __all__ = ["estimate_of", "identify_record", "refine_with_head"]
 
@@ -86,10 +87,16 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
     Returns
     -------
     Estimate
-        ``refined`` True, ``info["refine"] = "separable"``.
+        ``refined`` True, ``info["refine"] = "separable"``; a physical structure's records
+        left on a bound are refined by the NLP (``polish.polish_at_bounds``).
     """
     est = identify_record(ident, record, start, errors, head, provenance)
-    return dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
+    est = dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
+    if type_of(ident.structure) != "Physical":
+        return est
+    from aeid_struct.identification.polish import polish_at_bounds
+
+    return polish_at_bounds(est)
 
 
 def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:

@@ -10,7 +10,7 @@ import numpy as np
 from aeid_struct.estimates import Estimate
 from aeid_struct.refinement import refine
 
-__all__ = ["polish"]
+__all__ = ["polish", "polish_at_bounds"]
 
 
 def polish(est: Estimate, mode) -> Estimate:
@@ -34,6 +34,40 @@ def polish(est: Estimate, mode) -> Estimate:
     if est._good is not None:      # errors="collect" set records aside: refine the rest
         return _rows(est, est._good)
     return refine(est)
+
+
+def polish_at_bounds(est: Estimate) -> Estimate:
+    """The converged head of a physical structure, with the records whose parameters it left
+    on a bound refined by the NLP.
+
+    Why: where the map is square, the head's nearest parameters are the structure's optimum
+    only if the CCF optimum lies in the image of the box; a noisy record whose CCF optimum
+    does not (an ill-conditioned parameter) is stopped on a bound, and the optimum within the
+    bounds is then the NLP's (``refinement.refine``).
+
+    Parameters
+    ----------
+    est : Estimate
+        ``refine=True`` through the converged head (``info["refine"] == "separable"``).
+
+    Returns
+    -------
+    Estimate
+        With ``info["refined_rows"]``, the records the NLP refined.
+    """
+    mask = np.zeros(np.shape(est.d)[0] if est.batched else 1, dtype=bool)
+    for name, (lo, hi) in est.structure.bounds.items():
+        value = np.atleast_1d(np.asarray(est.elements[name], dtype=np.float64))
+        tol = 1e-6 * (hi - lo)
+        mask |= (value <= lo + tol) | (value >= hi - tol)
+    if est._good is not None:
+        mask &= est._good
+    if not est.batched:
+        if not mask[0]:
+            return dataclasses.replace(est, info={**est.info, "refined_rows": False})
+        out = refine(est)
+        return dataclasses.replace(out, info={**out.info, "refined_rows": True})
+    return _rows(est, mask)
 
 
 def _flagged(est: Estimate) -> Estimate:
