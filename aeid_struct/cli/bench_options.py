@@ -1,5 +1,5 @@
-"""The options of the benchmark subcommands, ``aeid-struct bench``, ``bench-online`` and
-``bench-generic``: one function per subcommand adds its parser.
+"""The options of the benchmark subcommands, ``aeid-struct bench``, ``bench-online``,
+``bench-generic`` and ``bench-mechanism``: one function per subcommand adds its parser.
 
 The seam: the benchmarks measure the library rather than use it (``studies.bench``,
 ``studies.onepass_bench``, ``studies.bench_online``, ``studies.generic_bench``), and their
@@ -10,7 +10,12 @@ Adding the options imports neither torch nor CasADi.
 from __future__ import annotations
 
 from aeid_struct.cli.arguments import FRACTION, POSITIVE, POSITIVE_INT, number
-from aeid_struct.cli.benchmarks import run_bench, run_bench_generic, run_bench_online
+from aeid_struct.cli.benchmarks import (
+    run_bench,
+    run_bench_generic,
+    run_bench_mechanism,
+    run_bench_online,
+)
 
 
 def add_bench(sub) -> None:
@@ -115,3 +120,40 @@ def add_bench_generic(sub) -> None:
                      help="JSON file to write (default out/bench_generic.json)")
     gen.add_argument("--quiet", action="store_true", help="no progress lines")
     gen.set_defaults(func=run_bench_generic)
+
+
+def add_bench_mechanism(sub) -> None:
+    """Add the ``bench-mechanism`` subcommand and its options to ``sub``.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The subcommands of the ``aeid-struct`` parser (``parser.build_parser``).
+    """
+    mech = sub.add_parser(
+        "bench-mechanism", help="mechanisms from their Lagrangians: identifiability, trained "
+                                "physical identifiers, one pass and refinement against a cold "
+                                "grey-box fit and n4sid",
+        description="For mechanisms written as Lagrangians (symbolic.mechanisms): print the "
+                    "identifiability report of the measured channel, train an identifier of "
+                    "the physical parameters through Physical(mechanism) and ParameterFamily, "
+                    "and measure its parameters' errors (encoder, one pass, refined, a 4-start "
+                    "cold grey-box fit, n4sid) and batch-1 times on unseen PRBS records; write "
+                    "JSON.")
+    mech.add_argument("--quick", action="store_true",
+                      help="20 s of training, 8 records per level (default 120 s, 40)")
+    mech.add_argument("--seconds", type=POSITIVE, default=None,
+                      help="training budget per identifier in seconds")
+    mech.add_argument("--records", type=POSITIVE_INT, default=None,
+                      help="test records per noise level")
+    mech.add_argument("--noise", type=FRACTION, nargs="+", default=[0.0, 0.02, 0.05],
+                      help="noise std / max|y| of the test records (default 0 0.02 0.05)")
+    mech.add_argument("--cases", nargs="+", default=None,
+                      help="mechanisms by name, as the report prints them (default all: 'lever "
+                           "(r known)', 'leg, translation', 'two-mass', 'leg, rotation', "
+                           "'lever (r unknown)')")
+    mech.add_argument("--json", default="out/bench_mechanism.json",
+                      help="JSON file to write (default out/bench_mechanism.json)")
+    mech.add_argument("--quiet", action="store_true", help="no progress lines")
+    mech.set_defaults(func=run_bench_mechanism)
+

@@ -12,7 +12,12 @@ from __future__ import annotations
 import argparse
 
 from aeid_struct.cli.arguments import FRACTION, POSITIVE, POSITIVE_INT, Parser, number
-from aeid_struct.cli.bench_options import add_bench, add_bench_generic, add_bench_online
+from aeid_struct.cli.bench_options import (
+    add_bench,
+    add_bench_generic,
+    add_bench_mechanism,
+    add_bench_online,
+)
 from aeid_struct.cli.commands import run_leg, run_track
 from aeid_struct.cli.demo import run_demo
 from aeid_struct.cli.errors import EXIT_INPUT, EXIT_OUTSIDE
@@ -51,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench(sub)
     add_bench_online(sub)
     add_bench_generic(sub)
+    add_bench_mechanism(sub)
     return parser
 
 

@@ -54,6 +54,7 @@ if TYPE_CHECKING:
     from aeid_struct.identification.onnx_backend import OnnxBackend as OnnxBackend
     from aeid_struct.identification.onnx_backend import inverse_names as inverse_names
     from aeid_struct.identification.onnx_backend import read_onnx as read_onnx
+    from aeid_struct.identification.physical_head import PhysicalHead as PhysicalHead
     from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
     from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
 
@@ -78,6 +79,7 @@ _LAZY = {
     "apply_head": "head",
     "head_failure": "head",
     "pattern_of": "head",
+    "PhysicalHead": "physical_head",
     "ERROR_MODES": "identifier",
     "INITIAL_STATES": "identifier",
     "SCALE_MODES": "identifier",
@@ -93,32 +95,33 @@ __all__ = [
     "FORMAT",
     "FORMAT_1",
     "FORMAT_2",
-    "KINDS",
     "Head",
     "INITIAL_STATES",
     "Identifier",
     "Identifies",
+    "KINDS",
     "ONNX_FORMAT",
     "ONNX_FORMAT_1",
     "ONNX_FORMAT_2",
     "ONNX_FORMAT_3",
     "OnnxBackend",
     "PRETRAINED",
+    "PhysicalHead",
     "Provenance",
     "RecordBatch",
     "SCALE_MODES",
     "TorchBackend",
     "apply_head",
+    "excess",
     "head_failure",
     "inverse_names",
-    "excess",
     "inverse_of_models",
     "kind_of",
     "load_pretrained",
     "onnx_bytes",
     "pattern_of",
-    "read_safetensors",
     "read_onnx",
+    "read_safetensors",
     "refuse_other",
     "stamp",
     "through_ccf",
