@@ -16,3 +16,9 @@ which parameters the chosen channels determine; ``symbolic.mechanisms`` holds wo
 leg, a two-mass system, a lever, a drive train, a cart-pole). The ``aeid_struct`` library imports
 these maps where a physical structure needs them.
 """
+
+from symbolic.identifiability import IdentifiabilityReport as IdentifiabilityReport
+from symbolic.identifiability import identifiability as identifiability
+from symbolic.mechanism import Mechanism as Mechanism
+
+__all__ = ["IdentifiabilityReport", "Mechanism", "identifiability"]

@@ -37,13 +37,11 @@ and check it against ``symbolic.slip``.
 from __future__ import annotations
 
 import keyword
-import pathlib
 from collections.abc import Mapping, Sequence
 
 import casadi
 import numpy as np
 
-from .codegen import generate_c
 from .mechanism_checks import (
     channel_indices,
     checked_expression,
@@ -51,6 +49,7 @@ from .mechanism_checks import (
     checked_parameters,
     checked_vector,
 )
+from .mechanism_tools import MechanismTools
 from .realisation import ccf
 
 __all__ = ["Mechanism", "euler_lagrange"]
@@ -92,7 +91,7 @@ def euler_lagrange(L, R, Q, q, dq, u) -> tuple[casadi.SX, casadi.SX, casadi.SX]:
     return M, balance, casadi.solve(M, balance)
 
 
-class Mechanism:
+class Mechanism(MechanismTools):
     """A mechanism from its Lagrangian (module docstring): equations of motion, equilibrium,
     linearisation, per-channel canonical maps and C code. CasADi only; no torch.
 
@@ -293,51 +292,6 @@ class Mechanism:
         return casadi.Function(f"{self.name}_y{output}_u{input}", symbols, list(realised),
                                lin.name_in(), ["A", "B", "C", "D"])
 
-    def generate_c(self, directory: str | pathlib.Path, *, channels: Sequence[tuple] = (),
-                   **operating) -> pathlib.Path:
-        """The dynamics, the linearisation and the named channels as one C file.
-
-        Parameters
-        ----------
-        directory : str or Path
-        channels : sequence of (output, input) or (output, input, states)
-        **operating
-            As :meth:`linearise`.
-
-        Returns
-        -------
-        pathlib.Path
-            ``directory / "<name>.c"`` (``symbolic.codegen.generate_c``).
-        """
-        functions = [self.dynamics(), self.linearise(**operating)]
-        for spec in channels:
-            out, inp, *rest = spec
-            functions.append(self.channel(out, inp, states=rest[0] if rest else None,
-                                          **operating))
-        return generate_c(directory, functions, name=self.name)
-
-    def simulate(self, parameters: Mapping[str, float], u, dt: float, *, x0=None) -> np.ndarray:
-        """The nonlinear model's outputs under ``u`` held between samples, by CasADi's
-        ``cvodes`` integrator (the oracle of the linearisation: a small excitation about the
-        equilibrium stays near the linear model).
-
-        Parameters
-        ----------
-        parameters : dict str -> float
-            Every parameter's value.
-        u : (N, m) array
-            The inputs, each held for one step (absolute, not deviations).
-        dt : float
-        x0 : (n,) array, optional
-            The state at the first sample; zeros by default.
-
-        Returns
-        -------
-        (N, p) array
-            ``y`` at each sample, before that sample's input acts.
-        """
-        return _integrate(self, parameters, u, dt, x0)
-
 
 def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
     """The solved equilibrium of the Mechanism ``self`` (``equilibrium`` without ``q``): one
@@ -376,25 +330,3 @@ def _rest_point(self, u_e: casadi.SX, guess) -> casadi.Function:
     x_out, u_out = inner(casadi.vertcat(*symbols))
     return casadi.Function(f"{self.name}_equilibrium", symbols, [x_out, u_out],
                            list(self.names), ["x_eq", "u_eq"])
-
-
-def _integrate(self, parameters, u, dt, x0) -> np.ndarray:
-    """``Mechanism.simulate`` of the Mechanism ``self``."""
-    n, m, _ = self.shape
-    missing = sorted(set(self.names) - set(parameters))
-    if missing:
-        raise ValueError(f"parameters must give every parameter; missing {missing}")
-    p = np.array([float(parameters[k]) for k in self.names])
-    u = np.asarray(u, dtype=float).reshape(-1, m)
-    if not (isinstance(dt, (int, float)) and dt > 0):
-        raise ValueError(f"dt must be a positive number; got {dt!r}")
-    x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).ravel()
-    up = casadi.vertcat(self.u, self.p)
-    step = casadi.integrator(f"{self.name}_step", "cvodes",
-                             {"x": self.x, "p": up, "ode": self.f}, 0.0, float(dt),
-                             {"abstol": 1e-12, "reltol": 1e-12})
-    run = step.mapaccum(u.shape[0])
-    xs = np.array(run(x0=x, p=np.vstack([u.T, np.repeat(p[:, None], u.shape[0], 1)]))["xf"])
-    states = np.hstack([x[:, None], xs[:, :-1]])
-    h = casadi.Function("h", [self.x, self.u, self.p], [self.h])
-    return np.array(h.map(u.shape[0])(states, u.T, np.repeat(p[:, None], u.shape[0], 1))).T

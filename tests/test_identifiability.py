@@ -123,3 +123,8 @@ def test_rank_drops_are_reported_with_their_condition_number():
 def test_bad_arguments_are_refused_by_name(call, message):
     with pytest.raises(ValueError, match=message):
         identifiability(mechanisms.lever(), **call)
+
+
+def test_the_mechanism_answers_for_itself():
+    lever = mechanisms.lever()
+    assert lever.identifiability(LEVER_BOX) == identifiability(lever, LEVER_BOX)
