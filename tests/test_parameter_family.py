@@ -109,3 +109,21 @@ def test_training_needs_no_inverse_and_refinement_reaches_the_truth():
     refined = ident.identify(rec.y, rec.u, refine=True)
     for name in ("m", "k", "d"):
         np.testing.assert_allclose(refined.physical[name], rec.systems.params[name], rtol=1e-5)
+
+
+def test_a_mechanism_identifier_file_is_data_and_needs_its_map(tmp_path):
+    structure = _lever_structure()
+    ident = ae.train(structure, ae.ParameterFamily(structure), ae.TrainConfig(
+        steps=100, dt=0.02, epochs=1, count=100, excitation="prbs", progress=False))
+    path = ident.save(tmp_path / "lever.aeid")
+    with pytest.raises(ValueError, match="user map 'lever_y0_u0'.*maps=.*SHA-256"):
+        ae.load(path)
+    rec = ae.data.records(ae.ParameterFamily(structure), 2, steps=100, dt=0.02,
+                          excitation_kind="prbs", seed=1)
+    again = ae.load(path, maps={"lever_y0_u0": _lever_structure().function})
+    for k in ("m", "k", "d"):
+        np.testing.assert_array_equal(again.identify(rec.y, rec.u).physical[k],
+                                      ident.identify(rec.y, rec.u).physical[k])
+    other = ae.Physical(mechanisms.lever(), bounds=BOX, known={"r": 2.0})   # another map
+    with pytest.raises(ValueError, match="SHA-256"):
+        ae.load(path, maps={"lever_y0_u0": other.function})

@@ -46,8 +46,15 @@ def _onepass(data: dict) -> str:
     return format_onepass_tables(data["onepass"])
 
 
+def _mechanism(data: list) -> str:
+    from aeid_struct.studies.mechanism_bench import report
+
+    return "```text\n" + report(data).strip() + "\n```"
+
+
 #: result name -> the formatter of its JSON
-RENDER = {"leg": _leg, "bench-generic": _generic, "bench-online": _online, "onepass": _onepass}
+RENDER = {"leg": _leg, "bench-generic": _generic, "bench-online": _online, "onepass": _onepass,
+          "bench-mechanism": _mechanism}
 
 
 def _run_line(run: dict) -> str:
