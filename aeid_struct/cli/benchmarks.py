@@ -214,9 +214,6 @@ def run_bench_mechanism(args: argparse.Namespace) -> int:
     InputError
         A case name the benchmark does not have.
     """
-    import json
-    import pathlib
-
     from aeid_struct import studies
 
     mechanism_bench = studies.mechanism_bench
@@ -233,9 +230,6 @@ def run_bench_mechanism(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise InputError(f"bench-mechanism: {err}") from None
     print(mechanism_bench.report(rows))
-    out = pathlib.Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=1, default=float))
-    print(f"wrote {out}")
+    _write_json(rows, args.json)
     return 0
 

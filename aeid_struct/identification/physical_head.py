@@ -155,23 +155,9 @@ def physical_head(structure, initial: bool) -> PhysicalHead:
 
 
 def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
-    """:func:`~aeid_struct.identification.head.apply_head` for a physical structure (module
-    docstring): the CCF's separable fit, then the nearest parameters; rows whose encoder model
-    is not finite are left as they are.
-
-    Parameters
-    ----------
-    ident : Identifier
-    head : Head
-    ys, us : lists of one (count, steps) float64 array (``us[0]`` None: a unit step)
-    model : tuple
-        ``A (count, n, n), b (count, n), c (count, n), d (count,), elements (count, q)``.
-
-    Returns
-    -------
-    model : tuple
-    failed : (count,) bool array
-    """
+    """:func:`~aeid_struct.identification.head.apply_head` for a physical structure, with its
+    arguments and results (module docstring): the CCF's separable fit, then the nearest
+    parameters; rows whose encoder model is not finite are left as they are."""
     ph = physical_head(ident.structure, ident.initial == "fitted")
     A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
     y = ys[0]
