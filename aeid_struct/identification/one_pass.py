@@ -88,15 +88,17 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
     -------
     Estimate
         ``refined`` True, ``info["refine"] = "separable"``; a physical structure's records
-        left on a bound are refined by the NLP (``polish.polish_at_bounds``).
+        left on a bound are refined by the NLP (``polish.polish_at_bounds``), and
+        ``info["std"]`` holds its parameters' standard errors
+        (``polish.with_standard_errors``).
     """
     est = identify_record(ident, record, start, errors, head, provenance)
     est = dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
     if type_of(ident.structure) != "Physical":
         return est
-    from aeid_struct.identification.polish import polish_at_bounds
+    from aeid_struct.identification.polish import polish_at_bounds, with_standard_errors
 
-    return polish_at_bounds(est)
+    return with_standard_errors(polish_at_bounds(est))
 
 
 def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:

@@ -28,7 +28,7 @@ import numpy as np
 from aeid_struct.refinement import Pattern, fit_rows
 from aeid_struct.structures import Numeric
 
-__all__ = ["PhysicalHead", "physical_head"]
+__all__ = ["PhysicalHead", "physical_head", "standard_errors"]
 
 #: Points of the box on which a coefficient must not move to count as structurally constant.
 PROBES = 12
@@ -183,6 +183,63 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
         A[row] = Ai.reshape(n, n).T                               # column-major
         b[row], c[row], d[row], el[row] = Bi, Ci, Di[0], p
     return (A, b, c, d, el), failed
+
+
+def standard_errors(est) -> dict[str, np.ndarray]:
+    """Standard errors of a physical estimate's parameters at its optimum, as ``greyest``
+    gives them: ``sqrt(diag(s^2 (J^T J)^-1))`` with ``J = d y_hat / d p`` (central differences
+    of the decoder's response, Eq. 10-13) and ``s^2`` the residual variance over the degrees
+    of freedom; a fitted initial state is projected out of ``J`` and the residual first (its
+    uncertainty is the parameters' too).
+
+    Parameters
+    ----------
+    est : Estimate
+        A refined estimate in a physical structure (batched or not).
+
+    Returns
+    -------
+    dict name -> (batch,) array, or float per name for an unbatched estimate
+        NaN for a record set aside or whose ``J`` is rank deficient.
+    """
+    from aeid_struct.simulation import discrete_foh, simulate_numpy
+
+    ph = physical_head(est.structure, est.initial == "fitted")
+    names = est.structure.element_names
+    y2, u2 = np.atleast_2d(est.y), np.atleast_2d(est.u)
+    P = np.atleast_2d(np.stack([np.atleast_1d(est.elements[k]) for k in names], 1))
+    out = np.full(P.shape, math.nan)
+    for i, p in enumerate(P):
+        if not np.isfinite(p).all():
+            continue
+        y, u = y2[i], u2[i] if u2.shape[0] > 1 else u2[0]
+
+        def response(theta, u=u):
+            A, B, C, D, _ = ph.model(np.ascontiguousarray(theta))
+            return simulate_numpy(A.reshape(ph.n, ph.n).T, B, C, float(D[0]), u, est.dt)
+
+        step = 1e-6 * np.maximum(np.abs(p), 1e-3 * (ph.hi - ph.lo))
+        J = np.stack([(response(p + h * e) - response(p - h * e)) / (2 * h)
+                      for h, e in zip(step, np.eye(ph.q), strict=True)], 1)
+        r = y - response(p)
+        free = 0
+        if est.initial == "fitted":
+            A, _, C, _, _ = ph.model(np.ascontiguousarray(p))
+            Phi = discrete_foh(A.reshape(ph.n, ph.n).T, np.zeros(ph.n), est.dt)[0]
+            O = np.empty((y.size, ph.n))
+            row = C.copy()
+            for k in range(y.size):
+                O[k], row = row, row @ Phi
+            Q, _ = np.linalg.qr(O)
+            J, r, free = J - Q @ (Q.T @ J), r - Q @ (Q.T @ r), ph.n
+        dof = y.size - ph.q - free
+        JtJ = J.T @ J
+        if dof <= 0 or np.linalg.matrix_rank(JtJ) < ph.q:
+            continue
+        out[i] = np.sqrt(np.diag(np.linalg.inv(JtJ)) * float(r @ r) / dof)
+    if not est.batched:
+        return {k: float(out[0, j]) for j, k in enumerate(names)}
+    return {k: out[:, j] for j, k in enumerate(names)}
 
 
 def _expanded(function: casadi.Function) -> casadi.Function:

@@ -10,7 +10,7 @@ import numpy as np
 from aeid_struct.estimates import Estimate
 from aeid_struct.refinement import refine
 
-__all__ = ["polish", "polish_at_bounds"]
+__all__ = ["polish", "polish_at_bounds", "with_standard_errors"]
 
 
 def polish(est: Estimate, mode) -> Estimate:
@@ -32,8 +32,30 @@ def polish(est: Estimate, mode) -> Estimate:
     if mode == "auto":
         return _flagged(est)
     if est._good is not None:      # errors="collect" set records aside: refine the rest
-        return _rows(est, est._good)
-    return refine(est)
+        return with_standard_errors(_rows(est, est._good))
+    return with_standard_errors(refine(est))
+
+
+def with_standard_errors(est: Estimate) -> Estimate:
+    """A refined estimate of a physical structure with its parameters' standard errors in
+    ``info["std"]`` (``physical_head.standard_errors``, as ``greyest`` reports them); any
+    other estimate as it is.
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    Estimate
+    """
+    from aeid_struct.structures import type_of
+
+    if type_of(est.structure) != "Physical" or est.structure.records != 1:
+        return est
+    from aeid_struct.identification.physical_head import standard_errors
+
+    return dataclasses.replace(est, info={**est.info, "std": standard_errors(est)})
 
 
 def polish_at_bounds(est: Estimate) -> Estimate:
