@@ -8,6 +8,7 @@ import numpy as np
 
 from aeid_struct.identification import FLAG_FALSE_RATE, Identifier, excess
 from aeid_struct.training.datasets import Records, holdout_split, records
+from aeid_struct.training.objective import true_elements
 
 
 def recalibrate(ident: Identifier, family) -> Identifier:
@@ -81,12 +82,8 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
         "fit": float}``.
     """
     systems = rec.systems
-    names = ident.structure.element_names
-    if all(name in systems.params for name in names):
-        # a family of the structure's own parameters (ParameterFamily) knows the truth: no
-        # inverse map, and no conversion error
-        X = np.stack([np.asarray(systems.params[name], dtype=np.float64) for name in names], 1)
-    else:
+    X = true_elements(ident.structure, systems)
+    if X is None:
         X = ident.structure.elements_of(systems.A, systems.b, systems.c, systems.d).numpy()
     rng = np.random.default_rng(seed)
     y = rec.y_clean[held]

@@ -134,16 +134,35 @@ def theta(structure: Structure, systems: Systems, gain: np.ndarray | None) -> np
     -------
     theta : (N, p) float64 array
     """
-    names = structure.element_names
-    if gain is None and all(name in systems.params for name in names):
-        # the family drew the structure's own parameters (ParameterFamily): their raw values
-        # need no inverse map from the model
-        elements = np.stack([np.asarray(systems.params[k], np.float64) for k in names], 1)
+    elements = true_elements(structure, systems)
+    if gain is None and elements is not None:
         return structure.raw(torch.from_numpy(elements)).numpy()
     c, d = systems.c, systems.d
     if gain is not None:
         c, d = c / gain[:, None], d / gain
     return np.asarray(structure.theta_of(systems.A, systems.b, c, d), dtype=np.float64)
+
+
+def true_elements(structure: Structure, systems: Systems) -> np.ndarray | None:
+    """The true elements of a physical structure without an inverse map, read from the
+    family's parameters (``ParameterFamily`` keeps them; fixed elements at their values), or
+    None where the structure recovers them from the models itself (``elements_of``).
+
+    Parameters
+    ----------
+    structure : Structure
+    systems : Systems
+
+    Returns
+    -------
+    (N, q) float64 array or None
+    """
+    names, fixed = structure.element_names, structure.fixed_values
+    if getattr(structure, "inverse", False) is not None or not all(
+            name in systems.params or name in fixed for name in names):
+        return None
+    return np.stack([np.full(len(systems), fixed[k]) if k in fixed
+                     else np.asarray(systems.params[k], np.float64) for k in names], 1)
 
 
 def raw_statistics(structure: Structure, systems: Systems,
