@@ -458,3 +458,21 @@ def test_push_is_feed_with_the_old_argument_order_and_warns():
         np.testing.assert_array_equal(ub, ua)
         np.testing.assert_array_equal(ya, yb)
         np.testing.assert_array_equal(ua, np.ones(20))
+
+
+def test_a_drifting_mechanism_is_the_wearing_leg_when_written_as_the_leg():
+    # oracle: the leg's hand-written wear simulator, with k, d, m varying every sample
+    from aeid_struct.studies.wear import drifting, wearing_leg
+    from symbolic import mechanisms
+
+    N, dt = 600, 0.01
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal(N)
+    k, d, m = np.linspace(24.0, 20.0, N), np.linspace(2.0, 3.0, N), np.full(N, 1.1)
+    legs = mechanisms.leg()
+    y = drifting(legs, {"k": k, "d": d, "m": m}, u, dt, states=(0, 2),
+                 **mechanisms.upright(legs))
+    np.testing.assert_allclose(y, wearing_leg(k, d, m, u, dt), rtol=1e-9,
+                               atol=1e-12 * np.abs(y).max())
+    with pytest.raises(ValueError, match=r"parameters must give \['m'\]"):
+        drifting(legs, {"k": k, "d": d}, u, dt, **mechanisms.upright(legs))

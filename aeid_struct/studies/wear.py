@@ -2,8 +2,10 @@
 whose damping grows, tracked window by window by an ``online.Tracker``.
 
 ``wearing_leg`` simulates the translational leg subsystem with parameters that vary per sample
-(exact FOH discretisation of each sample interval, paper Eq. 10-11); ``wear_study`` runs the
-scenario through a tracker and measures the tracking error, the alarm delay and the update time.
+(exact FOH discretisation of each sample interval, paper Eq. 10-11), and ``drifting`` any
+mechanism written as a Lagrangian (``symbolic.Mechanism``) whose parameters drift: "a parameter
+drifts", in the physical state; ``wear_study`` runs the scenario through a tracker and measures
+the tracking error, the alarm delay and the update time.
 """
 
 from __future__ import annotations
@@ -70,6 +72,69 @@ def wearing_leg(k, d, m, u, dt: float) -> np.ndarray:
     for i in range(N):
         y[i] = x[0]
         x = Phi[i] @ x + g1[i] * u[i] + g2[i] * du[i]
+    return y
+
+
+def drifting(mechanism, parameters: dict, u, dt: float, *, output: int = 0, input: int = 0,
+             states=None, known: dict | None = None, **operating) -> np.ndarray:
+    """A mechanism's channel with parameters that vary per sample, from rest at its
+    equilibrium: the linearisation (``Mechanism.linearise``) in its physical state
+    ``x = (q, dq)``, which stays continuous when the parameters change, held on each sample
+    interval at the interval's start, the input first-order-hold, discretised exactly
+    (``simulation.discretise``, paper Eq. 10) and stepped by Eq. 11, as :func:`wearing_leg`
+    does for the leg.
+
+    Parameters
+    ----------
+    mechanism : symbolic.Mechanism
+    parameters : dict name -> (N,) array_like
+        Every free parameter (those not in ``known``), one value per sample.
+    u : (N,) array_like
+        The input ``u[input]`` at the samples (deviation from the operating input).
+    dt : float
+    output, input : int
+        The channel.
+    states : sequence of int, optional
+        The states of a decoupled subsystem to simulate alone (the leg's translation,
+        ``(0, 2)``: leaving out an unstable mode the channel does not excite, which rounding
+        would otherwise grow).
+    known : dict, optional
+    **operating
+        ``q``, ``u`` (the operating input), ``guess`` of ``Mechanism.linearise``.
+
+    Returns
+    -------
+    (N,) ndarray
+        ``y[output]`` (deviation from the equilibrium) at each sample.
+
+    Raises
+    ------
+    ValueError
+        A parameter missing or not one value per sample.
+    """
+    lin = mechanism.linearise(known=known, **operating)
+    names = list(lin.name_in())
+    u = np.asarray(u, dtype=np.float64).reshape(-1)
+    N = u.shape[0]
+    values = {k: np.asarray(parameters.get(k, ()), dtype=np.float64).reshape(-1) for k in names}
+    bad = [k for k, v in values.items() if v.shape != (N,)]
+    if bad:
+        raise ValueError(f"parameters must give {bad} one value per sample of u ({N})")
+    out = lin.map(N)(**{k: v.reshape(1, N) for k, v in values.items()})
+    n, m = np.array(out["A"]).shape[0], np.array(out["B"]).shape[1] // N
+    s = list(range(n)) if states is None else [int(i) for i in states]
+    # mapped outputs sit side by side: A (n, n N), B (n, m N), C (p, n N), D (p, m N)
+    A = np.array(out["A"]).reshape(n, N, n).transpose(1, 0, 2)[:, s][:, :, s]
+    B = np.array(out["B"]).reshape(n, N, m).transpose(1, 0, 2)[:, s, input]
+    C = np.array(out["C"]).reshape(-1, N, n)[output][:, s]
+    feed = np.array(out["D"]).reshape(-1, N, m)[output, :, input]
+    foh = discretise(A, B, dt)
+    x = np.zeros(len(s))
+    y = np.empty(N)
+    du = np.diff(u, append=u[-1])
+    for i in range(N):
+        y[i] = C[i] @ x + feed[i] * u[i]
+        x = foh.Phi[i] @ x + foh.gamma1[i] * u[i] + foh.gamma2[i] * du[i]
     return y
 
 
