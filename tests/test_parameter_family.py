@@ -127,3 +127,20 @@ def test_a_mechanism_identifier_file_is_data_and_needs_its_map(tmp_path):
     other = ae.Physical(mechanisms.lever(), bounds=BOX, known={"r": 2.0})   # another map
     with pytest.raises(ValueError, match="SHA-256"):
         ae.load(path, maps={"lever_y0_u0": other.function})
+
+
+def test_an_integrating_mechanism_trains_on_prbs():
+    # a rigid-body mode has no stationary value (Eq. 4); the loss reads none off PRBS records
+    box = {"J1": (0.01, 0.05), "J2": (0.02, 0.2), "k": (50.0, 200.0), "c": (0.05, 0.5),
+           "b": (0.01, 0.1)}
+    structure = ae.Physical(mechanisms.drive_train(), bounds=box, q=[0, 0])
+    family = ae.ParameterFamily(structure)
+    ident = ae.train(structure, family, ae.TrainConfig(
+        steps=200, dt=0.005, epochs=1, count=100, excitation="prbs", progress=False))
+    rec = ae.data.records(family, 1, steps=200, dt=0.005, excitation_kind="prbs", seed=2)
+    refined = ident.identify(rec.y[0], rec.u[0], refine=True)
+    for k in box:
+        assert refined.physical[k] == pytest.approx(rec.systems.params[k][0], rel=1e-4)
+    with pytest.raises(ValueError, match="no finite stationary value"):
+        ae.train(structure, family, ae.TrainConfig(steps=200, dt=0.005, epochs=1, count=100,
+                                                   excitation="step", progress=False))

@@ -128,8 +128,8 @@ def record_tensors(structure: Structure, family, config: TrainConfig) -> RecordT
     train_idx, held_idx = holdout_split(config.count, config.holdout, config.seed)
     dtype = torch.float32
     yinf = torch.tensor(np.stack([
-        stationary_value(*(getattr(rec.systems.record(r), f) for f in "Abcd"))
-        for r in range(R)], 1), dtype=dtype)                                  # (count, R)
+        _stationary(rec.systems.record(r), config) for r in range(R)], 1),
+        dtype=dtype)                                                          # (count, R)
     data = RecordTensors(rec=rec, u=[torch.tensor(u, dtype=dtype) for u in us],
                  y=[torch.tensor(y, dtype=dtype) for y in ys_clean], yinf=yinf,
                  scale=torch.tensor(y_bar, dtype=dtype), train=train_idx, held=held_idx,
@@ -207,6 +207,15 @@ def redraw(family, config: TrainConfig, epoch: int, rows: np.ndarray, u_all, y_a
         u_all[r][index] = torch.as_tensor(u, dtype=u_all[r].dtype)
         scale_all[index, r] = torch.as_tensor(np.max(np.abs(y), axis=1), dtype=scale_all.dtype)
         s = rec.systems.record(r)
-        yinf_all[index, r] = torch.as_tensor(stationary_value(s.A, s.b, s.c, s.d),
-                                             dtype=yinf_all.dtype)
+        yinf_all[index, r] = torch.as_tensor(_stationary(s, config), dtype=yinf_all.dtype)
     return rec
+
+
+def _stationary(systems, config) -> np.ndarray:
+    """The true stationary values (Eq. 4) the loss's stationary term reads, or zeros where its
+    weight is 0 (the loss never reads them then). Why: an integrating or unstable mechanism
+    has no finite stationary value, and trains on inputs other than steps without one."""
+    if config.stationary_weight == 0:
+        return np.zeros(len(systems))
+    return stationary_value(systems.A, systems.b, systems.c, systems.d)
+
