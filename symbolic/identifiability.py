@@ -249,16 +249,13 @@ def _scaled(derivatives, theta, scale_log, low, high, ins, outs) -> np.ndarray:
     speeds = np.abs(np.linalg.eigvals(A))
     speeds = speeds[speeds > 1e-9 * max(1.0, speeds.max(initial=0.0))]
     lo, hi = (0.1 * speeds.min(), 10 * speeds.max()) if speeds.size else (0.1, 10.0)
-    G, dG = [], []
-    for w in np.geomspace(lo, hi, 6 * n + 6):
-        R = np.linalg.inv(1j * w * np.eye(n) - A)
-        RB, CR = R @ B, C @ R
-        G.append(C @ RB + D)
-        # dG = dC R B + C R dA R B + C R dB + dD
-        dG.append(np.einsum("ikq,kj->ijq", dC, RB)
-                  + np.einsum("ik,klq,lj->ijq", CR, dA, RB)
-                  + np.einsum("ik,kjq->ijq", CR, dB) + dD)
-    G, dG = np.array(G), np.array(dG)             # (F, p', m'), (F, p', m', q)
+    w = np.geomspace(lo, hi, 6 * n + 6)
+    R = np.linalg.inv(1j * w[:, None, None] * np.eye(n) - A)        # (F, n, n), all at once
+    RB, CR = R @ B, C @ R
+    G = C @ RB + D                                                  # (F, p', m')
+    # dG = dC R B + C R dA R B + C R dB + dD                        # (F, p', m', q)
+    dG = (np.einsum("ikq,fkj->fijq", dC, RB) + np.einsum("fik,klq,flj->fijq", CR, dA, RB)
+          + np.einsum("fik,kjq->fijq", CR, dB) + dD)
     size = np.abs(G).max(axis=0)                  # (p', m')
     seen = size > 1e-12 * size.max() if size.max() > 0 else np.zeros_like(size, bool)
     scale = np.maximum(np.abs(G), 1e-6 * size)[..., None]

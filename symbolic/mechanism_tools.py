@@ -52,7 +52,7 @@ class MechanismTools:
         ----------
         parameters : dict str -> float
             Every parameter's value.
-        u : (N, m) array
+        u : (N, m) array, or (N,) for one input
             The inputs, each held for one step (absolute, not deviations).
         dt : float
         x0 : (n,) array, optional
@@ -92,10 +92,17 @@ def _integrate(self, parameters, u, dt, x0) -> np.ndarray:
     if missing:
         raise ValueError(f"parameters must give every parameter; missing {missing}")
     p = np.array([float(parameters[k]) for k in self.names])
-    u = np.asarray(u, dtype=float).reshape(-1, m)
-    if not (isinstance(dt, (int, float)) and dt > 0):
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1 and m == 1:
+        u = u[:, None]
+    if u.ndim != 2 or u.shape[1] != m or u.shape[0] < 1 or not np.isfinite(u).all():
+        raise ValueError(f"u must be finite (N, {m}) numbers, one column per input; got shape "
+                         f"{u.shape}")
+    if isinstance(dt, bool) or not (isinstance(dt, (int, float)) and dt > 0):
         raise ValueError(f"dt must be a positive number; got {dt!r}")
     x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).ravel()
+    if x.shape != (n,):
+        raise ValueError(f"x0 must be {n} numbers, the state (q, dq); got shape {x.shape}")
     up = casadi.vertcat(self.u, self.p)
     step = casadi.integrator(f"{self.name}_step", "cvodes",
                              {"x": self.x, "p": up, "ode": self.f}, 0.0, float(dt),

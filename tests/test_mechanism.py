@@ -256,3 +256,17 @@ def test_known_and_channels_are_checked():
         two.channel(1, 0)
     with pytest.raises(ValueError, match="states must be distinct"):
         two.channel(0, 0, states=[0, 0])
+
+
+@pytest.mark.parametrize(("call", "message"), [
+    ({"u": np.zeros((5, 2))}, r"u must be finite \(N, 1\)"),
+    ({"u": np.array([0.0, np.nan])}, r"u must be finite"),
+    ({"dt": 0.0}, "dt must be a positive number"),
+    ({"x0": np.zeros(3)}, r"x0 must be 4 numbers"),
+])
+def test_simulate_refuses_bad_arguments_by_name(call, message):
+    two = mechanisms.two_mass()
+    p = {"m1": 1.3, "m2": 0.7, "k1": 3.0, "k2": 5.0, "c1": 0.2, "c2": 0.4}
+    args = {"u": np.zeros(5), "dt": 0.01, **call}
+    with pytest.raises(ValueError, match=message):
+        two.simulate(p, args.pop("u"), args.pop("dt"), **args)

@@ -63,8 +63,10 @@ def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _file_to_write(path) -> Path:
-    """``path`` as a Path to a file that can be written (``identify.writable_file``)."""
-    from aeid_struct.identification import writable_file
+    """``path`` as a Path to a file that can be written (``files.writable_file``; imported
+    from its module, not through the package, whose lazy names include the identifier that
+    imports this module)."""
+    from aeid_struct.identification.files import writable_file
 
     return writable_file(path)
 

@@ -169,7 +169,9 @@ def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
                 ident.identify(rec.y[i], rec.u[i], refine=refine)
                 seconds[label].append(time.perf_counter() - t0)
     out = {"noise": noise, "errors": {k: _median_error(v, truth) for k, v in rows.items()},
-           "ms": {k: float(np.median(v) * 1e3) for k, v in seconds.items()}}
+           "ms": {k: float(np.median(v) * 1e3) for k, v in seconds.items()},
+           # records a method gave no finite parameters for (left out of its medians)
+           "failed": {k: int((~np.isfinite(v).all(axis=1)).sum()) for k, v in rows.items()}}
     out["speedup refined vs cold"] = out["ms"]["cold grey-box x4"] / out["ms"]["refined"]
     return out
 
@@ -275,6 +277,10 @@ def report(rows: list[dict]) -> str:
                 timing = "" if ms is None else f"   {ms:.2f} ms batch-1"
                 lines.append(f"    {method:<18}" + " ".join(f"{e:8.3g}" for e in errors)
                              + timing)
+            failed = {k: v for k, v in level.get("failed", {}).items() if v}
+            if failed:
+                lines.append("    no finite parameters for " + ", ".join(
+                    f"{v} record(s) of {k}" for k, v in failed.items()))
             lines.append(f"    refined is {level['speedup refined vs cold']:.0f}x faster than "
                          "the cold grey-box fit")
     return "\n".join(lines)
