@@ -18,7 +18,7 @@ HERE = Path(__file__).resolve().parent
 TARGET = HERE / "05_your_mechanism.ipynb"
 
 CELLS = [
-    ("md", r"""# 05 · Your own mechanism: from a Lagrangian to an identifier of its physical parameters
+    ("md", r"""# 05 · Your own mechanism: from a Lagrangian to its physical parameters
 
 **Problem.** An engineer has a machine -- here two masses in series on springs and dampers, a
 force on the second, the position of the first measured -- and wants its physical parameters
@@ -92,8 +92,8 @@ start mid-motion (`warmup`, `initial="fitted"`), as windows cut from a running m
 family = ae.ParameterFamily(structure)
 dt, steps = 0.05, 400
 config = ae.TrainConfig(steps=steps, dt=dt, epochs=10_000, seconds=20 if FAST else 240,
-                        count=2_000 if FAST else 20_000, excitation="prbs", noise=(0.0, 0.03), warmup=200,
-                        initial="fitted", progress=False)
+                        count=2_000 if FAST else 20_000, excitation="prbs",
+                        noise=(0.0, 0.03), warmup=200, initial="fitted", progress=False)
 t0 = time.perf_counter()
 ident = ae.train(structure, family, config)
 ident.head = Head(iterations=5)        # the one pass: encoder, then five head iterations
@@ -172,7 +172,8 @@ ill-conditioned system (condition number in the thousands) and 20-second windows
 trained identifier's five head iterations can settle in another local minimum on some windows,
 which the plot shows as outliers: the fast mode's 20 seconds of training are a smoke test, the
 full mode trains for four minutes. A better-conditioned parameter set, or `refine=True` per
-window where the time allows, follows the drift more closely. The benchmark `aeid-struct bench-mechanism` measures the same on several mechanisms at three
+window where the time allows, follows the drift more closely.
+The benchmark `aeid-struct bench-mechanism` measures the same on several mechanisms at three
 noise levels."""),
 ]
 
