@@ -43,6 +43,48 @@ class MechanismTools:
                                           **operating))
         return generate_c(directory, functions, name=self.name)
 
+    def channels(self, specs: Sequence[tuple], **operating) -> casadi.Function:
+        """The CCFs (paper Eq. 5) of several channels of one record as one map, record after
+        record: the map of a physical structure of ``R`` records
+        (``aeid_struct.Physical(mechanism, channels=...)``).
+
+        Parameters
+        ----------
+        specs : sequence of (output, input) or (output, input, states)
+            The channels, as :meth:`channel` takes them; all of one order.
+        **operating
+            ``u, q, guess, known`` as :meth:`linearise`.
+
+        Returns
+        -------
+        casadi.Function
+            ``'<name>_y<i>u<j>_y<k>u<l>..'``: the free parameters by name -> ``A1, B1, C1, D1,
+            .., AR, .., DR``.
+
+        Raises
+        ------
+        ValueError
+            A malformed channel, or channels of different orders.
+        """
+        maps = []
+        for spec in specs:
+            out, inp, *rest = spec
+            maps.append(self.channel(out, inp, states=rest[0] if rest else None, **operating))
+        orders = [f.size_out("A")[0] for f in maps]
+        if len(set(orders)) != 1:
+            raise ValueError(f"channels must have one order (one encoder output per record); "
+                             f"got orders {orders} for {[tuple(s[:2]) for s in specs]}: give "
+                             "states= of the same size, or all states")
+        names = maps[0].name_in()
+        kind = casadi.SX if all(f.is_a("SXFunction") for f in maps) else casadi.MX
+        symbols = [kind.sym(k) for k in names]
+        outs, labels = [], []
+        for r, f in enumerate(maps, start=1):
+            outs += list(f(*symbols))
+            labels += [f"{k}{r}" for k in "ABCD"]
+        tag = "_".join(f"y{s[0]}u{s[1]}" for s in specs)
+        return casadi.Function(f"{self.name}_{tag}", symbols, outs, names, labels)
+
     def simulate(self, parameters: Mapping[str, float], u, dt: float, *, x0=None) -> np.ndarray:
         """The nonlinear model's outputs under ``u`` held between samples, by CasADi's
         ``cvodes`` integrator (the oracle of the linearisation: a small excitation about the

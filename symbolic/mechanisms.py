@@ -20,6 +20,7 @@ from __future__ import annotations
 import casadi
 
 from .mechanism import Mechanism
+from .named import named
 from .slip import L0, G
 
 __all__ = ["cart_pole", "drive_train", "leg", "lever", "two_mass", "upright"]
@@ -143,6 +144,38 @@ def cart_pole() -> Mechanism:
     return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V,
                      dissipation=0.5 * p["b"] * dq[0] ** 2, forces=casadi.vertcat(F, 0),
                      outputs=q, name="cart_pole")
+
+
+@named("symbolic.mechanisms.drive_train_channels")
+def drive_train_channels() -> casadi.Function:
+    """The drive train's two channels of one record (motor and load angle from the motor
+    torque) at ``q = (0, 0)``: the map of the shipped ``drive-train`` identifier.
+
+    Returns
+    -------
+    casadi.Function
+        ``J1, J2, k, c, b -> A1, B1, C1, D1, A2, .., D2`` (``Mechanism.channels``).
+    """
+    return drive_train().channels([(0, 0), (1, 0)], q=[0, 0])
+
+
+@named("symbolic.mechanisms.cart_pole_channels")
+def cart_pole_channels(g: float = 9.81) -> casadi.Function:
+    """The cart-pole's two channels of one record (cart position and pole angle from the
+    force) linearised upright at ``q = (0, 0)``: the map of the shipped ``cart-pole``
+    identifier.
+
+    Parameters
+    ----------
+    g : float
+        Gravity.
+
+    Returns
+    -------
+    casadi.Function
+        ``M, m, l, b -> A1, B1, C1, D1, A2, .., D2`` (``Mechanism.channels``).
+    """
+    return cart_pole().channels([(0, 0), (1, 0)], q=[0, 0], known={"g": g})
 
 
 if __name__ == "__main__":

@@ -757,9 +757,9 @@ def _identify() -> list[Case]:
             [np.ones(60), np.ones(21)]), match=r"y\[1\] must have shape \(20,\) or \(batch, 20\)"),
         Case(area, "several: y[1] batched unlike y[0]", lambda x: x.joint.identify(
             [np.ones(60), np.ones((1, 20))]), match=r"y\[1\] must be batched like y\[0\]"),
-        Case(area, "several: refine=True", lambda x: x.joint.identify(
-            [np.ones(60), np.ones(20)], refine=True),
-             match=r"refine=True is not available for a several-record identifier"),
+        Case(area, "several: refine='always'", lambda x: x.joint.identify(
+            [np.ones(60), np.ones(20)], refine="always"),
+             match=r"refine must be True, False or 'auto'; got 'always'"),
         Case(area, "several: dt single number", lambda x: x.joint.identify(
             [np.ones(60), np.ones(20)], dt=0.01), match=r"dt must be \(0.01, 0.005\) s"),
         Case(area, "several: y[0] NaN", lambda x: x.joint.identify(
@@ -1754,7 +1754,8 @@ def _online() -> list[Case]:
         Case(area, "Tracker of a from-rest identifier", lambda x: Tracker(x.stable),
              match=r"identifier must be trained on windows that start mid-motion"),
         Case(area, "Tracker of a several-record identifier", lambda x: Tracker(x.joint),
-             match=r"identifier must read one record per window; got one of 2 records"),
+             match=r"identifier must read one record per window \(or several channels of "
+                   r"one, Physical\(..., channels=...\)\); got one of 2 records"),
         Case(area, "Tracker config a dict", lambda x: Tracker(x.window, {"hop": 5}),
              match=r"config must be a TrackerConfig; got dict"),
         Case(area, "Tracker engine 'gpu'", lambda x: Tracker(x.window, engine="gpu"),

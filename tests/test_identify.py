@@ -396,6 +396,18 @@ def test_joint_identifier_reads_both_records_and_decodes_each_on_its_grid(tmp_pa
     np.testing.assert_array_equal(back.identify(rec.y).A, est.A)
 
 
+def test_joint_identifier_refines_both_records_to_their_parameters():
+    # refine=True fits k, d, m to both records at once (refinement.fit_joint) from the
+    # (untrained) encoder's estimate: noise-free records give the truth back
+    ident = _joint_identifier()
+    rec = _joint_records(3)
+    est = ident.identify(rec.y, refine=True)
+    assert est.refined and est.info["refine"] == "joint" and est.info["converged"].all()
+    for k in "kdm":
+        np.testing.assert_allclose(est.physical[k], rec.systems.params[k], rtol=1e-7)
+    assert np.all(est.info["std"]["k"] < 1e-6 * rec.systems.params["k"])
+
+
 def test_joint_identifier_input_errors():
     ident = _joint_identifier()
     rec = _joint_records(2)
@@ -409,8 +421,8 @@ def test_joint_identifier_input_errors():
         ident.identify(rec.y, [np.linspace(0.1, 1, 60), np.ones(20)])
     with pytest.raises(ValueError, match=r"dt must be \(0.05, 0.025\) s"):
         ident.identify(rec.y, dt=0.05)
-    with pytest.raises(ValueError, match=r"refine=True is not available for a several-record"):
-        ident.identify(rec.y, refine=True)
+    with pytest.raises(ValueError, match=r"refine must be True, False or 'auto'"):
+        ident.identify(rec.y, refine="always")
     with pytest.raises(ValueError, match=r"the encoder reads 1 record\(s\) but .* describes 2"):
         Identifier(Encoder(EncoderConfig(steps=60, outputs=3, features=1)),
                    ident.structure, dt=0.05, theta_mean=torch.zeros(3),

@@ -157,7 +157,7 @@ def check_call(ident, dt, refine, errors: str) -> None:
                          "assembles the structure, which this identifier (an ONNX export "
                          "read without torch) knows by its description only; install torch, "
                          "or export an identifier with a head (refine=True then iterates it)")
-    if refine and ident.records > 1:
+    if refine and ident.records > 1 and type_of(ident.structure) != "Physical":
         raise ValueError("refine=True is not available for a several-record identifier: "
                          "the refinement fits one record; refine each subsystem's estimate "
                          "in its own structure")

@@ -170,10 +170,10 @@ def pattern_of(ident, head: Head) -> Pattern:
     ------
     ValueError
         For an identifier the head does not serve: not a (partly fixed) CCF or a physical
-        structure, several records, or a ``fixed`` name the structure does not have.
+        structure, a CCF of several records, or a ``fixed`` name the structure does not have.
     """
     structure = ident.structure
-    if type_of(structure) == "Physical" and ident.records == 1:
+    if type_of(structure) == "Physical":
         if head.fixed:
             raise ValueError(f"head: fixed names {sorted(head.fixed)}, but a physical "
                              f"structure's head holds its map's constant coefficients itself")
@@ -228,7 +228,10 @@ def converges_to_optimum(ident) -> bool:
         return True
     from aeid_struct.identification.physical_head import physical_head
 
-    return physical_head(ident.structure, ident.initial == "fitted").square
+    # several records share the parameters: the optimum is their joint fit, not the nearest
+    # parameters of each record's own optimum
+    return ident.structure.records == 1 and physical_head(
+        ident.structure, ident.initial == "fitted").square
 
 
 def head_failure(record: int, head: Head) -> RecordError:

@@ -274,7 +274,8 @@ class Identifier(IdentifierFiles):
             Batched when ``y`` is.
         """
         start = time.perf_counter()
-        y, u, dt = arrays_of(y, u, dt, what="Identifier.identify", records=self.records)
+        y, u, dt = arrays_of(y, u, dt, what="Identifier.identify", records=self.records,
+                             channels=getattr(self.structure, "channels", None))
         check_call(self, dt, refine, errors)
         provenance = self.provenance
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)

@@ -38,29 +38,35 @@ INVERSE_ITERATIONS = 30
 
 
 class PhysicalHead:
-    """The head's view of a physical structure of one record: its CCF pattern and the map
-    ``p -> k(p)`` of the free coefficients (module docstring).
+    """The head's view of a physical structure: its CCF pattern per record and the map
+    ``p -> k(p)`` of the free coefficients of all its records (module docstring).
 
     Parameters
     ----------
     structure : Physical
-        One record.
+        One record, or ``R`` (the channels of a record, the joint leg): each record's CCF
+        is fitted alone (step 1), and the parameters are those nearest every record's
+        coefficients together (step 2).
     initial : bool
         Whether the records start mid-motion (``x0`` projected out).
     """
 
     def __init__(self, structure, initial: bool) -> None:
         function, names = structure.function, structure.element_names
-        n, q = structure.n, len(names)
+        n, q, R = structure.n, len(names), structure.records
+        keys = [tuple("ABCD")] if R == 1 else [tuple(f"{k}{r}" for k in "ABCD")
+                                               for r in range(1, R + 1)]
         p = casadi.MX.sym("p", q)
         out = function.call({k: p[i] for i, k in enumerate(function.name_in())})
-        A, B, C, D = (out[k] for k in "ABCD")
-        coefficients = casadi.vertcat(_ccf_coefficients(A, B, C), D)   # a (n), c (n), d
+        systems = [tuple(out[k] for k in key) for key in keys]
+        # per record a (n), c (n), d: paper Eq. 5's coefficients, record after record
+        coefficients = casadi.vertcat(*(casadi.vertcat(_ccf_coefficients(A, B, C), D)
+                                        for A, B, C, D in systems))
         every = casadi.Function("k", [p], [coefficients])
         lo = np.array([structure.bounds[k][0] for k in names])
         hi = np.array([structure.bounds[k][1] for k in names])
         probes = np.random.default_rng(0).uniform(lo, hi, (PROBES, q))
-        values = np.array(every.map(PROBES)(probes.T)).T          # (PROBES, 2 n + 1)
+        values = np.array(every.map(PROBES)(probes.T)).T          # (PROBES, R (2 n + 1))
         size = np.abs(values).max(axis=0)
         # a structural zero comes out of the CCF conversion as rounding (1e-9 beside 1e4)
         zero = size <= 1e-10 * np.abs(values).max()
@@ -70,18 +76,39 @@ class PhysicalHead:
         def entry(i):
             return float(level[i]) if constant[i] else None
 
-        self.pattern = Pattern(a=tuple(entry(j) for j in range(n)),
-                               c=tuple(entry(n + j) for j in range(n)),
-                               d=entry(2 * n), initial=initial)
+        width = 2 * n + 1
+        self.patterns = tuple(Pattern(a=tuple(entry(r * width + j) for j in range(n)),
+                                      c=tuple(entry(r * width + n + j) for j in range(n)),
+                                      d=entry(r * width + 2 * n), initial=initial)
+                              for r in range(R))
+        self.pattern = self.patterns[0]
         self.free = np.flatnonzero(~constant)
         k_free = coefficients[self.free.tolist()]
         # dense outputs: the buffer writes nonzeros only, and numpy reads full matrices
         self.coefficients = Numeric(_expanded(casadi.Function("k_free", [p], [
             casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))])))
+        # per record: A, B, C, D and the CCF's a
         self.model = Numeric(_expanded(casadi.Function("model", [p], [
-            casadi.densify(v) for v in (A, B, C, D)] + [casadi.densify(coefficients[:n])])))
-        self.lo, self.hi, self.n, self.q = lo, hi, n, q
+            casadi.densify(v) for r, system in enumerate(systems)
+            for v in (*system, coefficients[r * width: r * width + n])])))
+        self.lo, self.hi, self.n, self.q, self.records = lo, hi, n, q, R
         self.square = self.free.size == q
+
+    def systems(self, p: np.ndarray) -> list[tuple]:
+        """``(A (n, n), b (n,), c (n,), d, a (n,))`` of each record at the parameters ``p``.
+
+        Parameters
+        ----------
+        p : (q,) array
+
+        Returns
+        -------
+        list of R tuples
+        """
+        out = self.model(np.ascontiguousarray(p, dtype=np.float64))
+        n = self.n
+        return [(out[5 * r].reshape(n, n).T, out[5 * r + 1], out[5 * r + 2],
+                 float(out[5 * r + 3][0]), out[5 * r + 4]) for r in range(self.records)]
 
     def parameters(self, target: np.ndarray, start: np.ndarray) -> np.ndarray:
         """The parameters in the bounds whose free coefficients are nearest ``target``
@@ -156,23 +183,29 @@ def physical_head(structure, initial: bool) -> PhysicalHead:
 
 def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
     """:func:`~aeid_struct.identification.head.apply_head` for a physical structure, with its
-    arguments and results (module docstring): the CCF's separable fit, then the nearest
-    parameters; rows whose encoder model is not finite are left as they are."""
+    arguments and results (module docstring): each record's CCF fitted alone (separable),
+    then the parameters nearest all of them; rows whose encoder model is not finite are left
+    as they are."""
     ph = physical_head(ident.structure, ident.initial == "fitted")
     A, b, c, d, el = (np.array(part, dtype=np.float64) for part in model)
-    y = ys[0]
-    u = np.ones_like(y) if us[0] is None else np.broadcast_to(us[0], y.shape)
-    rows = np.flatnonzero(np.isfinite(el).all(axis=1) & np.isfinite(A).all(axis=(1, 2)))
+    R = ph.records
+    rows = np.flatnonzero(np.isfinite(el).all(axis=1)
+                          & np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1))
     failed = np.zeros(A.shape[0], dtype=bool)
     if rows.size == 0:
         return (A, b, c, d, el), failed
     # the poles of the encoder's parameters, as the head starts from them
-    a0 = np.stack([ph.model(np.ascontiguousarray(el[row]))[4] for row in rows])
-    pattern = ph.pattern
-    fa, fc, fd, ok = fit_rows(pattern, a0[:, pattern.free_a], y[rows], u[rows], ident.dt,
-                              iterations=head.iterations, tol=head.tol)
-    fitted = np.concatenate([fa, fc, fd[:, None]], axis=1)[:, ph.free]
-    n = ph.n
+    starts = [ph.systems(el[row]) for row in rows]
+    fitted, ok = [], np.ones(rows.size, dtype=bool)
+    for r, pattern in enumerate(ph.patterns):
+        y = ys[r]
+        u = np.ones_like(y) if us[r] is None else np.broadcast_to(us[r], y.shape)
+        a0 = np.stack([start[r][4] for start in starts])
+        fa, fc, fd, ok_r = fit_rows(pattern, a0[:, pattern.free_a], y[rows], u[rows],
+                                    ident._dts[r], iterations=head.iterations, tol=head.tol)
+        fitted.append(np.concatenate([fa, fc, fd[:, None]], axis=1))
+        ok &= ok_r
+    fitted = np.concatenate(fitted, axis=1)[:, ph.free]
     # record by record: each record's Gauss-Newton stops on its own, and the step costs a few
     # evaluations of a small SX map (about 0.1-0.2 ms a record on this project's VM)
     for i, row in enumerate(rows):
@@ -181,9 +214,13 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
             A[row], b[row], c[row], d[row], el[row] = (math.nan,) * 5
             continue
         p = ph.parameters(fitted[i], el[row])
-        Ai, Bi, Ci, Di, _ = ph.model(p)
-        A[row] = Ai.reshape(n, n).T                               # column-major
-        b[row], c[row], d[row], el[row] = Bi, Ci, Di[0], p
+        parts = ph.systems(p)
+        if R == 1:
+            A[row], b[row], c[row], d[row] = parts[0][:4]
+        else:
+            for r, (Ar, br, cr, dr, _) in enumerate(parts):
+                A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
+        el[row] = p
     return (A, b, c, d, el), failed
 
 

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from aeid_struct.estimates import Estimate
+from aeid_struct.identification.joint_refine import is_joint, refine_joint
 from aeid_struct.refinement import refine
 
 __all__ = ["polish", "polish_at_bounds", "with_standard_errors"]
@@ -29,6 +30,8 @@ def polish(est: Estimate, mode) -> Estimate:
     Estimate
         With ``info["refined_rows"]`` for ``"auto"`` or a partial refinement.
     """
+    if is_joint(est) and mode is True:
+        return refine_joint(est)   # records set aside are kept as they are
     if mode == "auto":
         return _flagged(est)
     if est._good is not None:      # errors="collect" set records aside: refine the rest
@@ -51,7 +54,7 @@ def with_standard_errors(est: Estimate) -> Estimate:
     """
     from aeid_struct.structures import type_of
 
-    if type_of(est.structure) != "Physical" or est.structure.records != 1:
+    if type_of(est.structure) != "Physical" or est.structure.records != 1 or "std" in est.info:
         return est
     from aeid_struct.identification.physical_head import standard_errors
 
@@ -87,9 +90,15 @@ def polish_at_bounds(est: Estimate) -> Estimate:
     if not est.batched:
         if not mask[0]:
             return dataclasses.replace(est, info={**est.info, "refined_rows": False})
-        out = refine(est)
+        out = _refine(est)
         return dataclasses.replace(out, info={**out.info, "refined_rows": True})
     return _rows(est, mask)
+
+
+def _refine(est: Estimate) -> Estimate:
+    """The refinement of ``est``'s structure: the joint fit of several records' shared
+    parameters, else the CasADi NLP."""
+    return refine_joint(est) if is_joint(est) else refine(est)
 
 
 def _flagged(est: Estimate) -> Estimate:
@@ -104,7 +113,7 @@ def _flagged(est: Estimate) -> Estimate:
     if not est.batched:
         if not flags or (good is not None and not good[0]):
             return dataclasses.replace(est, info={**est.info, "refined_rows": False})
-        est = refine(est)
+        est = _refine(est)
         return dataclasses.replace(est, info={**est.info, "refined_rows": True})
     return _rows(est, flags if good is None else flags & good)
 
@@ -115,7 +124,7 @@ def _rows(est: Estimate, mask: np.ndarray) -> Estimate:
     rows = np.flatnonzero(mask)
     if rows.size == 0:
         return dataclasses.replace(est, info={**est.info, "refined_rows": mask})
-    sub = refine(est.take(rows))
+    sub = _refine(est.take(rows))
     A, b, c, d = (np.array(x, copy=True) for x in (est.A, est.b, est.c, est.d))
     A[rows], b[rows], c[rows], d[rows] = sub.A, sub.b, sub.c, sub.d
     elements = {k: np.array(v, copy=True) for k, v in est.elements.items()}

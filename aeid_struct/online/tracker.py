@@ -64,8 +64,9 @@ class Tracker:
     Raises
     ------
     ValueError
-        An identifier of the wrong kind (several records, records from rest, parameters that
-        ``config`` names and it never gives), or an unknown engine.
+        An identifier of the wrong kind (several records that are not channels of one,
+        records from rest, parameters that ``config`` names and it never gives), or an
+        unknown engine.
 
     Notes
     -----
@@ -121,8 +122,13 @@ class Tracker:
                                  f"{attr!r})")
         if engine not in ("auto", "onnx", "identifier"):
             raise ValueError(f"engine must be 'auto', 'onnx' or 'identifier'; got {engine!r}")
-        if identifier.records != 1:
-            raise ValueError("identifier must read one record per window; got one of "
+        #: ``(output, input)`` per record of an identifier of several channels of one
+        #: record (``Physical(mechanism, channels=...)``): the stream has several outputs and
+        #: inputs, and each window is split by them; None for one output and one input.
+        self.channels = getattr(getattr(identifier, "structure", None), "channels", None)
+        if identifier.records != 1 and self.channels is None:
+            raise ValueError("identifier must read one record per window (or several channels "
+                             f"of one, Physical(..., channels=...)); got one of "
                              f"{identifier.records} records")
         if identifier.initial != "fitted":
             raise ValueError("identifier must be trained on windows that start mid-motion "
@@ -130,7 +136,11 @@ class Tracker:
                              "records from rest")
         _check_names(identifier, config)
         self.identifier, self.config = identifier, config
-        self.steps, self.dt = identifier.steps, identifier.dt
+        self.steps = identifier.steps if self.channels is None else identifier.steps[0]
+        self.dt = identifier.dt if self.channels is None else identifier.dt[0]
+        #: ``(p, m)``: the stream's outputs and inputs.
+        self.width = (1, 1) if self.channels is None else (
+            1 + max(o for o, _ in self.channels), 1 + max(i for _, i in self.channels))
         runner = identifier if engine == "identifier" else _onnx_engine(
             identifier, required=engine == "onnx")
         #: ``"onnx"`` where the windows run an ONNX back end, else ``"identifier"``.
@@ -144,7 +154,11 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget the stream, the smoothing, the reference and the alarm."""
-        self._s = _State(np.zeros(self.steps), np.zeros(self.steps))
+        if self.channels is None:
+            self._s = _State(np.zeros(self.steps), np.zeros(self.steps))
+        else:
+            p, m = self.width
+            self._s = _State(np.zeros((self.steps, m)), np.zeros((self.steps, p)))
 
     def push(self, u, y) -> list[Update]:
         """Deprecated: :meth:`feed` ``(y, u)``, the order every other call of the library uses.
@@ -167,7 +181,8 @@ class Tracker:
         Parameters
         ----------
         y, u : (k,) array_like
-            Any number of output and input samples.
+            Any number of output and input samples; ``(k, p)`` and ``(k, m)`` for an
+            identifier of several channels (:attr:`width`).
 
         Returns
         -------
@@ -187,14 +202,18 @@ class Tracker:
         """
         u = np.atleast_1d(as_array("u", u))
         y = np.atleast_1d(as_array("y", y))
-        if u.ndim != 1 or u.shape != y.shape:
+        if self.channels is not None:
+            u, y = self._columns(u, y)
+        elif u.ndim != 1 or u.shape != y.shape:
             raise ValueError(f"u and y must be 1-D sample arrays of one length; got shapes "
                              f"{u.shape} and {y.shape}")
         for name, v in (("u", u), ("y", y)):
             if not np.all(np.isfinite(v)):
-                k = int(np.flatnonzero(~np.isfinite(v))[0])
-                raise ValueError(f"u and y must be finite; got {v[k]} in {name} at sample {k} "
-                                 "of the chunk (no sample of it was consumed)")
+                rows = v.reshape(len(v), -1)
+                bad = ~np.isfinite(rows)
+                k = int(np.flatnonzero(bad.any(axis=1))[0])
+                raise ValueError(f"u and y must be finite; got {rows[k][bad[k]][0]} in {name} "
+                                 f"at sample {k} of the chunk (no sample of it was consumed)")
         s, steps, hop = self._s, self.steps, self.config.hop
         updates = []
         i = 0
@@ -224,11 +243,26 @@ class Tracker:
                                     "PushError.consumed and .updates)", i, updates) from err
         return updates
 
+    def _columns(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``u (k, m)`` and ``y (k, p)`` of a chunk of a several-channel stream, checked."""
+        p, m = self.width
+        u = u.reshape(-1, 1) if u.ndim == 1 and m == 1 else u
+        y = y.reshape(-1, 1) if y.ndim == 1 and p == 1 else y
+        if u.ndim != 2 or y.ndim != 2 or u.shape != (len(y), m) or y.shape[1] != p:
+            raise ValueError(f"y and u must be (k, {p}) and (k, {m}) sample arrays of one "
+                             f"length (the channels {list(self.channels)}); got shapes "
+                             f"{y.shape} and {u.shape}")
+        return u, y
+
     def _physical(self) -> tuple[dict, float]:
         """The physical parameters of the current window and the wall time it took."""
         s = self._s
         t0 = time.perf_counter()
-        out = self.runner.identify(s.y, s.u).physical
+        if self.channels is None:
+            out = self.runner.identify(s.y, s.u).physical
+        else:
+            out = self.runner.identify(tuple(s.y[:, o] for o, _ in self.channels),
+                                       tuple(s.u[:, i] for _, i in self.channels)).physical
         return out, time.perf_counter() - t0
 
     def _identify(self) -> Update:

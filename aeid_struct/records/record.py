@@ -206,7 +206,7 @@ def _not_sequence(value, R: int) -> bool:
     return array or not hasattr(value, "__len__") or len(value) != R
 
 
-def arrays_of(y, u, dt, *, what: str, records: int = 1):
+def arrays_of(y, u, dt, *, what: str, records: int = 1, channels=None):
     """The arrays ``(y, u, dt)`` of an entry point that reads arrays and takes a measured
     :class:`~aeid_struct.records.Record` too (``identify(record)``, the identifier protocol):
     a Record (a sequence of ``records`` of them for a several-record identifier) is unpacked,
@@ -222,6 +222,10 @@ def arrays_of(y, u, dt, *, what: str, records: int = 1):
         The entry point, named in the messages.
     records : int
         Records the entry point reads as one set (1: one Record).
+    channels : tuple of (output, input), optional
+        Where the set is the channels of one measured record (a physical structure's
+        ``channels``): one Record with several outputs (and inputs) is split into them
+        (``Record.channel``); a sequence of ``records`` single-channel Records reads as well.
 
     Returns
     -------
@@ -243,6 +247,13 @@ def arrays_of(y, u, dt, *, what: str, records: int = 1):
     if u is not None:
         raise ValueError(f"u must be None when {what} is given a Record (the record carries its "
                          f"input); got {type(u).__name__}")
+    if channels is not None and isinstance(y, Record) and records > 1:
+        try:
+            given = [y.channel(o, i) for o, i in channels]
+        except ValueError as err:
+            raise ValueError(f"{what} reads the channels (output, input) {list(channels)} of "
+                             f"one record; the record has {y.outputs} output(s) and "
+                             f"{y.inputs} input(s): {err}") from None
     if len(given) != records or (records == 1 and several):
         raise ValueError(f"{what} reads {records} record{'s' if records > 1 else ''} as one set; "
                          f"got {len(given)} Record{'s' if len(given) > 1 else ''}"

@@ -1,9 +1,10 @@
 """Refinement: fits of a model to the least-squares / output-error optimum, in its own
-structure. One Levenberg-Marquardt (``core``) over three problems: the partly fixed CCFs of many
+structure. One Levenberg-Marquardt (``core``) over four problems: the partly fixed CCFs of many
 records at once (``batched``; compiled to C by ``compiled``), the variable projection of a free
-CCF (``projected``, ``separable``) and any structure over a CasADi graph with its delay, offset
-and initial state (``record``); and the CasADi NLP (``nlp``, ``solve``) for the constraints that
-loop does not know. A fit over a record returns an :class:`~aeid_struct.estimates.Estimate`.
+CCF (``projected``, ``separable``), any structure over a CasADi graph with its delay, offset
+and initial state (``record``), and parameters shared by several records (``joint``); and the
+CasADi NLP (``nlp``, ``solve``) for the constraints that loop does not know. A fit over a
+record returns an :class:`~aeid_struct.estimates.Estimate`.
 
 Layer: below ``identification``, above ``estimates`` (a refinement returns the one Estimate).
 
@@ -26,6 +27,10 @@ from aeid_struct.refinement.levenberg import fit_rows as fit_rows
 from aeid_struct.structures import Numeric as Numeric
 
 if TYPE_CHECKING:
+    from aeid_struct.refinement.joint import JointFit as JointFit
+    from aeid_struct.refinement.joint import fit_joint as fit_joint
+    from aeid_struct.refinement.joint import joint_jacobian as joint_jacobian
+    from aeid_struct.refinement.joint import joint_residual as joint_residual
     from aeid_struct.refinement.nlp import cache_info as cache_info
     from aeid_struct.refinement.nlp import casadi_simulate as casadi_simulate
     from aeid_struct.refinement.nlp import clear_cache as clear_cache
@@ -42,6 +47,10 @@ _LAZY = {
     "casadi_simulate": "nlp",
     "clear_cache": "nlp",
     "expm": "nlp",
+    "JointFit": "joint",
+    "fit_joint": "joint",
+    "joint_jacobian": "joint",
+    "joint_residual": "joint",
     "BUCKETS": "record",
     "refine_record": "record",
     "projected_cost": "separable",
@@ -53,6 +62,7 @@ __all__ = [
     "BUCKETS",
     "MAX_ITERATIONS",
     "CacheInfo",
+    "JointFit",
     "Numeric",
     "Pattern",
     "RefineConfig",
@@ -61,7 +71,10 @@ __all__ = [
     "casadi_simulate",
     "clear_cache",
     "expm",
+    "fit_joint",
     "fit_rows",
+    "joint_jacobian",
+    "joint_residual",
     "projected_cost",
     "refine",
     "refine_record",

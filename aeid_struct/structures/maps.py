@@ -36,9 +36,11 @@ import casadi
 #: The allow-list: the factories a file may name, name -> (module, attribute). Resolving a
 #: reference imports only these modules; a name that is not here is an error.
 MAPS: dict[str, tuple[str, str]] = {
-    f"symbolic.leg.{f}": ("symbolic.leg", f)
-    for f in ("stable_map", "unstable_map", "joint_map",
-              "stable_inverse", "unstable_inverse", "joint_inverse")
+    **{f"symbolic.leg.{f}": ("symbolic.leg", f)
+       for f in ("stable_map", "unstable_map", "joint_map",
+                 "stable_inverse", "unstable_inverse", "joint_inverse")},
+    **{f"symbolic.mechanisms.{f}": ("symbolic.mechanisms", f)
+       for f in ("drive_train_channels", "cart_pole_channels")},
 }
 
 _ENTRY_KEYS = {"map", "args"}

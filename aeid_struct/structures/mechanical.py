@@ -1,16 +1,21 @@
 """A :class:`~symbolic.mechanism.Mechanism` as a physical structure's map: the CCF of one of its
-channels (``Mechanism.channel``) as a Function of its free parameters, after an identifiability
-check of that channel over the structure's box, so that a structure whose record cannot
-determine a parameter is refused before any training (docs/architecture.md, "Your own
-mechanism")."""
+channels (``Mechanism.channel``), or of several channels of one record (a record with several
+outputs, or a decoupled input per output), as a Function of its free parameters, after an
+identifiability check of those channels over the structure's box, so that a structure whose
+records cannot determine a parameter is refused before any training (docs/architecture.md,
+"Your own mechanism")."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
 import casadi
+import numpy as np
 
-__all__ = ["is_mechanism", "mechanism_map"]
+__all__ = ["channel_specs", "is_mechanism", "mechanism_map"]
+
+#: Points of the box at which a channel a split record assumes absent must vanish.
+PROBES = 6
 
 
 def is_mechanism(value) -> bool:
@@ -30,10 +35,57 @@ def is_mechanism(value) -> bool:
     return isinstance(value, Mechanism)
 
 
-def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, channel,
+def channel_specs(channel, channels) -> tuple[tuple, ...]:
+    """The channels of ``Physical(mechanism, channel=..., channels=...)``, checked: one
+    ``(output, input[, states])`` per record of the structure.
+
+    Parameters
+    ----------
+    channel : tuple or None
+        One channel (``(0, 0)`` where both are None).
+    channels : sequence of tuples or None
+        Several channels of one record, each output once.
+
+    Returns
+    -------
+    tuple of (output, input, states or None)
+
+    Raises
+    ------
+    ValueError
+        Both given, a malformed channel, or an output named twice.
+    """
+    if channel is not None and channels is not None:
+        raise ValueError("give channel (one) or channels (several), not both")
+    if channels is None:
+        given = [(0, 0) if channel is None else channel]
+    elif isinstance(channels, (str, bytes)) or not hasattr(channels, "__len__") \
+            or len(channels) < 1:
+        raise ValueError(f"channels must be a non-empty sequence of (output, input) or "
+                         f"(output, input, states); got {channels!r}")
+    else:
+        given = list(channels)
+    specs = []
+    for spec in given:
+        if isinstance(spec, (str, bytes)) or not hasattr(spec, "__len__") \
+                or len(spec) not in (2, 3):
+            name = "channel" if channels is None else "channels"
+            raise ValueError(f"{name} must hold (output, input) or (output, input, states); "
+                             f"got {spec!r}")
+        output, input, *states = spec
+        specs.append((output, input, tuple(states[0]) if states and states[0] is not None
+                      else None))
+    outputs = [s[0] for s in specs]
+    if len(set(outputs)) != len(outputs):
+        raise ValueError(f"channels must name each output once (a record's output is one "
+                         f"channel's); got outputs {outputs}")
+    return tuple(specs)
+
+
+def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tuple,
                   operating: dict) -> casadi.Function:
-    """The map of ``Physical(mechanism, ...)``: the CCF of ``channel`` as a Function of the
-    parameters not in ``known``, checked identifiable over ``bounds``.
+    """The map of ``Physical(mechanism, ...)``: the CCF of each channel in ``specs`` as a
+    Function of the parameters not in ``known``, checked identifiable over ``bounds``.
 
     Parameters
     ----------
@@ -42,41 +94,76 @@ def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, channel,
         Every free parameter's box (``Physical``'s bounds).
     known : dict name -> float or None
         Parameters held at known values.
-    channel : (output, input) or (output, input, states), or None
-        The channel the records hold (``Mechanism.channel``); ``(0, 0)`` by default.
+    specs : tuple of (output, input, states or None)
+        The channels the records hold (:func:`channel_specs`).
     operating : dict
         ``u``, ``q``, ``guess`` of ``Mechanism.linearise``.
 
     Returns
     -------
     casadi.Function
-        ``'<name>_y<i>_u<j>'``: the free parameters by name -> ``A, B, C, D`` of the CCF.
+        ``'<name>_y<i>_u<j>'`` with outputs ``A, B, C, D`` for one channel;
+        ``'<name>_y<i>u<j>_y<k>u<l>..'`` with ``A1, .., DR`` for ``R`` (each of the same order).
 
     Raises
     ------
     ValueError
-        A malformed channel or operating point; bounds that are not the free parameters'; a
-        parameter the channel's records cannot determine (named, with what to fix).
+        A malformed channel or operating point; bounds that are not the free parameters';
+        channels of different orders; several inputs where an output also answers another
+        channel's input (the record cannot be split by channel); a parameter the channels'
+        records cannot determine (named, with what to fix).
     """
     from symbolic.identifiability import identifiability
 
-    spec = (0, 0) if channel is None else tuple(channel)
-    if len(spec) not in (2, 3):
-        raise ValueError(f"channel must be (output, input) or (output, input, states); got "
-                         f"{channel!r}")
-    output, input, *states = spec
     free, _ = mechanism.free(known)
     if not isinstance(bounds, Mapping) or set(bounds) != set(free):
         given = sorted(bounds) if isinstance(bounds, Mapping) else bounds
         raise ValueError(f"bounds must give every parameter of {mechanism.name} not in known "
                          f"({list(free)}); got {given!r}")
-    report = identifiability(mechanism, bounds, known=known, inputs=[input], outputs=[output],
+    if len(specs) > 1:
+        _check_split(mechanism, specs, bounds, known, operating)
+    inputs = sorted({i for _, i, _ in specs})
+    outputs = [o for o, _, _ in specs]
+    report = identifiability(mechanism, bounds, known=known, inputs=inputs, outputs=outputs,
                              **operating)
     if not report.full:
+        what = ", ".join(f"y[{o}] from u[{i}]" for o, i, _ in specs)
         raise ValueError(
-            f"a record of y[{output}] from u[{input}] cannot determine "
-            f"{', '.join(report.unidentifiable)} of {mechanism.name} (rank {report.rank} of "
-            f"{len(report.parameters)}); fix {', '.join(report.fix)} with known={{...}} or "
-            f"measure another channel:\n{report}")
-    return mechanism.channel(output, input, states=states[0] if states else None, known=known,
-                             **operating)
+            f"a record of {what} cannot determine {', '.join(report.unidentifiable)} of "
+            f"{mechanism.name} (rank {report.rank} of {len(report.parameters)}); fix "
+            f"{', '.join(report.fix)} with known={{...}} or measure another channel:\n{report}")
+    if len(specs) == 1:
+        output, input, states = specs[0]
+        return mechanism.channel(output, input, states=states, known=known, **operating)
+    return mechanism.channels(specs, known=known, **operating)
+
+
+def _check_split(mechanism, specs, bounds, known, operating) -> None:
+    """Where the channels read several inputs, each channel's output must not answer the
+    other channels' inputs (a decoupled linearisation, the upright leg): a record is split by
+    channel, so a coupling term would be read as noise. Checked on the Markov parameters
+    ``C A^k B`` and ``D`` at points of the box."""
+    inputs = sorted({i for _, i, _ in specs})
+    if len(inputs) == 1:
+        return
+    lin = mechanism.linearise(known=known, **operating)
+    rng = np.random.default_rng(0)
+    names = list(lin.name_in())
+    for _ in range(PROBES):
+        point = {k: rng.uniform(*bounds[k]) for k in names}
+        out = lin.call(point)
+        A, B, C, D = (np.array(out[k]) for k in ("A", "B", "C", "D"))
+        scale = np.linalg.norm(A) + 1.0
+        for o, i, _ in specs:
+            for j in inputs:
+                if j == i:
+                    continue
+                markov = [D[o, j]] + [C[o] @ np.linalg.matrix_power(A / scale, k) @ B[:, j]
+                                      for k in range(A.shape[0])]
+                size = np.abs(C[o]).max() * np.abs(B).max() + np.abs(D).max() + 1e-300
+                if np.max(np.abs(markov)) > 1e-10 * size:
+                    raise ValueError(
+                        f"channels read inputs {inputs}, but y[{o}] also answers u[{j}] (its "
+                        f"Markov parameters do not vanish at {point}): a record of several "
+                        "inputs is split by channel only where each output answers its own "
+                        "input alone; identify one input's records at a time")

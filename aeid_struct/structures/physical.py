@@ -22,7 +22,7 @@ from aeid_struct.structures import maps as named_maps
 from aeid_struct.structures.base import Structure
 from aeid_struct.structures.casadi_torch import CasadiOp
 from aeid_struct.structures.constraints import ElementMap
-from aeid_struct.structures.mechanical import is_mechanism, mechanism_map
+from aeid_struct.structures.mechanical import channel_specs, is_mechanism, mechanism_map
 from aeid_struct.structures.realisation import ccf_coefficients, ccf_matrices
 from aeid_struct.structures.system import System
 
@@ -60,6 +60,13 @@ class Physical(Structure):
         A mechanism's parameters held at known values (gravity, a lever ratio).
     channel : (output, input) or (output, input, states), optional
         A mechanism's channel the records hold; ``(0, 0)`` by default.
+    channels : sequence of (output, input) or (output, input, states), optional
+        Several channels of a mechanism's record, each output once (a cart's position and a
+        pole's angle from one force; the upright leg's two decoupled inputs): one record per
+        channel (:attr:`records`), all of one order, checked identifiable together; a
+        :class:`~aeid_struct.records.Record` with several outputs is split by them
+        (:attr:`channels`). With a Function of ``R`` records (``Mechanism.channels``, a named
+        factory), its ``R`` pairs ``(output, input)``.
     **operating
         A mechanism's operating point: ``q``, ``u``, ``guess`` of ``Mechanism.linearise``.
 
@@ -71,12 +78,20 @@ class Physical(Structure):
     """
 
     def __init__(self, function: casadi.Function, *, bounds: dict, inverse=None,
-                 known: dict | None = None, channel=None, **operating) -> None:
+                 known: dict | None = None, channel=None, channels=None,
+                 **operating) -> None:
+        self._channels = None
         if is_mechanism(function):
-            function = mechanism_map(function, bounds, known, channel, operating)
+            specs = channel_specs(channel, channels)
+            function = mechanism_map(function, bounds, known, specs, operating)
+            if channels is not None:
+                self._channels = tuple((o, i) for o, i, _ in specs)
         elif known is not None or channel is not None or operating:
             raise ValueError("known, channel and an operating point (q, u, guess) are read "
                              "from a symbolic.Mechanism; a casadi.Function map fixes them itself")
+        elif channels is not None:
+            # a map of R records that are channels of one record (a named factory's)
+            self._channels = tuple(tuple(int(v) for v in c[:2]) for c in channels)
         if not isinstance(function, casadi.Function):
             raise ValueError(f"function must be a casadi.Function; got {type(function).__name__}")
         fname = function.name()
@@ -106,6 +121,9 @@ class Physical(Structure):
                 raise ValueError(f"output {k!r} of {fname} must have shape {s}; "
                                  f"got {function.size_out(k)}")
         self._records = records
+        if self._channels is not None and len(self._channels) != records:
+            raise ValueError(f"channels must give one (output, input) per record of {fname} "
+                             f"({records}); got {channels!r}")
         if not isinstance(bounds, dict):
             raise ValueError(f"bounds must be a dict name -> (lo, hi); got {type(bounds).__name__}")
         for k in bounds:
@@ -128,7 +146,7 @@ class Physical(Structure):
                 raise ValueError(f"bounds[{k!r}] must satisfy lo < hi; got {tuple(bounds[k])}")
             maps[k] = ElementMap("interval", lo, hi, note="bounds")
         if inverse is not None:
-            self._check_inverse(inverse, shapes, names, fname)
+            _check_inverse(inverse, shapes, names, fname)
         self.function, self.inverse = function, inverse
         if outs != self._keys:
             # Keep only A, B, C, D so that CasadiOp neither computes nor differentiates the rest.
@@ -138,28 +156,15 @@ class Physical(Structure):
         self._inverse_op = None if inverse is None else CasadiOp(inverse)
         super().__init__(n, maps)
 
-    @staticmethod
-    def _check_inverse(inverse, shapes, names, fname) -> None:
-        if not isinstance(inverse, casadi.Function):
-            raise ValueError(f"inverse must be a casadi.Function; got {type(inverse).__name__}")
-        if sorted(inverse.name_in()) != sorted(shapes):
-            raise ValueError(f"inverse {inverse.name()} must have inputs {', '.join(shapes)}; "
-                             f"got {', '.join(inverse.name_in())}")
-        for k, s in shapes.items():
-            if inverse.size_in(k) != s:
-                raise ValueError(f"input {k!r} of inverse {inverse.name()} must have shape {s}; "
-                                 f"got {inverse.size_in(k)}")
-        for i, k in enumerate(inverse.name_out()):
-            if k not in names:
-                raise ValueError(f"output {k!r} of inverse {inverse.name()} is not a parameter "
-                                 f"of {fname} ({', '.join(names)})")
-            if inverse.size_out(i) != (1, 1):
-                raise ValueError(f"output {k!r} of inverse {inverse.name()} must be a scalar; "
-                                 f"got {inverse.size_out(i)}")
-
     @property
     def records(self) -> int:
         return self._records
+
+    @property
+    def channels(self) -> tuple[tuple[int, int], ...] | None:
+        """``(output, input)`` of each record where the records are channels of one measured
+        record (``Physical(mechanism, channels=...)``), else None."""
+        return self._channels
 
     @property
     def bounds(self) -> dict[str, tuple[float, float]]:
@@ -167,15 +172,18 @@ class Physical(Structure):
         return {k: (m.lo, m.hi) for k, m in self._maps.items()}
 
     def _config(self) -> dict:
-        return {
+        out = {
             "function": named_maps.to_entry(self.function),
             "bounds": {k: [lo, hi] for k, (lo, hi) in self.bounds.items()},
             "inverse": None if self.inverse is None else named_maps.to_entry(self.inverse),
         }
+        if self._channels is not None:
+            out["channels"] = [list(c) for c in self._channels]
+        return out
 
     @classmethod
     def _from_config(cls, args: dict, *, maps=None, trust: bool = False) -> Physical:
-        unknown = sorted(set(args) - {"function", "bounds", "inverse"})
+        unknown = sorted(set(args) - {"function", "bounds", "inverse", "channels"})
         if unknown or "function" not in args or "bounds" not in args:
             raise ValueError(f"invalid config for Physical: it needs 'function' and 'bounds' "
                              f"(and optionally 'inverse'); got entries {sorted(args)}")
@@ -187,12 +195,15 @@ class Physical(Structure):
             raise ValueError(f"invalid config for Physical: 'bounds' must be a dict name -> "
                              f"[lo, hi] of numbers; got {bounds!r}")
         inverse = args.get("inverse")
-        return cls(
+        out = cls(
             named_maps.from_entry(args["function"], "Physical 'function'", maps=maps, trust=trust),
             bounds={k: tuple(v) for k, v in bounds.items()},
             inverse=None if inverse is None else named_maps.from_entry(
                 inverse, "Physical 'inverse'", maps=maps, trust=trust),
         )
+        if args.get("channels") is not None:
+            out._channels = _channels_of(args["channels"], out.records)
+        return out
 
     def _base_repr(self) -> str:
         bounds = ", ".join(f"{k!r}: ({lo:g}, {hi:g})" for k, (lo, hi) in self.bounds.items())
@@ -263,3 +274,36 @@ class Physical(Structure):
                 f"rebuilt from the recovered parameters differs by {err[i]:.3g} (relative) "
                 f"in its CCF coefficients {np.round(given[i], 6)} vs {np.round(rebuilt[i], 6)}"
             )
+
+
+def _check_inverse(inverse, shapes, names, fname) -> None:
+    """``Physical``'s ``inverse``: a Function from the records' CCF to named parameters."""
+    if not isinstance(inverse, casadi.Function):
+        raise ValueError(f"inverse must be a casadi.Function; got {type(inverse).__name__}")
+    if sorted(inverse.name_in()) != sorted(shapes):
+        raise ValueError(f"inverse {inverse.name()} must have inputs {', '.join(shapes)}; "
+                         f"got {', '.join(inverse.name_in())}")
+    for k, s in shapes.items():
+        if inverse.size_in(k) != s:
+            raise ValueError(f"input {k!r} of inverse {inverse.name()} must have shape {s}; "
+                             f"got {inverse.size_in(k)}")
+    for i, k in enumerate(inverse.name_out()):
+        if k not in names:
+            raise ValueError(f"output {k!r} of inverse {inverse.name()} is not a parameter "
+                             f"of {fname} ({', '.join(names)})")
+        if inverse.size_out(i) != (1, 1):
+            raise ValueError(f"output {k!r} of inverse {inverse.name()} must be a scalar; "
+                             f"got {inverse.size_out(i)}")
+
+
+def _channels_of(channels, records: int) -> tuple:
+    """A config's ``channels``: ``records`` pairs ``[output, input]``."""
+    ok = isinstance(channels, list) and len(channels) == records and all(
+        isinstance(c, list) and len(c) == 2 and all(
+            isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in c)
+        for c in channels)
+    if not ok:
+        raise ValueError(f"invalid config for Physical: 'channels' must be {records} pairs "
+                         f"[output, input] of non-negative integers (one per record); got "
+                         f"{channels!r}")
+    return tuple(tuple(c) for c in channels)

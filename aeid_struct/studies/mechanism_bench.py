@@ -33,8 +33,8 @@ class Case:
         The ``symbolic.mechanisms`` function.
     bounds : dict name -> (lo, hi)
     known : dict name -> float
-    channel : tuple
-        ``(output, input[, states])``.
+    channel : tuple or None
+        ``(output, input[, states])``; None where ``channels`` are given.
     operating : dict
         ``q`` / ``u`` of the rest point.
     dt : float
@@ -42,6 +42,8 @@ class Case:
     train : bool
         Whether an identifier is trained (else the report alone: a channel that cannot
         determine every parameter).
+    channels : tuple, optional
+        Several channels of one record (``Physical(..., channels=...)``).
     """
 
     name: str
@@ -53,6 +55,29 @@ class Case:
     dt: float
     steps: int
     train: bool = True
+    channels: tuple | None = None
+
+    @property
+    def specs(self) -> tuple:
+        """The channels, one ``(output, input[, states])`` per record."""
+        return self.channels if self.channels is not None else (self.channel,)
+
+    @property
+    def grid(self) -> dict:
+        """``steps`` and ``dt`` of a record set (tuples for several channels)."""
+        R = len(self.specs)
+        return ({"steps": self.steps, "dt": self.dt} if R == 1 else
+                {"steps": (self.steps,) * R, "dt": (self.dt,) * R})
+
+    def structure(self):
+        """The case's ``Physical`` structure, built through the user's API."""
+        from aeid_struct.structures import Physical
+
+        mech, operating = _mechanism(self)
+        where = ({"channel": self.channel} if self.channels is None
+                 else {"channels": self.channels})
+        return Physical(mech, bounds=self.bounds, known=self.known or None, **where,
+                        **operating)
 
 
 #: The benchmark's mechanisms.
@@ -65,6 +90,16 @@ CASES = (
          {}, (0, 0), {}, 0.05, 400),
     Case("leg, rotation", "leg", {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)},
          {"l0": 0.8, "g": 9.81}, (1, 1, (1, 3)), {"upright": True}, 0.005, 300, train=False),
+    Case("cart-pole, both outputs", "cart_pole",
+         {"M": (0.5, 2.0), "m": (0.05, 0.5), "l": (0.3, 1.0), "b": (0.05, 1.0)},
+         {"g": 9.81}, None, {"q": [0, 0]}, 0.01, 150, channels=((0, 0), (1, 0))),
+    Case("drive train, both angles", "drive_train",
+         {"J1": (0.01, 0.05), "J2": (0.02, 0.2), "k": (50.0, 200.0), "c": (0.05, 0.5),
+          "b": (0.01, 0.1)}, {}, None, {"q": [0, 0]}, 0.005, 300,
+         channels=((0, 0), (1, 0))),
+    Case("leg, both subsystems", "leg", {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)},
+         {"l0": 0.8, "g": 9.81}, None, {"upright": True}, 0.005, 300,
+         channels=((0, 0, (0, 2)), (1, 1, (1, 3)))),
     Case("lever (r unknown)", "lever", {"m": (0.5, 2.0), "k": (10.0, 50.0), "d": (0.5, 3.0),
                                         "r": (0.5, 2.0)}, {}, (0, 0), {}, 0.02, 300,
          train=False),
@@ -86,9 +121,9 @@ def _report(case: Case) -> dict:
     from symbolic.identifiability import identifiability
 
     mech, operating = _mechanism(case)
-    out, inp = case.channel[:2]
-    rep = identifiability(mech, case.bounds, known=case.known or None, inputs=[inp],
-                          outputs=[out], **operating)
+    rep = identifiability(mech, case.bounds, known=case.known or None,
+                          inputs=sorted({s[1] for s in case.specs}),
+                          outputs=[s[0] for s in case.specs], **operating)
     return {"rank": rep.rank, "parameters": list(rep.parameters),
             "identifiable": list(rep.identifiable), "unidentifiable": list(rep.unidentifiable),
             "fix": list(rep.fix), "condition": rep.condition, "text": str(rep)}
@@ -117,6 +152,24 @@ def _cold(structure, y, u, dt, names, rng) -> tuple[np.ndarray, float]:
     return values, seconds
 
 
+def _cold_joint(structure, ys, us, dts, rng) -> tuple[np.ndarray, float]:
+    """The cold grey-box fit of several channels: the joint output-error fit
+    (``refinement.fit_joint``) from 4 starts drawn in the box, the best cost."""
+    from aeid_struct.identification.physical_head import physical_head
+    from aeid_struct.refinement import fit_joint
+
+    ph = physical_head(structure, initial=False)
+    t0 = time.perf_counter()
+    starts = rng.uniform(ph.lo, ph.hi, (4, ph.q))
+    fit = fit_joint(ph.systems, starts, [np.repeat(y[None], 4, 0) for y in ys],
+                    [np.repeat(u[None], 4, 0) for u in us], dts, lower=ph.lo, upper=ph.hi,
+                    initial=False)
+    seconds = time.perf_counter() - t0
+    cost = np.where(np.isfinite(fit.cost), fit.cost, np.inf)
+    best = int(np.argmin(cost))
+    return (fit.p[best] if np.isfinite(cost[best]) else np.full(ph.q, np.nan)), seconds
+
+
 def _n4sid(ident, y, u, head) -> np.ndarray:
     """n4sid's model of order n, taken to the nearest parameters (the head's inverse)."""
     from aeid_struct import baselines
@@ -142,8 +195,9 @@ def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
     from aeid_struct.training import records as simulated
 
     names = ident.structure.element_names
-    rec = simulated(family, records, steps=case.steps, dt=case.dt, excitation_kind="prbs",
-                       seed=seed, noise=noise)
+    rec = simulated(family, records, **case.grid, excitation_kind="prbs", seed=seed,
+                    noise=noise)
+    several = ident.structure.records > 1
     truth = np.stack([rec.systems.params[k] for k in names], 1)
     head = ident.head
     ident.head = None
@@ -157,16 +211,24 @@ def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
             "one pass": np.stack([one.physical[k] for k in names], 1),
             "refined": np.stack([refined.physical[k] for k in names], 1),
             "cold grey-box x4": np.full((records, len(names)), np.nan),
-            "n4sid": np.stack([_n4sid(ident, rec.y[i], rec.u[i], ph) for i in range(records)])}
+            # several channels: n4sid's models per channel do not share the poles (no row)
+            "n4sid": np.full((records, len(names)), np.nan) if several else np.stack(
+                [_n4sid(ident, rec.y[i], rec.u[i], ph) for i in range(records)])}
     seconds = {"one pass": [], "refined": [], "cold grey-box x4": []}
     for i in range(records):
-        rows["cold grey-box x4"][i], cold_s = _cold(ident.structure, rec.y[i], rec.u[i],
-                                                    case.dt, names, rng)
+        if several:
+            y, u = tuple(v[i] for v in rec.y), tuple(v[i] for v in rec.u)
+            rows["cold grey-box x4"][i], cold_s = _cold_joint(ident.structure, y, u,
+                                                              rec.dt, rng)
+        else:
+            y, u = rec.y[i], rec.u[i]
+            rows["cold grey-box x4"][i], cold_s = _cold(ident.structure, y, u, case.dt,
+                                                        names, rng)
         if i < timed:
             seconds["cold grey-box x4"].append(cold_s)
             for label, refine in (("one pass", False), ("refined", True)):
                 t0 = time.perf_counter()
-                ident.identify(rec.y[i], rec.u[i], refine=refine)
+                ident.identify(y, u, refine=refine)
                 seconds[label].append(time.perf_counter() - t0)
     out = {"noise": noise, "errors": {k: _median_error(v, truth) for k, v in rows.items()},
            "ms": {k: float(np.median(v) * 1e3) for k, v in seconds.items()},
@@ -208,7 +270,6 @@ def bench_mechanism(*, seconds: float = 120.0, noises=(0.0, 0.02, 0.05), records
         A case name not in :data:`CASES`.
     """
     from aeid_struct.identification import Head
-    from aeid_struct.structures import Physical
     from aeid_struct.training import ParameterFamily, TrainConfig, train
 
     unknown = sorted(set(cases or ()) - {c.name for c in CASES})
@@ -222,13 +283,11 @@ def bench_mechanism(*, seconds: float = 120.0, noises=(0.0, 0.02, 0.05), records
         say(f"{case.name}: {row['identifiability']['text'].splitlines()[1].strip()}, "
             f"identifiable: {', '.join(row['identifiability']['identifiable']) or 'none'}")
         if case.train:
-            mech, operating = _mechanism(case)
-            structure = Physical(mech, bounds=case.bounds, known=case.known or None,
-                                    channel=case.channel, **operating)
+            structure = case.structure()
             family = ParameterFamily(structure)
-            config = TrainConfig(steps=case.steps, dt=case.dt, epochs=100_000,
-                                    seconds=seconds, count=20_000, excitation="prbs",
-                                    noise=(0.0, 0.03), seed=seed, progress=False)
+            config = TrainConfig(**case.grid, epochs=100_000, seconds=seconds, count=20_000,
+                                 excitation="prbs", noise=(0.0, 0.03), seed=seed,
+                                 progress=False)
             t0 = time.perf_counter()
             ident = train(structure, family, config)
             row["training"] = {"seconds": time.perf_counter() - t0,

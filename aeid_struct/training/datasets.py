@@ -196,6 +196,45 @@ def _noise(noise) -> float | tuple[float, float]:
     return lo, hi
 
 
+def excitations(family, grid, kind: str, count: int, warmup: int,
+                rng: np.random.Generator) -> list[np.ndarray]:
+    """The inputs of ``count`` systems' records, one ``(count, warmup + steps_r)`` array per
+    record of ``grid``; records that are channels of one experiment (the family's
+    ``shared_inputs``: one input index per record) read one excitation per input.
+
+    Parameters
+    ----------
+    family : object
+        Its optional ``shared_inputs``.
+    grid : tuple of (steps_r, dt_r)
+    kind : str
+        One of ``EXCITATIONS``.
+    count, warmup : int
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    list of R arrays
+
+    Raises
+    ------
+    ValueError
+        Channels of one input on different grids.
+    """
+    shared = getattr(family, "shared_inputs", None)
+    u = []
+    for r, (steps_r, dt_r) in enumerate(grid):
+        first = r if shared is None else shared.index(shared[r])
+        if first < r:
+            if grid[first] != grid[r]:
+                raise ValueError(f"records {first} and {r} are channels of one input: steps "
+                                 f"and dt must be equal; got {grid[first]} and {grid[r]}")
+            u.append(u[first])
+        else:
+            u.append(excitation(kind, count, steps_r + warmup, dt_r, rng, first=warmup))
+    return u
+
+
 def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
             noise=0.0, seed: int = 0, warmup: int = 0) -> Records:
     """Sample ``count`` systems from ``family``, excite and simulate them exactly (Eq. 10-13).
@@ -203,13 +242,15 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
     Parameters
     ----------
     family : LegFamily, PoleFamily or any object with ``sample(count, rng) -> Systems``
-        The true systems; its ``records`` (default 1) is the records per system.
+        The true systems; its ``records`` (default 1) is the records per system, and its
+        ``shared_inputs`` (optional, one input index per record) marks records that are channels
+        of one experiment: records of one input share its excitation.
     count : int
         Records (systems), positive.
     steps : int or tuple of int
         Samples per record (``grids``); for a family of several records (the joint leg) a tuple,
-        one per record, and every record gets its own excitation and noise draw at the same
-        level.
+        one per record, and every record gets its own excitation (but for shared inputs) and
+        noise draw at the same level.
     dt : float or tuple of float
         Sample time per record (s), like ``steps``.
     excitation_kind : str
@@ -245,8 +286,7 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
         raise ValueError(f"warmup must be a non-negative integer; got {warmup!r}")
     rng = np.random.default_rng(seed)
     systems = family.sample(count, rng)
-    u = [excitation(excitation_kind, count, steps_r + warmup, dt_r, rng, first=warmup)
-         for steps_r, dt_r in grid]
+    u = excitations(family, grid, excitation_kind, count, warmup, rng)
     # a range is drawn per record, after the excitations (the order fixes what a seed gives)
     level = (np.full(count, noise) if isinstance(noise, float)
              else rng.uniform(*noise, size=count))

@@ -29,8 +29,7 @@ import torch.distributed as dist
 
 from aeid_struct.generic import normalise_windows
 from aeid_struct.simulation import simulate
-from aeid_struct.training.datasets import Records
-from aeid_struct.training.excitation import excitation
+from aeid_struct.training.datasets import Records, excitations
 from aeid_struct.training.families import Systems
 
 #: ``TrainConfig.device``'s values.
@@ -330,8 +329,7 @@ def row_records(family, config, epoch: int, rows) -> Records:
     for row in np.asarray(rows).reshape(-1):
         rng = np.random.default_rng([config.seed, 7919, epoch, int(row)])
         systems.append(family.sample(1, rng))
-        inputs.append([excitation(config.excitation, 1, steps + warmup, dt, rng, first=warmup)
-                       for steps, dt in grid])
+        inputs.append(excitations(family, grid, config.excitation, 1, warmup, rng))
     systems = Systems(*(np.concatenate([getattr(s, k) for s in systems]) for k in "Abcd"),
                       {k: np.concatenate([s.params[k] for s in systems])
                        for k in systems[0].params})

@@ -73,6 +73,14 @@ class ParameterFamily:
         """Systems per parameter set (the structure's records)."""
         return self.structure.records
 
+    @property
+    def shared_inputs(self) -> tuple[int, ...] | None:
+        """Per record, the input it reads where the records are channels of one record
+        (``Physical(mechanism, channels=...)``): records of one input are simulated with one
+        excitation, as one experiment records them; None: independent records."""
+        channels = getattr(self.structure, "channels", None)
+        return None if channels is None else tuple(i for _, i in channels)
+
     def __repr__(self) -> str:
         return (f"ParameterFamily({self.structure!r}, bounds={self.bounds}, "
                 f"log={self.log})")

@@ -1,0 +1,109 @@
+"""``refine=True`` for a physical structure of several records (the channels of one record,
+the joint leg): the output-error optimum of the shared parameters over every record
+(``refinement.fit_joint``) from the estimate's parameters, with their standard errors at the
+optimum, as ``greyest`` gives them."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from aeid_struct.estimates import Estimate
+from aeid_struct.identification.physical_head import physical_head
+
+__all__ = ["is_joint", "refine_joint"]
+
+
+def is_joint(est) -> bool:
+    """Whether ``est`` is in a physical structure of several records (refined here).
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    bool
+    """
+    from aeid_struct.structures import type_of
+
+    return type_of(est.structure) == "Physical" and est.structure.records > 1
+
+
+def refine_joint(est: Estimate) -> Estimate:
+    """The estimate's parameters polished to the output-error optimum over all its records,
+    within the bounds; records set aside (``errors="collect"``) or without finite parameters
+    are kept as they are.
+
+    Parameters
+    ----------
+    est : Estimate
+        An identifier's estimate in a physical structure of ``R > 1`` records.
+
+    Returns
+    -------
+    Estimate
+        ``refined`` True; ``info["refine"]``: ``"joint"``, ``info["cost"]`` (the summed NLP
+        loss of the records), ``info["iterations"]``, ``info["converged"]`` and
+        ``info["std"]``, the standard errors ``sqrt(diag(s^2 (J^T J)^-1))`` of the parameters
+        from the Jacobian of the weighted residual, ``s^2`` its mean square over the degrees
+        of freedom (samples less parameters less the projected initial states).
+    """
+    from aeid_struct.refinement import fit_joint, joint_jacobian
+
+    t0 = time.perf_counter()
+    structure, record = est.structure, est.record
+    ph = physical_head(structure, est.initial == "fitted")
+    names = structure.element_names
+    P = np.atleast_2d(np.stack([np.atleast_1d(np.asarray(est.elements[k], dtype=np.float64))
+                                for k in names], 1))
+    rows = np.isfinite(P).all(axis=1)
+    if est._good is not None:
+        rows &= est._good
+    rows = np.flatnonzero(rows)
+    ys = [y[rows] for y in record.y]
+    us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
+    initial = est.initial == "fitted"
+    margin = 1e-9 * (ph.hi - ph.lo)
+    start = np.clip(P[rows], ph.lo + margin, ph.hi - margin)
+    fit = fit_joint(ph.systems, start, ys, us, record.dt, lower=ph.lo, upper=ph.hi,
+                    initial=initial)
+    A, b, c, d = (np.array(np.atleast_1d(v) if est.batched else np.asarray(v)[None],
+                           dtype=np.float64, copy=True) for v in (est.A, est.b, est.c, est.d))
+    std = np.full(P.shape, math.nan)
+    cost = np.full(P.shape[0], math.nan)
+    iterations = np.zeros(P.shape[0], dtype=int)
+    converged = np.zeros(P.shape[0], dtype=bool)
+    free = ph.records * ph.n if initial else 0
+    samples = sum(y.shape[1] for y in ys)
+    for i, row in enumerate(rows):
+        p = fit.p[i]
+        P[row], cost[row] = p, fit.cost[i]
+        iterations[row], converged[row] = fit.iterations[i], fit.converged[i]
+        for r, (Ar, br, cr, dr, _) in enumerate(ph.systems(p)):
+            A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
+        J = joint_jacobian(ph.systems, p, [y[i] for y in ys], [u[i] for u in us], record.dt,
+                           initial, ph.hi - ph.lo)
+        dof = samples - ph.q - free
+        JJ = J @ J.T
+        if dof > 0 and np.isfinite(JJ).all() and np.linalg.matrix_rank(JJ) == ph.q:
+            std[row] = np.sqrt(np.diag(np.linalg.inv(JJ)) * fit.cost[i] / dof)
+    if est.batched:
+        elements = {k: P[:, j] for j, k in enumerate(names)}
+        errors = {k: std[:, j] for j, k in enumerate(names)}
+        info = {"cost": cost, "iterations": iterations, "converged": converged}
+    else:
+        A, b, c, d = A[0], b[0], c[0], d[0]
+        elements = {k: float(P[0, j]) for j, k in enumerate(names)}
+        errors = {k: float(std[0, j]) for j, k in enumerate(names)}
+        info = {"cost": float(cost[0]), "iterations": int(iterations[0]),
+                "converged": bool(converged[0])}
+    seconds = time.perf_counter() - t0
+    info["seconds"] = np.full(P.shape[0], seconds / P.shape[0]) if est.batched else seconds
+    return dataclasses.replace(
+        est, A=A, b=b, c=c, d=d, elements=elements, refined=True,
+        seconds=est.seconds + seconds,
+        info={**est.info, **info, "refine": "joint", "std": errors})

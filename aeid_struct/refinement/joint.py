@@ -1,0 +1,180 @@
+r"""The output-error fit of parameters shared by several records: the channels of one measured
+record (a cart's position and a pole's angle from one force) or the records of one parameter
+set (the joint leg), each record simulated by its own system of the parameters.
+
+For parameters ``p`` (``q``), records ``y_r, u_r (steps_r)`` at ``dt_r`` and the systems
+``(A_r, b_r, c_r, d_r)(p)``, the residual stacks, record after record,
+
+    r_r(p) = w_r (I - Q_r Q_r^T) (y_r - yhat_r(p)),    w_r = 2 / (max|y_r| sqrt(steps_r + 1)),
+
+``yhat_r`` the decoder's exact first-order-hold response from rest (Eq. 10-13,
+``simulation.simulate_outputs``) and ``Q_r`` an orthonormal basis of the observable part of the
+record's free response ``C_r Phi_r^k`` where the records start mid-motion (each record's
+least-squares initial state projected out: variable projection). So ``||r||^2`` is the sum over
+records of the NLP's loss (paper Eq. 14 with ``gamma = 0`` on the normalised record, Eq. 15).
+It is minimised by the library's one Levenberg-Marquardt (``core.minimise``) in the box of the
+parameters, in units of the box, with a central-difference Jacobian: ``q`` is a handful of
+physical parameters, and ``2 q`` responses of ``R`` short records per iteration cost less than
+building a CasADi graph of every record length.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from aeid_struct.refinement import core
+
+__all__ = ["JointFit", "fit_joint", "joint_jacobian", "joint_residual"]
+
+#: Relative step of the central differences, of the box's width.
+STEP = 1e-6
+#: Stop on a relative cost decrease below this (a flat optimum: noise).
+FLAT = 1e-12
+
+
+def joint_residual(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple,
+                   initial: bool) -> np.ndarray:
+    """The stacked residual ``r(p)`` of one set of records (module docstring).
+
+    Parameters
+    ----------
+    systems : callable
+        ``p (q,) -> [(A (n, n), b (n,), c (n,), d), ...]``, one system per record.
+    p : (q,) array
+    ys, us : lists of R (steps_r,) arrays
+    dts : tuple of R floats
+    initial : bool
+        Project each record's initial state out.
+
+    Returns
+    -------
+    (sum steps_r,) array
+        NaN where a system's response is not finite.
+    """
+    from aeid_struct.simulation import discrete_foh, free_basis, simulate_outputs
+
+    parts = []
+    for (A, b, c, d, *_), y, u, dt in zip(systems(p), ys, us, dts, strict=True):
+        with np.errstate(all="ignore"):
+            e = y - simulate_outputs(A, b, c[None], np.array([d]), u, dt)[0]
+            if initial:
+                O = free_basis(discrete_foh(A, b, dt)[0], c[None], y.size)[:, 0]
+                if not np.isfinite(O).all():
+                    return np.full(sum(v.size for v in ys), math.nan)
+                # an orthonormal basis of the observable part: a channel that does not see a
+                # mode (the pole's angle, the cart's position) has a free response of lower
+                # rank, and a QR basis would project out an arbitrary extra direction
+                U, sv, _ = np.linalg.svd(O, full_matrices=False)
+                Q = U[:, sv > max(O.shape) * np.finfo(float).eps * sv[0]]
+                e = e - Q @ (Q.T @ e)
+        parts.append(e * (2.0 / (np.abs(y).max() * math.sqrt(y.size + 1))))
+    return np.concatenate(parts)
+
+
+def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple, initial: bool,
+             width: np.ndarray) -> np.ndarray:
+    """``dr/dp (q, N)`` by central differences of :func:`joint_residual`.
+
+    Parameters
+    ----------
+    systems, p, ys, us, dts, initial
+        As :func:`joint_residual`.
+    width : (q,) array
+        The box's widths (the steps are :data:`STEP` of them).
+
+    Returns
+    -------
+    (q, N) array
+    """
+    rows = []
+    for i, h in enumerate(STEP * width):
+        e = np.zeros_like(p)
+        e[i] = h
+        rows.append((joint_residual(systems, p + e, ys, us, dts, initial)
+                     - joint_residual(systems, p - e, ys, us, dts, initial)) / (2 * h))
+    return np.stack(rows)
+
+
+class _Problem:
+    """Rows of sets of records as a problem of ``core.minimise`` (in units of the box)."""
+
+    lazy = True
+
+    def __init__(self, systems, ys, us, dts, initial, lo, hi) -> None:
+        self.systems, self.ys, self.us, self.dts, self.initial = systems, ys, us, dts, initial
+        self.lo, self.width = lo, hi - lo
+
+    def _p(self, z):
+        return self.lo + self.width * z
+
+    def evaluate(self, z, rows, jacobian, at):
+        rows = np.arange(z.shape[0]) if rows is None else rows
+        r = np.stack([joint_residual(self.systems, self._p(zi), [y[i] for y in self.ys],
+                                     [u[i] for u in self.us], self.dts, self.initial)
+                      for zi, i in zip(z, rows, strict=True)])
+        cost = np.where(np.isfinite(r).all(axis=1), np.sum(r * r, axis=1), math.inf)
+        return {"cost": cost, "r": r, "z": z, "rows": rows}
+
+    def jacobian(self, e):
+        return np.stack([
+            joint_jacobian(self.systems, self._p(zi), [y[i] for y in self.ys],
+                           [u[i] for u in self.us], self.dts, self.initial, self.width)
+            * self.width[:, None] for zi, i in zip(e["z"], e["rows"], strict=True)])
+
+
+class JointFit:
+    """Where :func:`fit_joint` ended, one row per set of records.
+
+    Attributes
+    ----------
+    p : (B, q) array
+        The parameters (never worse than the start).
+    cost : (B,) array
+        ``||r||^2`` there (module docstring).
+    iterations : (B,) int array
+    converged : (B,) bool array
+    """
+
+    def __init__(self, p, cost, iterations, converged) -> None:
+        self.p, self.cost, self.iterations, self.converged = p, cost, iterations, converged
+
+
+def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tuple, *,
+              lower: np.ndarray, upper: np.ndarray, initial: bool,
+              max_iter: int = 100) -> JointFit:
+    """The output-error optimum of the parameters of each row's records within the box
+    (module docstring).
+
+    Parameters
+    ----------
+    systems : callable
+        ``p (q,) -> [(A, b, c, d), ...]``, one system per record.
+    start : (B, q) array
+        Inside the box.
+    ys, us : lists of R (B, steps_r) arrays
+        The records of each row (checked by the caller; ``u`` a unit step where none).
+    dts : tuple of R floats
+    lower, upper : (q,) arrays
+        The box.
+    initial : bool
+        Each record's initial state projected out.
+    max_iter : int
+        Iterations per row at most.
+
+    Returns
+    -------
+    JointFit
+    """
+    lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    problem = _Problem(systems, ys, us, dts, initial, lo, hi)
+    z0 = (np.asarray(start, dtype=np.float64) - lo) / (hi - lo)
+    B = z0.shape[0]
+    rules = core.Rules(max_iter=int(max_iter), lambda_max=1e12, cost_tol=FLAT,
+                       step_tol=1e-12)
+    out = core.minimise(problem, z0, rules, lower=np.zeros((B, lo.size)),
+                        upper=np.ones((B, lo.size)))
+    return JointFit(lo + (hi - lo) * out.x, out.evaluation["cost"], out.iterations,
+                    out.converged)

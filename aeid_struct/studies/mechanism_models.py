@@ -1,0 +1,108 @@
+"""The shipped mechanism identifiers and their recipe: ``drive-train`` (motor and load angle
+from the motor torque: a rigid-body mode, so integrating) and ``cart-pole`` (cart position and
+pole angle from the force, linearised upright: unstable), each trained through exactly the
+user's API on both outputs of one record, in the structure of a named factory
+(``symbolic.mechanisms.drive_train_channels``, ``cart_pole_channels``) so that the file refers
+to its map by name (data, never code).
+
+Recipe (the README of ``aeid_struct/pretrained`` gives the commands and what they measured)::
+
+    python -m aeid_struct.studies.mechanism_models drive-train --out drive-train.aeid
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+__all__ = ["SHIPPED", "shipped_structure", "train_shipped"]
+
+#: name -> (the ``mechanism_bench`` case, the ``symbolic.mechanisms`` factory, its constants,
+#: samples the records run before their window starts: windows cut mid-motion).
+SHIPPED = {
+    "drive-train": ("drive train, both angles", "drive_train_channels", {}, 100),
+    "cart-pole": ("cart-pole, both outputs", "cart_pole_channels", {"g": 9.81}, 50),
+}
+
+
+def _case(name: str):
+    from aeid_struct.studies.mechanism_bench import CASES
+
+    if name not in SHIPPED:
+        raise ValueError(f"name must be one of {list(SHIPPED)}; got {name!r}")
+    return next(c for c in CASES if c.name == SHIPPED[name][0])
+
+
+def shipped_structure(name: str):
+    """The structure of a shipped mechanism identifier: its named factory's map of both
+    channels, in the bench case's box.
+
+    Parameters
+    ----------
+    name : {"drive-train", "cart-pole"}
+
+    Returns
+    -------
+    Physical
+    """
+    from aeid_struct.structures import Physical
+    from symbolic import mechanisms
+
+    case = _case(name)
+    factory, constants = getattr(mechanisms, SHIPPED[name][1]), SHIPPED[name][2]
+    return Physical(factory(**constants), bounds=case.bounds,
+                    channels=[spec[:2] for spec in case.specs])
+
+
+def train_shipped(name: str, *, seconds: float = 240.0, seed: int = 0,
+                  progress: bool = True, checkpoint=None):
+    """Train a shipped mechanism identifier (module docstring): PRBS windows that start
+    mid-motion (their initial state fitted), 0-3 % noise, fresh records each epoch, within
+    ``seconds``, with a five-iteration head.
+
+    Parameters
+    ----------
+    name : {"drive-train", "cart-pole"}
+    seconds : float
+        The training budget.
+    seed : int
+    progress : bool
+    checkpoint : str or Path, optional
+        Where training checkpoints (a killed run resumes from it).
+
+    Returns
+    -------
+    Identifier
+    """
+    from aeid_struct.identification import Head
+    from aeid_struct.training import ParameterFamily, TrainConfig, train
+
+    case, warmup = _case(name), SHIPPED[name][3]
+    structure = shipped_structure(name)
+    config = TrainConfig(**case.grid, epochs=100_000, seconds=seconds, count=20_000,
+                         excitation="prbs", noise=(0.0, 0.03), warmup=warmup,
+                         initial="fitted", fresh=True, seed=seed, progress=progress,
+                         checkpoint=checkpoint)
+    ident = train(structure, ParameterFamily(structure), config)
+    ident.head = Head(iterations=5)
+    return ident
+
+
+def main(argv=None) -> None:
+    """``python -m aeid_struct.studies.mechanism_models NAME --out PATH [--seconds S]``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("name", choices=sorted(SHIPPED))
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--seconds", type=float, default=240.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--checkpoint")
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    ident = train_shipped(args.name, seconds=args.seconds, seed=args.seed,
+                          checkpoint=args.checkpoint)
+    ident.save(args.out)
+    print(f"{args.name}: trained in {time.perf_counter() - t0:.0f} s, written to {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,202 @@
+"""Tests for ``aeid_struct/identification/joint_refine.py`` and ``refinement/joint.py``, with the
+several-channel physical structures they serve (``Physical(mechanism, channels=...)``,
+``Mechanism.channels``, a record split by channel, one excitation per input in training).
+
+Oracles: the mechanism's own one-channel maps (``Mechanism.channel``), the true parameters of
+noise-free records, python-control's ``forced_response`` (linear interpolation between
+samples: the first-order hold) with the initial state by ``numpy.linalg.lstsq`` for the
+residual, and
+``scipy.optimize.least_squares`` on that residual for the optimum at noise.
+"""
+
+from __future__ import annotations
+
+import casadi
+import control
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.optimize
+
+import aeid_struct as ae
+from aeid_struct.identification import Head
+from aeid_struct.identification.physical_head import physical_head
+from aeid_struct.refinement import joint_residual
+from symbolic import Mechanism, mechanisms
+
+BOX = {"M": (0.5, 2.0), "m": (0.05, 0.5), "l": (0.3, 1.0), "b": (0.05, 1.0)}
+NAMES = ("M", "m", "l", "b")
+GRID = dict(steps=(120, 120), dt=(0.01, 0.01))
+
+
+def _cart_pole():
+    return ae.Physical(mechanisms.cart_pole(), bounds=BOX, known={"g": 9.81},
+                       channels=[(0, 0), (1, 0)], q=[0, 0])
+
+
+@pytest.fixture(scope="module")
+def cart_pole():
+    """A briefly trained cart-pole identifier of both outputs, with a five-iteration head."""
+    structure = _cart_pole()
+    family = ae.ParameterFamily(structure)
+    ident = ae.train(structure, family, ae.TrainConfig(
+        **GRID, epochs=3, count=600, excitation="prbs", progress=False))
+    ident.head = Head(iterations=5)
+    return ident, family
+
+
+def test_the_channels_map_is_each_channels_own_map():
+    structure = _cart_pole()
+    mech = mechanisms.cart_pole()
+    assert structure.records == 2 and structure.channels == ((0, 0), (1, 0))
+    point = {"M": 1.1, "m": 0.2, "l": 0.6, "b": 0.3}
+    out = structure.function(**point)
+    for r, output in enumerate((0, 1), start=1):
+        own = mech.channel(output, 0, q=[0, 0], known={"g": 9.81})(**point)
+        for k in "ABCD":
+            np.testing.assert_allclose(np.array(out[f"{k}{r}"]), np.array(own[k]), rtol=1e-14,
+                                       atol=1e-14)
+    # the named factory of the shipped identifier builds the same map, stored as a reference
+    named = mechanisms.cart_pole_channels()
+    for k in ("A1", "C2"):
+        np.testing.assert_array_equal(np.array(named(**point)[k]), np.array(out[k]))
+    shipped = ae.Physical(named, bounds=BOX, channels=[(0, 0), (1, 0)])
+    assert shipped.config()["function"] == {"map": "symbolic.mechanisms.cart_pole_channels",
+                                            "args": {"g": 9.81}}
+    assert shipped.config()["channels"] == [[0, 0], [1, 0]]
+
+
+def _coupled():
+    """A mass pushed by two forces, position and velocity out: each output answers both."""
+    x, v, F = casadi.SX.sym("x"), casadi.SX.sym("v"), casadi.SX.sym("F", 2)
+    m, k = casadi.SX.sym("m"), casadi.SX.sym("k")
+    return Mechanism(q=x, dq=v, u=F, parameters={"m": m, "k": k},
+                     lagrangian=0.5 * m * v ** 2 - 0.5 * k * x ** 2, forces=F[0] + F[1],
+                     outputs=casadi.vertcat(x, v), name="coupled")
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"channel": (0, 0), "channels": [(0, 0)]}, "channel \\(one\\) or channels"),
+    ({"channels": [(0, 0), (0, 1)]}, "each output once"),
+    ({"channels": [(0, 0), (1, 1)]}, r"y\[0\] also answers u\[1\]"),
+    ({"channels": []}, "non-empty sequence"),
+    ({"channels": [(0,)]}, "channels must hold"),
+])
+def test_bad_channels_are_refused_by_name(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ae.Physical(_coupled(), bounds={"m": (0.5, 2.0), "k": (1.0, 5.0)}, **kwargs)
+
+
+def test_channels_of_one_input_share_its_excitation_and_others_do_not():
+    rec = ae.data.records(ae.ParameterFamily(_cart_pole()), 3, **GRID, excitation_kind="prbs",
+                          seed=1)
+    np.testing.assert_array_equal(rec.u[0], rec.u[1])
+    legs = mechanisms.leg()
+    joint = ae.Physical(legs, bounds={"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)},
+                        channels=[(0, 0, (0, 2)), (1, 1, (1, 3))], **mechanisms.upright(legs))
+    assert ae.ParameterFamily(joint).shared_inputs == (0, 1)
+    rec = ae.data.records(ae.ParameterFamily(joint), 3, steps=(100, 100), dt=(0.01, 0.01),
+                          excitation_kind="prbs", seed=1)
+    assert not np.array_equal(rec.u[0], rec.u[1])
+
+
+def test_one_pass_and_refinement_reach_the_truth_on_noise_free_records(cart_pole):
+    ident, family = cart_pole
+    rec = ae.data.records(family, 5, **GRID, excitation_kind="prbs", seed=3)
+    truth = np.stack([rec.systems.params[k] for k in NAMES], 1)
+    one = ident.identify(rec.y, rec.u)
+    found = np.stack([one.physical[k] for k in NAMES], 1)
+    assert np.median(np.abs(found / truth - 1)) < 1e-4
+    refined = ident.identify(rec.y, rec.u, refine=True)
+    assert refined.refined and refined.info["refine"] == "joint"
+    np.testing.assert_allclose(np.stack([refined.physical[k] for k in NAMES], 1), truth,
+                               rtol=1e-8)
+    # the model of each channel is the mechanism's at the refined parameters
+    point = {k: float(refined.physical[k][0]) for k in NAMES}
+    out = ident.structure.function(**point)
+    np.testing.assert_allclose(refined.A[0, 1], np.array(out["A2"]), rtol=1e-12, atol=1e-12)
+
+
+def test_a_record_with_several_outputs_is_split_by_channel(cart_pole):
+    ident, family = cart_pole
+    rec = ae.data.records(family, 1, **GRID, excitation_kind="prbs", seed=4, noise=0.01)
+    record = ae.Record(np.stack([rec.y[0][0], rec.y[1][0]], 1), rec.u[0][0], dt=0.01)
+    whole = ident.identify(record, refine=True)
+    split = ident.identify((rec.y[0][0], rec.y[1][0]), (rec.u[0][0], rec.u[1][0]),
+                           refine=True)
+    for k in NAMES:
+        assert whole.physical[k] == split.physical[k]
+    with pytest.raises(ValueError, match=r"reads the channels \(output, input\) \[\(0, 0\), "
+                                         r"\(1, 0\)\] of one record; the record has 1 output"):
+        ident.identify(ae.Record(rec.y[0][0], rec.u[0][0], dt=0.01))
+
+
+def _oracle_residual(structure, p, ys, us, dt):
+    """The stacked residual by python-control and a least-squares initial state."""
+    out = structure.function(**dict(zip(NAMES, p, strict=True)))
+    parts = []
+    for r, (y, u) in enumerate(zip(ys, us, strict=True), start=1):
+        A, B, C, D = (np.array(out[f"{k}{r}"]) for k in "ABCD")
+        t = dt * np.arange(y.size)
+        forced = control.forced_response(control.ss(A, B, C, D), t, u).outputs
+        Phi = scipy.linalg.expm(A * dt)
+        O = np.stack([C[0] @ np.linalg.matrix_power(Phi, k) for k in range(y.size)])
+        e = y - forced
+        e = e - O @ np.linalg.lstsq(O, e, rcond=None)[0]
+        parts.append(e * 2.0 / (np.abs(y).max() * np.sqrt(y.size + 1)))
+    return np.concatenate(parts)
+
+
+def test_the_joint_residual_and_optimum_match_scipy(cart_pole):
+    ident, family = cart_pole
+    rec = ae.data.records(family, 2, **GRID, excitation_kind="prbs", seed=5, noise=0.02,
+                          warmup=40)
+    ph = physical_head(ident.structure, initial=True)
+    ident.initial = "fitted"
+    try:
+        refined = ident.identify(rec.y, rec.u, refine=True)
+    finally:
+        ident.initial = "rest"
+    for i in range(2):
+        ys, us = [y[i] for y in rec.y], [u[i] for u in rec.u]
+        p = np.array([rec.systems.params[k][i] for k in NAMES])
+        np.testing.assert_allclose(joint_residual(ph.systems, p, ys, us, (0.01, 0.01), True),
+                                   _oracle_residual(ident.structure, p, ys, us, 0.01),
+                                   rtol=1e-6, atol=1e-9)
+        lo, hi = ph.lo, ph.hi
+        oracle = scipy.optimize.least_squares(
+            lambda z, ys=ys, us=us: _oracle_residual(ident.structure, z, ys, us, 0.01), p,
+            bounds=(lo, hi), x_scale=hi - lo, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        found = np.array([refined.physical[k][i] for k in NAMES])
+        np.testing.assert_allclose(found, oracle.x, rtol=1e-4)
+        assert np.sum(_oracle_residual(ident.structure, found, ys, us, 0.01) ** 2) <= \
+            2 * oracle.cost * (1 + 1e-6)
+
+
+def test_standard_errors_match_the_spread_over_noise_draws(cart_pole):
+    # Monte Carlo oracle: one system, 60 draws of 2 % noise, each refined from the truth
+    ident, family = cart_pole
+    clean = ae.data.records(family, 1, **GRID, excitation_kind="prbs", seed=6)
+    rng = np.random.default_rng(7)
+    found, predicted = [], []
+    for _ in range(60):
+        ys = tuple(y[0] + 0.02 * np.abs(y[0]).max() * rng.normal(size=y.shape[1])
+                   for y in clean.y_clean)
+        est = ident.identify(ys, (clean.u[0][0], clean.u[1][0]), refine=True)
+        found.append([est.physical[k] for k in NAMES])
+        predicted.append([est.info["std"][k] for k in NAMES])
+    spread = np.std(np.array(found), axis=0)
+    np.testing.assert_allclose(np.median(np.array(predicted), axis=0), spread, rtol=0.35)
+
+
+def test_a_several_channel_identifier_file_keeps_its_channels(cart_pole, tmp_path):
+    ident, family = cart_pole
+    path = ident.save(tmp_path / "cart.aeid")
+    again = ae.load(path, maps={ident.structure.function.name(): _cart_pole().function})
+    assert again.structure.channels == ((0, 0), (1, 0))
+    rec = ae.data.records(family, 1, **GRID, excitation_kind="prbs", seed=8)
+    record = ae.Record(np.stack([rec.y[0][0], rec.y[1][0]], 1), rec.u[0][0], dt=0.01)
+    again.head = Head(iterations=5)
+    a, b = again.identify(record), ident.identify(record)
+    for k in NAMES:
+        assert a.physical[k] == b.physical[k]
