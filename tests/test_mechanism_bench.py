@@ -29,3 +29,18 @@ def test_bench_mechanism_cli_trains_measures_and_writes_json(tmp_path, capsys):
     assert max(level["errors"]["refined"]) < 1e-5
     assert max(level["errors"]["cold grey-box x4"]) < 1e-5
     assert level["ms"]["refined"] > 0 and level["speedup refined vs cold"] > 0
+
+
+def test_bench_mechanism_measures_a_mechanism_of_two_outputs():
+    from aeid_struct.studies.mechanism_bench import bench_mechanism
+
+    rows = bench_mechanism(seconds=3, noises=(0.0,), records=2, timed=1,
+                           cases=["cart-pole, both outputs"], progress=None)
+    (row,) = rows
+    assert row["identifiability"]["rank"] == 4
+    assert row["identifiability"]["identifiable"] == ["M", "m", "l", "b"]
+    level = row["levels"][0]
+    # noise-free: the joint refinement reaches the truth; n4sid has no row for two channels
+    assert max(level["errors"]["refined"]) < 1e-5
+    assert all(e != e for e in level["errors"]["n4sid"])          # NaN: not measured
+    assert level["failed"]["n4sid"] == 2 and level["ms"]["cold grey-box x4"] > 0

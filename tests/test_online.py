@@ -476,3 +476,31 @@ def test_a_drifting_mechanism_is_the_wearing_leg_when_written_as_the_leg():
                                atol=1e-12 * np.abs(y).max())
     with pytest.raises(ValueError, match=r"parameters must give \['m'\]"):
         drifting(legs, {"k": k, "d": d}, u, dt, **mechanisms.upright(legs))
+
+
+def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs():
+    # the drive train's motor and load angles from one torque: each window of the (k, 2)
+    # stream is split by channel, and an update is the identifier's estimate of that split
+    from aeid_struct.studies.mechanism_models import shipped_structure
+
+    structure = shipped_structure("drive-train")
+    family = ae.ParameterFamily(structure)
+    ident = ae.train(structure, family, ae.TrainConfig(
+        steps=(300, 300), dt=(0.005, 0.005), epochs=1, count=100, warmup=50,
+        initial="fitted", excitation="prbs", progress=False))
+    stream = ae.data.records(family, 1, steps=(700, 700), dt=(0.005, 0.005),
+                             excitation_kind="prbs", seed=2, noise=0.01)
+    y = np.stack([stream.y[0][0], stream.y[1][0]], 1)
+    u = stream.u[0][0]
+    tracker = Tracker(ident, TrackerConfig(hop=100, baseline=2), engine="identifier")
+    assert tracker.channels == ((0, 0), (1, 0)) and tracker.width == (2, 1)
+    updates = tracker.feed(y[:450], u[:450]) + tracker.feed(y[450:], u[450:, None])
+    assert len(updates) == 5 and all(up.error is None for up in updates)
+    for j, up in enumerate(updates):
+        end = 300 + 100 * j
+        window = ident.identify((y[end - 300: end, 0], y[end - 300: end, 1]),
+                                (u[end - 300: end], u[end - 300: end]))
+        assert up.estimate == {k: float(v) for k, v in window.physical.items()}
+    with pytest.raises(ValueError, match=r"y and u must be \(k, 2\) and \(k, 1\) sample "
+                                         r"arrays of one length \(the channels"):
+        tracker.feed(y[:10, 0], u[:10])

@@ -191,11 +191,13 @@ def test_shipped_files_are_named_by_their_kind():
 def test_generic_names_route_to_load_generic(name):
     n = int(name[-1])
     with pytest.raises(ValueError, match=rf"name '{name}' is a generic identifier \(any system, "
-                                         rf"any sample time\), not a leg identifier: use "
+                                         rf"any sample time\), not a structured identifier "
+                                         rf"\(a leg's or a mechanism's\): use "
                                          rf"aeid_struct.identify\(record, order={n}\), or "
                                          rf"aeid_struct.generic.load_generic\('{name}'\) to load "
-                                         rf"it .*; load_pretrained reads the leg identifiers "
-                                         rf"\['leg-stable', "):
+                                         rf"it .*; load_pretrained reads the structured "
+                                         rf"identifiers \['cart-pole', 'drive-train', "
+                                         rf"'leg-stable', "):
         ae.load_pretrained(name)
     ident = ae.generic.load_generic(name)
     assert isinstance(ident, ae.generic.GenericIdentifier) and ident.config.order == n
@@ -209,10 +211,39 @@ def test_leg_names_route_to_load_pretrained():
         ae.generic.load_generic("leg-stable")
     assert isinstance(ae.load_pretrained("leg-stable"), ae.Identifier)
     # a name of neither kind: each loader lists its own names only
-    with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', .*"
+    with pytest.raises(ValueError, match=r"name must be one of \['cart-pole', 'drive-train', "
+                                         r"'leg-stable', .*"
                                          r"'leg-unstable-noisy'\]; got 'generic'"):
         ae.load_pretrained("generic")
     with pytest.raises(ValueError, match=r"name_or_path must be one of \['generic-1', "
                                          r"'generic-2', 'generic-3', 'generic-4'\] or an "
                                          r"existing generic identifier file; got 'leg'"):
         ae.generic.load_generic("leg")
+
+
+# -- mechanisms written as Lagrangians, both outputs of one record (issue 23) -----------------
+@pytest.mark.parametrize("name, warmup", [("drive-train", 100), ("cart-pole", 0)])
+def test_shipped_mechanism_identifiers_read_both_outputs_of_a_record(name, warmup):
+    from aeid_struct.studies.mechanism_models import shipped_structure
+
+    ident = ae.load_pretrained(name)   # its map is a named factory's: no maps=, no trust=
+    assert ident.structure.channels == ((0, 0), (1, 0)) and ident.head.iterations == 5
+    assert ident.structure.config() == shipped_structure(name).config()
+    assert ident.initial == ("fitted" if warmup else "rest")
+    family = ae.ParameterFamily(ident.structure)
+    rec = ae.data.records(family, 6, steps=ident.steps, dt=ident.dt, excitation_kind="prbs",
+                          seed=21, warmup=warmup)
+    names = ident.structure.element_names
+    truth = np.stack([rec.systems.params[k] for k in names], 1)
+    found = []
+    for i in range(6):
+        record = ae.Record(np.stack([rec.y[0][i], rec.y[1][i]], 1), rec.u[0][i],
+                           dt=ident.dt[0])
+        one = ident.identify(record)
+        found.append([one.physical[k] for k in names])
+        if i < 2:
+            refined = ident.identify(record, refine=True)
+            np.testing.assert_allclose([refined.physical[k] for k in names], truth[i],
+                                       rtol=1e-6)
+    # noise-free windows: the one pass (encoder, five head iterations) is at the truth
+    assert np.median(np.abs(np.array(found) / truth - 1)) < 5e-3

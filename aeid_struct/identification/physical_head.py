@@ -14,7 +14,14 @@ paper Eq. 5 some of their coefficients are the same for every ``p`` (a mass-spri
 
 Where the free coefficients are as many as the parameters (the map is square: a lever-driven
 mass, the leg's subsystems, a two-mass system), step 2 solves ``k(p) = k_fit`` and the head's
-result is the output-error optimum of the structure itself. Where there are more coefficients
+result is the output-error optimum of the structure itself.
+
+A structure of several records (the channels of one record, the joint leg) fits each record's
+CCF alone in step 1, takes the parameters nearest all their coefficients in step 2, and then
+runs as many iterations of the joint output-error fit in the parameters
+(``refinement.fit_joint``, what ``refine=True`` converges) as step 1 had: the nearest
+coefficients weigh a noisy channel's spare coefficients (each channel fits its own poles) as
+much as the others, the joint fit reads every record at once. Where there are more coefficients
 (several parameters shape several coefficients jointly), it is the nearest parameter set, an
 approximation the refinement (``identify(refine=True)``) polishes in the parameters."""
 
@@ -208,12 +215,26 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
     fitted = np.concatenate(fitted, axis=1)[:, ph.free]
     # record by record: each record's Gauss-Newton stops on its own, and the step costs a few
     # evaluations of a small SX map (about 0.1-0.2 ms a record on this project's VM)
+    found = np.full((rows.size, ph.q), math.nan)
+    for i, row in enumerate(rows):
+        if ok[i]:
+            found[i] = ph.parameters(fitted[i], el[row])
+    if R > 1 and ok.any():
+        # several records: the nearest parameters of each record's own fit weigh a noisy
+        # channel's spare coefficients as much as the others; the same number of iterations of
+        # the joint output-error fit in the parameters (the one refine=True converges) reads
+        # every record at once
+        found[ok] = _joint_steps(ph, found[ok], [v[rows[ok]] for v in ys],
+                                 [np.ones_like(y[rows[ok]]) if u is None else
+                                  np.broadcast_to(u, y.shape)[rows[ok]]
+                                  for y, u in zip(ys, us, strict=True)],
+                                 ident._dts, ph.patterns[0].initial, head.iterations)
     for i, row in enumerate(rows):
         if not ok[i]:
             failed[row] = True
             A[row], b[row], c[row], d[row], el[row] = (math.nan,) * 5
             continue
-        p = ph.parameters(fitted[i], el[row])
+        p = found[i]
         parts = ph.systems(p)
         if R == 1:
             A[row], b[row], c[row], d[row] = parts[0][:4]
@@ -222,6 +243,17 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
                 A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
         el[row] = p
     return (A, b, c, d, el), failed
+
+
+def _joint_steps(ph, start, ys, us, dts, initial, iterations) -> np.ndarray:
+    """``iterations`` steps of ``refinement.fit_joint`` from ``start (B, q)``; rows that do
+    not descend keep their start (``fit_joint`` never returns a worse point)."""
+    from aeid_struct.refinement import fit_joint
+
+    margin = 1e-9 * (ph.hi - ph.lo)
+    fit = fit_joint(ph.systems, np.clip(start, ph.lo + margin, ph.hi - margin), ys, us, dts,
+                    lower=ph.lo, upper=ph.hi, initial=initial, max_iter=iterations)
+    return fit.p
 
 
 def standard_errors(est) -> dict[str, np.ndarray]:

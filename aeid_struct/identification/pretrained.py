@@ -20,7 +20,7 @@ __all__ = ["PRETRAINED", "load_pretrained"]
 #: The shipped leg identifiers' names.
 PRETRAINED = ("leg-stable", "leg-unstable", "leg-stable-ccf", "leg-unstable-ccf",
               "leg-stable-noisy", "leg-unstable-noisy", "leg-stable-window", "leg-stable-any",
-              "leg-unstable-any")
+              "leg-unstable-any", "drive-train", "cart-pole")
 #: How the shipped generic identifiers' names begin (``generic-1`` .. ``generic-4``).
 _GENERIC_PREFIX = "generic-"
 
@@ -42,7 +42,7 @@ def _shipped() -> dict[str, list[str]]:
 
 
 def load_pretrained(name: str) -> Identifier:
-    """A leg identifier shipped in the package.
+    """A structured identifier shipped in the package: the robot leg's, or a mechanism's.
 
     ``"leg-stable"`` and ``"leg-unstable"`` (step responses from rest) in the leg's physics
     structure: the translational leg's numerator has no s-term (``c1 = 0``), the rotational leg
@@ -56,6 +56,14 @@ def load_pretrained(name: str) -> Identifier:
     binary sequences, multisines, filtered noise. These three carry a separable head
     (``Identifier.head``: three Gauss-Newton iterations in the physics structure after the
     encoder; accuracy in ``pretrained/README.md``).
+
+    ``"drive-train"`` and ``"cart-pole"`` are mechanisms written as Lagrangians
+    (``symbolic.mechanisms``), identified from both outputs of one record
+    (``Physical(..., channels=...)``): the drive train's motor and load angles from the motor
+    torque (windows mid-motion; ``J1, J2, k, c, b``) and the cart-pole's cart position and pole
+    angle from the force, upright (records from rest; ``M, m, l, b``); each carries a
+    five-iteration head, and ``identify(ae.Record(y (N, 2), u, dt))`` splits the record by
+    channel. Recipe: ``aeid_struct.studies.mechanism_models``.
 
     The generic identifiers shipped beside them (``generic-1`` .. ``generic-4``) are another
     kind of file: ``aeid_struct.identify(record, order=n)`` uses them, and
@@ -82,10 +90,10 @@ def load_pretrained(name: str) -> Identifier:
         call = (f"aeid_struct.identify(record, order={order})" if order.isdigit()
                 else "aeid_struct.identify(record, order=n)")
         raise ValueError(f"name {name!r} is a generic identifier (any system, any sample time), "
-                         f"not a leg identifier: use {call}, or "
+                         f"not a structured identifier (a leg's or a mechanism's): use {call}, or "
                          f"aeid_struct.generic.load_generic({name!r}) to load it "
                          f"(shipped generic identifiers: {kinds['generic']}); load_pretrained "
-                         f"reads the leg identifiers {kinds['leg']}")
+                         f"reads the structured identifiers {kinds['leg']}")
     if name not in kinds["leg"]:
         raise ValueError(f"name must be one of {kinds['leg']}; got {name!r}")
     return Identifier.load(files("aeid_struct.pretrained") / f"{name}.aeid")

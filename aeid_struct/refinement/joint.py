@@ -54,14 +54,15 @@ def joint_residual(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
     (sum steps_r,) array
         NaN where a system's response is not finite.
     """
-    from aeid_struct.simulation import discrete_foh, free_basis, simulate_outputs
+    from aeid_struct.simulation import outputs_and_basis
 
     parts = []
     for (A, b, c, d, *_), y, u, dt in zip(systems(p), ys, us, dts, strict=True):
         with np.errstate(all="ignore"):
-            e = y - simulate_outputs(A, b, c[None], np.array([d]), u, dt)[0]
+            Y, O = outputs_and_basis(A, b, c[None], np.array([d]), u, dt)
+            e = y - Y[0]
             if initial:
-                O = free_basis(discrete_foh(A, b, dt)[0], c[None], y.size)[:, 0]
+                O = O[:, 0]
                 if not np.isfinite(O).all():
                     return np.full(sum(v.size for v in ys), math.nan)
                 # an orthonormal basis of the observable part: a channel that does not see a

@@ -32,6 +32,7 @@ from aeid_struct.simulation.casadi_foh import squarings_for as squarings_for
 from aeid_struct.simulation.numpy_foh import discrete_foh as discrete_foh
 from aeid_struct.simulation.numpy_foh import free_basis as free_basis
 from aeid_struct.simulation.numpy_foh import initial_state_numpy as initial_state_numpy
+from aeid_struct.simulation.numpy_foh import outputs_and_basis as outputs_and_basis
 from aeid_struct.simulation.numpy_foh import simulate_numpy as simulate_numpy
 from aeid_struct.simulation.numpy_foh import simulate_outputs as simulate_outputs
 
@@ -132,6 +133,7 @@ __all__ = [
     "simulate_batch",
     "simulate_loop",
     "simulate_outputs",
+    "outputs_and_basis",
     # numpy, one system or a batch, without torch: an estimate's response and initial state
     "initial_state_numpy",
     "simulate_numpy",

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-__all__ = ["discrete_foh", "free_basis", "initial_state_numpy", "simulate_numpy",
-           "simulate_outputs"]
+__all__ = ["discrete_foh", "free_basis", "initial_state_numpy", "outputs_and_basis",
+           "simulate_numpy", "simulate_outputs"]
 
 
 def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray, u: np.ndarray,
@@ -43,6 +43,26 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
         :func:`~aeid_struct.simulation.simulate` to rounding.
     """
     return _outputs(discrete_foh(A, b, dt), C, d, u)[0]
+
+
+def outputs_and_basis(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
+                      u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`simulate_outputs` and the free response's basis it was built from, by one
+    matrix exponential: a fit that projects the initial state out needs both.
+
+    Parameters
+    ----------
+    A, b, C, d, u, dt
+        As :func:`simulate_outputs`.
+
+    Returns
+    -------
+    Y : (r, steps) array
+        The responses from rest.
+    O : (steps, r, n) array
+        ``O[k] = C Phi^k`` (:func:`free_basis`).
+    """
+    return _outputs(discrete_foh(A, b, dt), C, d, u)
 
 
 def _outputs(discrete: tuple, C: np.ndarray, d: np.ndarray, u: np.ndarray):

@@ -32,6 +32,7 @@ RESULTS = {
                        "--json", "{json}", "--quiet"], "{json}"),
     "bench-online": (["bench-online", "--json", "{json}", "--quiet"], "{json}"),
     "onepass": (["bench", "--onepass-only", "--json", "{json}", "--quiet"], "{json}"),
+    "bench-mechanism": (["bench-mechanism", "--json", "{json}", "--quiet"], "{json}"),
 }
 
 
