@@ -1819,7 +1819,7 @@ def _cli() -> list[Case]:
         Case(area, "identify unknown shipped name", lambda x: cli(
             "identify", "leg-stabel", "--y", x.npy("y1.npy", x.y300)),
              raises=E, match=r"model: file not found: 'leg-stabel' \(and it is not a shipped "
-                             r"name: leg-stable, "),
+                             r"name: cart-pole, drive-train, leg-stable, "),
         Case(area, "identify --y missing", lambda x: cli(
             "identify", "leg-stable", "--y", str(x.tmp / "none.csv")),
              raises=E, match=r"--y: file not found: .*none.csv"),

@@ -221,7 +221,8 @@ def test_shipped_names_are_those_load_pretrained_loads():
 
     names = shipped_names()
     assert names == _shipped_oracle()
-    assert len(names) == 9 and {"leg-stable", "leg-unstable-any"} <= set(names)
+    assert len(names) == 11 and {"leg-stable", "leg-unstable-any", "drive-train",
+                                 "cart-pole"} <= set(names)
 
 
 def test_package_names_resolve_lazily():
@@ -383,12 +384,13 @@ def test_identify_input_errors_are_one_line(tmp_path, capsys, extra, match):
 
 MODEL_ERRORS = [
     ("{missing.aeid}", r"model: file not found: '.*mymodel.aeid' \(and it is not a shipped "
-                       r"name: leg-stable, leg-stable-any, leg-stable-ccf, leg-stable-noisy, "
+                       r"name: cart-pole, drive-train, leg-stable, leg-stable-any, "
+                       r"leg-stable-ccf, leg-stable-noisy, "
                        r"leg-stable-window, leg-unstable, leg-unstable-any, leg-unstable-ccf, "
                        r"leg-unstable-noisy\)$"),
     ("leg-stabel", r"model: file not found: 'leg-stabel' \(and it is not a shipped name: "),
     ("{folder}", r"model: '.*' is a folder; expected an identifier file \(.aeid\) or a shipped "
-                 r"name: leg-stable, "),
+                 r"name: cart-pole, drive-train, leg-stable, "),
     ("{garbage.aeid}", r"model '.*garbage.aeid': path '.*garbage.aeid' is not an aeid-struct "
                        r"identifier file"),
 ]
@@ -416,7 +418,8 @@ OTHER_ERRORS = [
     (["train", "--structure", "ccf:1", "--family", "poles:x", "--dt", "0.1", "--steps", "10",
       "--out", "{tmp}/x.aeid"], r"--family 'poles:x' is malformed"),
     (["track", "--model", "{tmp}/none.aeid"], r"--model: file not found: '.*none.aeid' \(and it "
-                                              r"is not a shipped name: leg-stable, "),
+                                              r"is not a shipped name: cart-pole, drive-train, "
+                                              r"leg-stable, "),
     (["track", "--noise", "-0.1"], r"argument --noise: expected a finite number >= 0"),
     (["bench", "--batch", "0"], r"bench: argument --batch: expected an integer > 0; got '0'"),
     (["leg", "--validation", "ten"], r"argument --validation: expected an integer > 0; got 'ten'"),

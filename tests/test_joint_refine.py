@@ -200,3 +200,42 @@ def test_a_several_channel_identifier_file_keeps_its_channels(cart_pole, tmp_pat
     a, b = again.identify(record), ident.identify(record)
     for k in NAMES:
         assert a.physical[k] == b.physical[k]
+
+
+def test_the_leg_written_as_a_mechanism_is_the_joint_leg():
+    # the upright leg's two decoupled channels (force -> length, torque -> angle) as one
+    # structure equal symbolic.leg.joint_map, and an identifier gives the same estimates
+    # in either structure
+    import torch
+
+    from aeid_struct.encoder import Encoder, EncoderConfig
+    from symbolic import leg
+
+    legs = mechanisms.leg()
+    box = {"k": (20.0, 25.0), "d": (2.0, 5.0), "m": (0.5, 1.5)}
+    mine = ae.Physical(legs, bounds=box, channels=[(0, 0, (0, 2)), (1, 1, (1, 3))],
+                       **mechanisms.upright(legs))
+    theirs = ae.Physical(leg.joint_map(), bounds=box)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        point = {k: float(rng.uniform(*v)) for k, v in box.items()}
+        a, b = mine.function(**point), theirs.function(**point)
+        for key in ("A1", "B1", "C1", "D1", "A2", "B2", "C2", "D2"):
+            np.testing.assert_allclose(np.array(a[key]), np.array(b[key]), rtol=1e-12,
+                                       atol=1e-12)
+    rec = ae.data.records(ae.LegFamily(subsystem="joint"), 3, steps=(60, 20),
+                          dt=(0.05, 0.025), seed=1)
+    out = []
+    for structure in (mine, theirs):
+        torch.manual_seed(0)
+        encoder = Encoder(EncoderConfig(steps=(60, 20), pool=(3, 1), outputs=3, features=2,
+                                        width=4, dense=(8,)))
+        encoder.eval()
+        ident = ae.Identifier(encoder, structure, dt=(0.05, 0.025),
+                              theta_mean=torch.zeros(3), theta_scale=torch.ones(3),
+                              scale="feature", feature_mean=(-3.0, 0.5),
+                              feature_scale=(0.2, 0.4))
+        out.append(ident.identify(rec.y, refine=True))
+    for k in ("k", "d", "m"):
+        np.testing.assert_allclose(out[0].physical[k], out[1].physical[k], rtol=1e-9)
+        np.testing.assert_allclose(out[0].physical[k], rec.systems.params[k], rtol=1e-7)

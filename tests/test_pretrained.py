@@ -68,7 +68,8 @@ def test_batch_matches_single_and_unknown_name():
     batch = ident.identify(y)
     for i in range(5):
         np.testing.assert_allclose(ident.identify(y[i]).A, batch.A[i], rtol=1e-5, atol=1e-6)
-    with pytest.raises(ValueError, match=r"name must be one of \['leg-stable', 'leg-stable-any', "
+    with pytest.raises(ValueError, match=r"name must be one of \['cart-pole', 'drive-train', "
+                                         r"'leg-stable', 'leg-stable-any', "
                                          r"'leg-stable-ccf', 'leg-stable-noisy', "
                                          r"'leg-stable-window', 'leg-unstable', "
                                          r"'leg-unstable-any', 'leg-unstable-ccf', "

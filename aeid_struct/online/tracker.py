@@ -114,26 +114,10 @@ class Tracker:
                  *, engine: str = "auto") -> None:
         if not isinstance(config, TrackerConfig):
             raise ValueError(f"config must be a TrackerConfig; got {type(config).__name__}")
-        for attr in ("identify", "steps", "dt", "initial", "records"):
-            if not hasattr(identifier, attr):
-                raise ValueError(f"identifier must answer identify(record) -> Estimate with a "
-                                 f"record format (steps, dt, initial, records), as an "
-                                 f"Identifier does; got {type(identifier).__name__} (no "
-                                 f"{attr!r})")
-        if engine not in ("auto", "onnx", "identifier"):
-            raise ValueError(f"engine must be 'auto', 'onnx' or 'identifier'; got {engine!r}")
         #: ``(output, input)`` per record of an identifier of several channels of one
         #: record (``Physical(mechanism, channels=...)``): the stream has several outputs and
         #: inputs, and each window is split by them; None for one output and one input.
-        self.channels = getattr(getattr(identifier, "structure", None), "channels", None)
-        if identifier.records != 1 and self.channels is None:
-            raise ValueError("identifier must read one record per window (or several channels "
-                             f"of one, Physical(..., channels=...)); got one of "
-                             f"{identifier.records} records")
-        if identifier.initial != "fitted":
-            raise ValueError("identifier must be trained on windows that start mid-motion "
-                             "(TrainConfig(warmup=..., initial='fitted')); this one assumes "
-                             "records from rest")
+        self.channels = _check_identifier(identifier, engine)
         _check_names(identifier, config)
         self.identifier, self.config = identifier, config
         self.steps = identifier.steps if self.channels is None else identifier.steps[0]
@@ -203,7 +187,7 @@ class Tracker:
         u = np.atleast_1d(as_array("u", u))
         y = np.atleast_1d(as_array("y", y))
         if self.channels is not None:
-            u, y = self._columns(u, y)
+            u, y = _columns(u, y, self.width, self.channels)
         elif u.ndim != 1 or u.shape != y.shape:
             raise ValueError(f"u and y must be 1-D sample arrays of one length; got shapes "
                              f"{u.shape} and {y.shape}")
@@ -242,17 +226,6 @@ class Tracker:
                                     f"{len(updates)} update(s) before it; see "
                                     "PushError.consumed and .updates)", i, updates) from err
         return updates
-
-    def _columns(self, u: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``u (k, m)`` and ``y (k, p)`` of a chunk of a several-channel stream, checked."""
-        p, m = self.width
-        u = u.reshape(-1, 1) if u.ndim == 1 and m == 1 else u
-        y = y.reshape(-1, 1) if y.ndim == 1 and p == 1 else y
-        if u.ndim != 2 or y.ndim != 2 or u.shape != (len(y), m) or y.shape[1] != p:
-            raise ValueError(f"y and u must be (k, {p}) and (k, {m}) sample arrays of one "
-                             f"length (the channels {list(self.channels)}); got shapes "
-                             f"{y.shape} and {u.shape}")
-        return u, y
 
     def _physical(self) -> tuple[dict, float]:
         """The physical parameters of the current window and the wall time it took."""
@@ -314,6 +287,39 @@ class Tracker:
                      else math.nan) for k in s.smoothed}
         return Update(s.samples * self.dt - self.dt, {k: math.nan for k in names},
                       dict(s.smoothed), drift, s.alarm, seconds, error=reason)
+
+
+def _check_identifier(identifier, engine: str):
+    """``Tracker``'s identifier and engine checked; the identifier's channels (or None)."""
+    for attr in ("identify", "steps", "dt", "initial", "records"):
+        if not hasattr(identifier, attr):
+            raise ValueError(f"identifier must answer identify(record) -> Estimate with a "
+                             f"record format (steps, dt, initial, records), as an Identifier "
+                             f"does; got {type(identifier).__name__} (no {attr!r})")
+    if engine not in ("auto", "onnx", "identifier"):
+        raise ValueError(f"engine must be 'auto', 'onnx' or 'identifier'; got {engine!r}")
+    channels = getattr(getattr(identifier, "structure", None), "channels", None)
+    if identifier.records != 1 and channels is None:
+        raise ValueError("identifier must read one record per window (or several channels of "
+                         f"one, Physical(..., channels=...)); got one of {identifier.records} "
+                         "records")
+    if identifier.initial != "fitted":
+        raise ValueError("identifier must be trained on windows that start mid-motion "
+                         "(TrainConfig(warmup=..., initial='fitted')); this one assumes "
+                         "records from rest")
+    return channels
+
+
+def _columns(u: np.ndarray, y: np.ndarray, width: tuple, channels) -> tuple:
+    """``u (k, m)`` and ``y (k, p)`` of a chunk of a several-channel stream, checked
+    (``width = (p, m)``)."""
+    p, m = width
+    u = u.reshape(-1, 1) if u.ndim == 1 and m == 1 else u
+    y = y.reshape(-1, 1) if y.ndim == 1 and p == 1 else y
+    if u.ndim != 2 or y.ndim != 2 or u.shape != (len(y), m) or y.shape[1] != p:
+        raise ValueError(f"y and u must be (k, {p}) and (k, {m}) sample arrays of one length "
+                         f"(the channels {list(channels)}); got shapes {y.shape} and {u.shape}")
+    return u, y
 
 
 def _capped(engine, iterations: int):

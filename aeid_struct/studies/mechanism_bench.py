@@ -153,13 +153,12 @@ def _cold(structure, y, u, dt, names, rng) -> tuple[np.ndarray, float]:
     return values, seconds
 
 
-def _cold_joint(structure, ys, us, dts, rng) -> tuple[np.ndarray, float]:
+def _cold_joint(ph, ys, us, dts, rng) -> tuple[np.ndarray, float]:
     """The cold grey-box fit of several channels: the joint output-error fit
-    (``refinement.fit_joint``) from 4 starts drawn in the box, the best cost."""
-    from aeid_struct.identification.physical_head import physical_head
+    (``refinement.fit_joint``) from 4 starts drawn in the box, the best cost (``ph``: the
+    structure's ``PhysicalHead``, its systems and box)."""
     from aeid_struct.refinement import fit_joint
 
-    ph = physical_head(structure, initial=False)
     t0 = time.perf_counter()
     starts = rng.uniform(ph.lo, ph.hi, (4, ph.q))
     fit = fit_joint(ph.systems, starts, [np.repeat(y[None], 4, 0) for y in ys],
@@ -219,8 +218,7 @@ def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
     for i in range(records):
         if several:
             y, u = tuple(v[i] for v in rec.y), tuple(v[i] for v in rec.u)
-            rows["cold grey-box x4"][i], cold_s = _cold_joint(ident.structure, y, u,
-                                                              rec.dt, rng)
+            rows["cold grey-box x4"][i], cold_s = _cold_joint(ph, y, u, rec.dt, rng)
         else:
             y, u = rec.y[i], rec.u[i]
             rows["cold grey-box x4"][i], cold_s = _cold(ident.structure, y, u, case.dt,
