@@ -123,3 +123,31 @@ def test_an_overflowed_response_gives_nan_not_a_lapack_error(capfd):
         p = project(A, b, np.sin(np.arange(400.0)), u, 1.0)
     assert np.isnan(p.fit) and np.isnan(p.c).all()
     assert "DLASCL" not in capfd.readouterr().err
+
+
+def test_outputs_and_basis_of_a_batch_are_each_systems_own():
+    # a batch of systems on one input (the joint fit's Jacobian points) against each system
+    # alone, and python-control's first-order-hold response as the independent oracle
+    import control
+
+    from aeid_struct.simulation import free_basis, outputs_and_basis
+
+    rng = np.random.default_rng(4)
+    n, P, steps, dt = 3, 5, 80, 0.05
+    A = rng.normal(size=(P, n, n)) - 2 * np.eye(n)
+    b, C, d = rng.normal(size=(P, n)), rng.normal(size=(P, 2, n)), rng.normal(size=(P, 2))
+    u = rng.normal(size=steps)
+    Y, O = outputs_and_basis(A, b, C, d, u, dt)
+    assert Y.shape == (P, 2, steps) and O.shape == (P, steps, 2, n)
+    t = dt * np.arange(steps)
+    for p in range(P):
+        own_Y, own_O = outputs_and_basis(A[p], b[p], C[p], d[p], u, dt)
+        np.testing.assert_allclose(Y[p], own_Y, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(O[p], own_O, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(own_Y, simulate_outputs(A[p], b[p], C[p], d[p], u, dt))
+        sys = control.ss(A[p], b[p][:, None], C[p], d[p][:, None])
+        np.testing.assert_allclose(Y[p], control.forced_response(sys, t, u).outputs,
+                                   rtol=1e-9, atol=1e-11)
+        Phi = scipy.linalg.expm(A[p] * dt)
+        np.testing.assert_allclose(free_basis(Phi, C[p], 4)[3], C[p] @ np.linalg.matrix_power(
+            Phi, 3), rtol=1e-12)

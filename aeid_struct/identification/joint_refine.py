@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from aeid_struct.estimates import Estimate
-from aeid_struct.identification.physical_head import physical_head
+from aeid_struct.identification.physical_head import parameter_errors, physical_head
 
 __all__ = ["is_joint", "refine_joint"]
 
@@ -52,7 +52,7 @@ def refine_joint(est: Estimate) -> Estimate:
         from the Jacobian of the weighted residual, ``s^2`` its mean square over the degrees
         of freedom (samples less parameters less the projected initial states).
     """
-    from aeid_struct.refinement import fit_joint, joint_jacobian
+    from aeid_struct.refinement import fit_joint
 
     t0 = time.perf_counter()
     structure, record = est.structure, est.record
@@ -77,20 +77,14 @@ def refine_joint(est: Estimate) -> Estimate:
     cost = np.full(P.shape[0], math.nan)
     iterations = np.zeros(P.shape[0], dtype=int)
     converged = np.zeros(P.shape[0], dtype=bool)
-    free = ph.records * ph.n if initial else 0
-    samples = sum(y.shape[1] for y in ys)
     for i, row in enumerate(rows):
         p = fit.p[i]
         P[row], cost[row] = p, fit.cost[i]
         iterations[row], converged[row] = fit.iterations[i], fit.converged[i]
         for r, (Ar, br, cr, dr, _) in enumerate(ph.systems(p)):
             A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
-        J = joint_jacobian(ph.systems, p, [y[i] for y in ys], [u[i] for u in us], record.dt,
-                           initial, ph.hi - ph.lo)
-        dof = samples - ph.q - free
-        JJ = J @ J.T
-        if dof > 0 and np.isfinite(JJ).all() and np.linalg.matrix_rank(JJ) == ph.q:
-            std[row] = np.sqrt(np.diag(np.linalg.inv(JJ)) * fit.cost[i] / dof)
+        std[row] = parameter_errors(ph, p, [y[i] for y in ys], [u[i] for u in us],
+                                    record.dt, initial)
     if est.batched:
         elements = {k: P[:, j] for j, k in enumerate(names)}
         errors = {k: std[:, j] for j, k in enumerate(names)}

@@ -35,7 +35,7 @@ import numpy as np
 from aeid_struct.refinement import Pattern, fit_rows
 from aeid_struct.structures import Numeric
 
-__all__ = ["PhysicalHead", "physical_head", "standard_errors"]
+__all__ = ["PhysicalHead", "parameter_errors", "physical_head", "standard_errors"]
 
 #: Points of the box on which a coefficient must not move to count as structurally constant.
 PROBES = 12
@@ -258,55 +258,67 @@ def _joint_steps(ph, start, ys, us, dts, initial, iterations) -> np.ndarray:
 
 def standard_errors(est) -> dict[str, np.ndarray]:
     """Standard errors of a physical estimate's parameters at its optimum, as ``greyest``
-    gives them: ``sqrt(diag(s^2 (J^T J)^-1))`` with ``J = d y_hat / d p`` (central differences
-    of the decoder's response, Eq. 10-13) and ``s^2`` the residual variance over the degrees
-    of freedom; a fitted initial state is projected out of ``J`` and the residual first (its
+    gives them: ``sqrt(diag(s^2 (J^T J)^-1))`` with ``J = dr / dp`` the Jacobian of the
+    residual of its records (central differences of the decoder's response, Eq. 10-13, each
+    record weighted by its normalisation, Eq. 15: ``refinement.joint_residual``) and ``s^2``
+    the residual's mean square over the degrees of freedom (samples less parameters less the
+    fitted initial states, which are projected out of ``J`` and the residual first: their
     uncertainty is the parameters' too).
 
     Parameters
     ----------
     est : Estimate
-        A refined estimate in a physical structure (batched or not).
+        A refined estimate in a physical structure (batched or not; one record or several).
 
     Returns
     -------
     dict name -> (batch,) array, or float per name for an unbatched estimate
         NaN for a record set aside or whose ``J`` is rank deficient.
     """
-    from aeid_struct.simulation import discrete_foh, free_basis, simulate_numpy
-
-    ph = physical_head(est.structure, est.initial == "fitted")
+    initial = est.initial == "fitted"
+    ph = physical_head(est.structure, initial)
     names = est.structure.element_names
-    y2, u2 = np.atleast_2d(est.y), np.atleast_2d(est.u)
-    P = np.atleast_2d(np.stack([np.atleast_1d(est.elements[k]) for k in names], 1))
+    record = est.record
+    P = np.atleast_2d(np.stack([np.atleast_1d(np.asarray(est.elements[k], dtype=np.float64))
+                                for k in names], 1))
     out = np.full(P.shape, math.nan)
     for i, p in enumerate(P):
         if not np.isfinite(p).all():
             continue
-        y, u = y2[i], u2[i] if u2.shape[0] > 1 else u2[0]
-
-        def response(theta, u=u):
-            A, B, C, D, _ = ph.model(np.ascontiguousarray(theta))
-            return simulate_numpy(A.reshape(ph.n, ph.n).T, B, C, float(D[0]), u, est.dt)
-
-        step = 1e-6 * np.maximum(np.abs(p), 1e-3 * (ph.hi - ph.lo))
-        J = np.stack([(response(p + h * e) - response(p - h * e)) / (2 * h)
-                      for h, e in zip(step, np.eye(ph.q), strict=True)], 1)
-        r = y - response(p)
-        free = 0
-        if est.initial == "fitted":
-            A, _, C, _, _ = ph.model(np.ascontiguousarray(p))
-            Phi = discrete_foh(A.reshape(ph.n, ph.n).T, np.zeros(ph.n), est.dt)[0]
-            Q, _ = np.linalg.qr(free_basis(Phi, C[None], y.size)[:, 0])
-            J, r, free = J - Q @ (Q.T @ J), r - Q @ (Q.T @ r), ph.n
-        dof = y.size - ph.q - free
-        JtJ = J.T @ J
-        if dof <= 0 or np.linalg.matrix_rank(JtJ) < ph.q:
-            continue
-        out[i] = np.sqrt(np.diag(np.linalg.inv(JtJ)) * float(r @ r) / dof)
+        ys = [y[i] for y in record.y]
+        us = [np.broadcast_to(u, y.shape)[i] for u, y in zip(record.u, record.y, strict=True)]
+        out[i] = parameter_errors(ph, p, ys, us, record.dt, initial)
     if not est.batched:
         return {k: float(out[0, j]) for j, k in enumerate(names)}
     return {k: out[:, j] for j, k in enumerate(names)}
+
+
+def parameter_errors(ph: PhysicalHead, p: np.ndarray, ys: list, us: list, dts: tuple,
+                     initial: bool) -> np.ndarray:
+    """:func:`standard_errors` of one set of records at the parameters ``p``.
+
+    Parameters
+    ----------
+    ph : PhysicalHead
+    p : (q,) array
+    ys, us : lists of R (steps_r,) arrays
+    dts : tuple of R floats
+    initial : bool
+
+    Returns
+    -------
+    (q,) array
+        NaN where ``J`` is rank deficient or no degree of freedom is left.
+    """
+    from aeid_struct.refinement import joint_jacobian, joint_residual
+
+    J = joint_jacobian(ph.systems, p, ys, us, dts, initial, ph.hi - ph.lo)
+    r = joint_residual(ph.systems, p, ys, us, dts, initial)
+    dof = r.size - ph.q - (ph.records * ph.n if initial else 0)
+    JJ = J @ J.T
+    if dof <= 0 or not np.isfinite(JJ).all() or np.linalg.matrix_rank(JJ) < ph.q:
+        return np.full(ph.q, math.nan)
+    return np.sqrt(np.diag(np.linalg.inv(JJ)) * float(r @ r) / dof)
 
 
 def _expanded(function: casadi.Function) -> casadi.Function:

@@ -54,30 +54,45 @@ def joint_residual(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
     (sum steps_r,) array
         NaN where a system's response is not finite.
     """
+    return _residuals(systems, np.asarray(p, dtype=np.float64)[None], ys, us, dts, initial)[0]
+
+
+def _residuals(systems: Callable, points: np.ndarray, ys: list, us: list, dts: tuple,
+               initial: bool) -> np.ndarray:
+    """:func:`joint_residual` at ``points (P, q)``: ``(P, N)``, the points' systems simulated
+    as one batch per record (``simulation.outputs_and_basis``)."""
     from aeid_struct.simulation import outputs_and_basis
 
-    parts = []
-    for (A, b, c, d, *_), y, u, dt in zip(systems(p), ys, us, dts, strict=True):
+    models = [systems(p) for p in points]
+    out = np.empty((points.shape[0], sum(y.size for y in ys)))
+    start = 0
+    for r, (y, u, dt) in enumerate(zip(ys, us, dts, strict=True)):
+        A, b, c = (np.stack([m[r][i] for m in models]) for i in range(3))
+        d = np.array([[m[r][3]] for m in models])
         with np.errstate(all="ignore"):
-            Y, O = outputs_and_basis(A, b, c[None], np.array([d]), u, dt)
-            e = y - Y[0]
+            Y, O = outputs_and_basis(A, b, c[:, None], d, u, dt)
+            e = y - Y[:, 0]                                             # (P, steps)
             if initial:
-                O = O[:, 0]
-                if not np.isfinite(O).all():
-                    return np.full(sum(v.size for v in ys), math.nan)
-                # an orthonormal basis of the observable part: a channel that does not see a
-                # mode (the pole's angle, the cart's position) has a free response of lower
+                O = O[:, :, 0]                                          # (P, steps, n)
+                bad = ~np.isfinite(O).all(axis=(1, 2))
+                O[bad] = 0.0
+                # an orthonormal basis of the observable part: a channel that does not see
+                # a mode (the pole's angle, the cart's position) has a free response of lower
                 # rank, and a QR basis would project out an arbitrary extra direction
                 U, sv, _ = np.linalg.svd(O, full_matrices=False)
-                Q = U[:, sv > max(O.shape) * np.finfo(float).eps * sv[0]]
-                e = e - Q @ (Q.T @ e)
-        parts.append(e * (2.0 / (np.abs(y).max() * math.sqrt(y.size + 1))))
-    return np.concatenate(parts)
+                keep = sv > max(O.shape[1:]) * np.finfo(float).eps * sv[:, :1]
+                Q = U * keep[:, None, :]
+                e = e - np.einsum("psk,pk->ps", Q, np.einsum("psk,ps->pk", Q, e))
+                e[bad] = math.nan
+        out[:, start: start + y.size] = e * (2.0 / (np.abs(y).max() * math.sqrt(y.size + 1)))
+        start += y.size
+    return out
 
 
-def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple, initial: bool,
-             width: np.ndarray) -> np.ndarray:
-    """``dr/dp (q, N)`` by central differences of :func:`joint_residual`.
+def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple,
+                   initial: bool, width: np.ndarray) -> np.ndarray:
+    """``dr/dp (q, N)`` by central differences of :func:`joint_residual`, the ``2 q`` points
+    simulated as one batch.
 
     Parameters
     ----------
@@ -90,13 +105,11 @@ def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
     -------
     (q, N) array
     """
-    rows = []
-    for i, h in enumerate(STEP * width):
-        e = np.zeros_like(p)
-        e[i] = h
-        rows.append((joint_residual(systems, p + e, ys, us, dts, initial)
-                     - joint_residual(systems, p - e, ys, us, dts, initial)) / (2 * h))
-    return np.stack(rows)
+    h = STEP * np.asarray(width, dtype=np.float64)
+    steps = np.diag(h)
+    r = _residuals(systems, np.concatenate([p + steps, p - steps]), ys, us, dts, initial)
+    q = p.size
+    return (r[:q] - r[q:]) / (2 * h[:, None])
 
 
 class _Problem:

@@ -48,38 +48,49 @@ def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
 def outputs_and_basis(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
                       u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`simulate_outputs` and the free response's basis it was built from, by one
-    matrix exponential: a fit that projects the initial state out needs both.
+    matrix exponential, for one system or a batch of systems on one input: a fit that
+    projects the initial state out needs both, and its Jacobian the responses of many
+    parameter points at once.
 
     Parameters
     ----------
-    A, b, C, d, u, dt
-        As :func:`simulate_outputs`.
+    A : (..., n, n) array
+    b : (..., n) array
+    C : (..., r, n) array
+    d : (..., r) array
+    u : (steps,) array
+    dt : float, > 0
 
     Returns
     -------
-    Y : (r, steps) array
+    Y : (..., r, steps) array
         The responses from rest.
-    O : (steps, r, n) array
+    O : (..., steps, r, n) array
         ``O[k] = C Phi^k`` (:func:`free_basis`).
     """
     return _outputs(discrete_foh(A, b, dt), C, d, u)
 
 
 def _outputs(discrete: tuple, C: np.ndarray, d: np.ndarray, u: np.ndarray):
-    """:func:`simulate_outputs` of Eq. 10's ``(Phi, gamma1, gamma2)``: ``Y (r, steps)`` and the
-    free response's basis ``O (steps, r, n)`` (``O[m] = C Phi^m``) that it was built from."""
+    """:func:`simulate_outputs` of Eq. 10's ``(Phi, gamma1, gamma2)``: ``Y (..., r, steps)`` and
+    the free response's basis ``O (..., steps, r, n)`` (``O[m] = C Phi^m``) that it was built
+    from; leading axes are a batch of systems (an unbatched system runs the same operations
+    as before batches were read)."""
     Phi, gamma1, gamma2 = discrete
-    n, r, steps = Phi.shape[0], C.shape[0], u.shape[0]
+    batch = Phi.shape[:-2]
+    n, r, steps = Phi.shape[-1], C.shape[-2], u.shape[0]
     E = gamma1 - gamma2
-    Bd = E + Phi @ gamma2
+    Bd = E + (Phi @ gamma2[..., None])[..., 0] if batch else E + Phi @ gamma2
     O = free_basis(Phi, C, steps)                              # O[m] = C Phi^m
-    H = (O[: steps - 1].reshape(-1, n) @ np.stack([Bd, E], axis=1)).reshape(steps - 1, r, 2)
-    tk = np.concatenate([(d + C @ gamma2)[:, None], H[..., 0].T], axis=1)    # (r, steps)
-    t0 = np.concatenate([d[:, None], H[..., 1].T], axis=1)                   # (r, steps)
-    Y = t0 * u[0]
+    H = (O[..., : steps - 1, :, :].reshape(*batch, -1, n)
+         @ np.stack([Bd, E], axis=-1)).reshape(*batch, steps - 1, r, 2)
+    Cg = (C @ gamma2[..., None])[..., 0] if batch else C @ gamma2
+    tk = np.concatenate([(d + Cg)[..., None], np.swapaxes(H[..., 0], -1, -2)], axis=-1)
+    t0 = np.concatenate([d[..., None], np.swapaxes(H[..., 1], -1, -2)], axis=-1)
+    Y = t0 * u[0]                                               # (..., r, steps)
     later = np.concatenate([[0.0], u[1:]])      # u_1, u_2, ..: u_0 enters through t0
     if np.any(later):
-        for i in range(r):
+        for i in np.ndindex(*batch, r):
             Y[i] += np.convolve(tk[i], later)[:steps]
     return Y, O
 
@@ -112,25 +123,26 @@ def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0):
 def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:
     """Rows ``C Phi^k`` for ``k < steps`` by doubling, ``O[k:2k] = O[0:k] Phi^k`` (one matrix
     product per level), in numpy: the free response's output basis, and the Markov parameters of
-    :func:`simulate_outputs`.
+    :func:`simulate_outputs`; leading axes are a batch of systems.
 
     Parameters
     ----------
-    Phi : (n, n) array
-    C : (r, n) array
+    Phi : (..., n, n) array
+    C : (..., r, n) array
     steps : int, >= 1
 
     Returns
     -------
-    (steps, r, n) array
+    (..., steps, r, n) array
     """
-    r, n = C.shape
-    O = np.empty((steps, r, n))
-    O[0] = C
+    *batch, r, n = C.shape
+    O = np.empty((*batch, steps, r, n))
+    O[..., 0, :, :] = C
     P, k = Phi, 1
     while k < steps:
         m = min(k, steps - k)
-        O[k : k + m] = (O[:m].reshape(m * r, n) @ P).reshape(m, r, n)
+        O[..., k : k + m, :, :] = (O[..., :m, :, :].reshape(*batch, m * r, n)
+                                   @ P).reshape(*batch, m, r, n)
         k += m
         if k < steps:
             P = P @ P
