@@ -239,3 +239,23 @@ def test_the_leg_written_as_a_mechanism_is_the_joint_leg():
     for k in ("k", "d", "m"):
         np.testing.assert_allclose(out[0].physical[k], out[1].physical[k], rtol=1e-9)
         np.testing.assert_allclose(out[0].physical[k], rec.systems.params[k], rtol=1e-7)
+
+
+def test_refine_auto_refines_exactly_the_flagged_records(cart_pole):
+    # train() calibrates the training range of a several-channel identifier too: a record
+    # whose cart position is eight times too large is flagged, and refine="auto" refines
+    # exactly the flagged records, as refine=True would
+    ident, family = cart_pole
+    assert set(ident.meta["training_range"]["physical"]) == set(NAMES)
+    rec = ae.data.records(family, 6, **GRID, excitation_kind="prbs", seed=9, noise=0.01)
+    y = [np.array(v) for v in rec.y]
+    y[0][:2] *= 8.0
+    est = ident.identify(tuple(y), rec.u, refine="auto")
+    flags = ident.identify(tuple(y), rec.u).outside
+    assert flags[:2].all() and not flags.all()
+    np.testing.assert_array_equal(est.info["refined_rows"], flags)
+    full = ident.identify(tuple(y), rec.u, refine=True)
+    one = ident.identify(tuple(y), rec.u)
+    for k in NAMES:
+        np.testing.assert_allclose(est.physical[k][flags], full.physical[k][flags], rtol=1e-12)
+        np.testing.assert_array_equal(est.physical[k][~flags], one.physical[k][~flags])

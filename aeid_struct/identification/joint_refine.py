@@ -33,7 +33,7 @@ def is_joint(est) -> bool:
     return type_of(est.structure) == "Physical" and est.structure.records > 1
 
 
-def refine_joint(est: Estimate) -> Estimate:
+def refine_joint(est: Estimate, rows=None) -> Estimate:
     """The estimate's parameters polished to the output-error optimum over all its records,
     within the bounds; records set aside (``errors="collect"``) or without finite parameters
     are kept as they are.
@@ -42,6 +42,9 @@ def refine_joint(est: Estimate) -> Estimate:
     ----------
     est : Estimate
         An identifier's estimate in a physical structure of ``R > 1`` records.
+    rows : (batch,) bool array, optional
+        The records to refine (``refine="auto"``: the flagged ones); the others are kept as
+        they are (``info["refined_rows"]``). Default: all.
 
     Returns
     -------
@@ -60,10 +63,15 @@ def refine_joint(est: Estimate) -> Estimate:
     names = structure.element_names
     P = np.atleast_2d(np.stack([np.atleast_1d(np.asarray(est.elements[k], dtype=np.float64))
                                 for k in names], 1))
-    rows = np.isfinite(P).all(axis=1)
+    chosen = np.isfinite(P).all(axis=1)
     if est._good is not None:
-        rows &= est._good
-    rows = np.flatnonzero(rows)
+        chosen &= est._good
+    if rows is not None:
+        chosen &= np.asarray(rows, dtype=bool).reshape(-1)
+    rows = np.flatnonzero(chosen)
+    if rows.size == 0:
+        return dataclasses.replace(est, info={
+            **est.info, "refined_rows": chosen if est.batched else bool(chosen[0])})
     ys = [y[rows] for y in record.y]
     us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
     initial = est.initial == "fitted"
@@ -88,13 +96,14 @@ def refine_joint(est: Estimate) -> Estimate:
     if est.batched:
         elements = {k: P[:, j] for j, k in enumerate(names)}
         errors = {k: std[:, j] for j, k in enumerate(names)}
-        info = {"cost": cost, "iterations": iterations, "converged": converged}
+        info = {"cost": cost, "iterations": iterations, "converged": converged,
+                "refined_rows": chosen}
     else:
         A, b, c, d = A[0], b[0], c[0], d[0]
         elements = {k: float(P[0, j]) for j, k in enumerate(names)}
         errors = {k: float(std[0, j]) for j, k in enumerate(names)}
         info = {"cost": float(cost[0]), "iterations": int(iterations[0]),
-                "converged": bool(converged[0])}
+                "converged": bool(converged[0]), "refined_rows": bool(chosen[0])}
     seconds = time.perf_counter() - t0
     info["seconds"] = np.full(P.shape[0], seconds / P.shape[0]) if est.batched else seconds
     return dataclasses.replace(

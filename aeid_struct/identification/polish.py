@@ -110,6 +110,8 @@ def _flagged(est: Estimate) -> Estimate:
                          "training range (trained by this version of train(), a shipped "
                          "one, or one passed through training.recalibrate)")
     good = est._good
+    if is_joint(est):
+        return refine_joint(est, rows=flags)      # records set aside are kept as they are
     if not est.batched:
         if not flags or (good is not None and not good[0]):
             return dataclasses.replace(est, info={**est.info, "refined_rows": False})

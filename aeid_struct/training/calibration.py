@@ -21,7 +21,8 @@ def recalibrate(ident: Identifier, family) -> Identifier:
     Parameters
     ----------
     ident : Identifier
-        Of one record, trained by ``train()`` (its settings in ``meta["train"]["config"]``).
+        Trained by ``train()`` (its settings in ``meta["train"]["config"]``); one record or
+        several.
     family : LegFamily, PoleFamily or any family
         The family it was trained on.
 
@@ -33,7 +34,7 @@ def recalibrate(ident: Identifier, family) -> Identifier:
     Raises
     ------
     ValueError
-        ``ident`` is not an Identifier of one record with its training settings.
+        ``ident`` is not an Identifier with its training settings.
     """
     if not isinstance(ident, Identifier):
         raise ValueError(f"ident must be an Identifier (ae.Identifier.load(path)); "
@@ -41,8 +42,6 @@ def recalibrate(ident: Identifier, family) -> Identifier:
     cfg = ident.meta.get("train", {}).get("config")
     if not cfg:
         raise ValueError("ident must carry its training settings (meta['train']['config'])")
-    if ident.records != 1:
-        raise ValueError("recalibrate covers identifiers of one record")
     rec = records(family, cfg["count"], steps=cfg["steps"], dt=cfg["dt"],
                   excitation_kind=cfg["excitation"], seed=cfg["seed"],
                   warmup=cfg.get("warmup", 0))
@@ -65,9 +64,10 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
     Parameters
     ----------
     ident : Identifier
-        Trained, of one record.
+        Trained (one record, or several: the fit threshold is then on each system's lowest
+        record fit, as ``Estimate.outside`` reads it).
     rec : Records
-        The run's records (one record per system).
+        The run's records.
     held : (H,) int array
         The held-out indices.
     noise : float
@@ -86,9 +86,12 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
     if X is None:
         X = ident.structure.elements_of(systems.A, systems.b, systems.c, systems.d).numpy()
     rng = np.random.default_rng(seed)
-    y = rec.y_clean[held]
-    y = y + noise * np.abs(y).max(axis=1, keepdims=True) * rng.normal(size=y.shape)
-    est = ident.identify(y, rec.u[held])
+    several = ident.records > 1
+    ys, us = (rec.y_clean, rec.u) if several else ((rec.y_clean,), (rec.u,))
+    y = tuple(v[held] + noise * np.abs(v[held]).max(axis=1, keepdims=True)
+              * rng.normal(size=v[held].shape) for v in ys)
+    u = tuple(v[held] for v in us)
+    est = ident.identify(y, u) if several else ident.identify(y[0], u[0])
     out: dict[str, dict] = {"elements": {}, "physical": {}}
     for i, name in enumerate(ident.structure.element_names):
         if name in ident.structure.free_names:
@@ -105,5 +108,8 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
     # in-range records that flag FLAG_FALSE_RATE of them each.
     beyond = excess({**est.elements, **(est.physical or {})}, out)
     out["excess"] = float(np.nanquantile(beyond, 1.0 - FLAG_FALSE_RATE))
-    out["fit"] = float(np.nanquantile(est.fit, FLAG_FALSE_RATE))
+    # several records: any record's low fit flags its system (Estimate.outside), so the
+    # threshold is the quantile of each system's lowest
+    fit = np.min(est.fit, axis=-1) if several else est.fit
+    out["fit"] = float(np.nanquantile(fit, FLAG_FALSE_RATE))
     return out

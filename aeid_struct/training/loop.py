@@ -387,7 +387,6 @@ def _finish(run: _Run) -> Identifier:
         "world_size": run.ctx.world_size, "backend": run.ctx.backend,
         "device": str(run.ctx.device),
     }
-    if run.structure.records == 1:
-        ident.meta["training_range"] = training_range(ident, run.data.rec, run.data.held,
-                                                      config.noise_range[1], config.seed + 4)
+    ident.meta["training_range"] = training_range(ident, run.data.rec, run.data.held,
+                                                  config.noise_range[1], config.seed + 4)
     return ident
