@@ -633,3 +633,27 @@ def test_demo_figure_labels_and_curves(tmp_path, monkeypatch):
     w = np.sqrt(leg.G / L)
     np.testing.assert_allclose(y, (np.cosh(w * t) - 1) / (m * L**2 * w**2), rtol=1e-8,
                                atol=1e-14)
+
+
+def test_identify_a_shipped_mechanism_from_one_file_per_channel(tmp_path, capsys):
+    # the cart-pole's two channels, one file each (their common input twice): the printed
+    # parameters are the refined estimate's, with their standard errors
+    import aeid_struct as ae
+
+    ident = ae.load_pretrained("cart-pole")
+    rec = ae.data.records(ae.ParameterFamily(ident.structure), 1, steps=ident.steps,
+                          dt=ident.dt, excitation_kind="prbs", seed=2, noise=0.01)
+    files = []
+    for name, values in (("y0", rec.y[0][0]), ("y1", rec.y[1][0]), ("u", rec.u[0][0])):
+        np.savetxt(tmp_path / f"{name}.csv", values)
+        files.append(str(tmp_path / f"{name}.csv"))
+    assert main(["identify", "cart-pole", "--y", files[0], files[1], "--u", files[2],
+                 files[2], "--refine"]) == 0
+    out = capsys.readouterr().out
+    assert "refined by the joint output-error fit of the parameters over every record" in out
+    printed = ast.literal_eval(out.split("physical: ", 1)[1].splitlines()[0])
+    errors = ast.literal_eval(out.split("standard errors: ", 1)[1].splitlines()[0])
+    est = ident.identify((rec.y[0][0], rec.y[1][0]), (rec.u[0][0], rec.u[1][0]), refine=True)
+    for k in ("M", "m", "l", "b"):
+        assert printed[k] == pytest.approx(est.physical[k], abs=1e-6)
+        assert errors[k] == pytest.approx(est.info["std"][k], abs=1e-6)

@@ -183,9 +183,15 @@ def run_identify(args: argparse.Namespace) -> int:
     if est.physical:
         print("physical:", {k: np.round(v, 6).tolist() for k, v in est.physical.items()})
     if est.refined:
-        print("refined by the CasADi NLP" + (
-            "" if "refined_rows" not in est.info or not est.batched
-            else f" (records {np.flatnonzero(est.info['refined_rows']).tolist()})"))
+        how = {"separable": "refined by the head iterated to convergence (the least-squares "
+                            "optimum in its structure)",
+               "joint": "refined by the joint output-error fit of the parameters over every "
+                        "record"}.get(est.info.get("refine"), "refined by the CasADi NLP")
+        print(how + ("" if "refined_rows" not in est.info or not est.batched
+                     else f" (records {np.flatnonzero(est.info['refined_rows']).tolist()})"))
+        if "std" in est.info:
+            print("standard errors:", {k: np.round(v, 6).tolist()
+                                       for k, v in est.info["std"].items()})
     flagged = _self_check(est)
     if args.json:
         write_json(args.json, _estimate_json(est, args.model, repr(ident)))
