@@ -66,6 +66,14 @@ def test_the_channels_map_is_each_channels_own_map():
     assert shipped.config()["channels"] == [[0, 0], [1, 0]]
 
 
+def test_a_function_map_of_several_records_takes_checked_channels():
+    with pytest.raises(ValueError, match=r"channels must hold non-negative integer indices"):
+        ae.Physical(mechanisms.cart_pole_channels(), bounds=BOX, channels=[(0, "a"), (1, 0)])
+    with pytest.raises(ValueError, match=r"channels must give one \(output, input\) per "
+                                         r"record of cart_pole_y0u0_y1u0 \(2\)"):
+        ae.Physical(mechanisms.cart_pole_channels(), bounds=BOX, channels=[(0, 0)])
+
+
 def _coupled():
     """A mass pushed by two forces, position and velocity out: each output answers both."""
     x, v, F = casadi.SX.sym("x"), casadi.SX.sym("v"), casadi.SX.sym("F", 2)
@@ -81,6 +89,8 @@ def _coupled():
     ({"channels": [(0, 0), (1, 1)]}, r"y\[0\] also answers u\[1\]"),
     ({"channels": []}, "non-empty sequence"),
     ({"channels": [(0,)]}, "channels must hold"),
+    ({"channels": [(0, -1)]}, r"non-negative integer indices \(output, input\); got \(0, -1\)"),
+    ({"channel": (0.0, 0)}, r"channel must hold non-negative integer indices"),
 ])
 def test_bad_channels_are_refused_by_name(kwargs, message):
     with pytest.raises(ValueError, match=message):

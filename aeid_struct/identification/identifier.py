@@ -241,12 +241,11 @@ class Identifier(IdentifierFiles):
         Parameters
         ----------
         y : Record, (steps,) or (batch, steps) array, or a sequence of R of them
-            A measured ``records.Record`` (one output, one input, no input delay; a sequence of
-            ``R`` Records for a several-record identifier), which carries ``u`` and ``dt``;
-            or the measured output, ``batch >= 1``, sampled at ``t_k = k*dt`` from rest (or
-            mid-motion for ``initial="fitted"``); real numbers (a complex array is refused).
-            A sequence of ``R`` records (one per subsystem, each on its own grid) for a
-            several-record identifier.
+            A measured ``records.Record`` (one output, one input, no input delay; ``R`` Records,
+            or one of several outputs split by ``structure.channels``, for ``R`` records),
+            which carries ``u`` and ``dt``; or the measured output, ``batch >= 1``, sampled at
+            ``t_k = k*dt`` from rest (or mid-motion for ``initial="fitted"``); real numbers. A
+            sequence of ``R`` of them (one per subsystem, on its own grid) for ``R`` records.
         u : like y, (steps,) for a whole batch, or None
             Input; None is a unit step, what step-trained identifiers expect.
         dt : float or tuple, optional

@@ -12,7 +12,11 @@ import time
 import numpy as np
 
 from aeid_struct.estimates import Estimate
-from aeid_struct.identification.physical_head import parameter_errors, physical_head
+from aeid_struct.identification.physical_head import (
+    parameter_errors,
+    parameters_of,
+    physical_head,
+)
 
 __all__ = ["is_joint", "refine_joint"]
 
@@ -61,8 +65,7 @@ def refine_joint(est: Estimate, rows=None) -> Estimate:
     structure, record = est.structure, est.record
     ph = physical_head(structure, est.initial == "fitted")
     names = structure.element_names
-    P = np.atleast_2d(np.stack([np.atleast_1d(np.asarray(est.elements[k], dtype=np.float64))
-                                for k in names], 1))
+    P = parameters_of(est)
     chosen = np.isfinite(P).all(axis=1)
     if est._good is not None:
         chosen &= est._good
@@ -75,9 +78,7 @@ def refine_joint(est: Estimate, rows=None) -> Estimate:
     ys = [y[rows] for y in record.y]
     us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
     initial = est.initial == "fitted"
-    margin = 1e-9 * (ph.hi - ph.lo)
-    start = np.clip(P[rows], ph.lo + margin, ph.hi - margin)
-    fit = fit_joint(ph.systems, start, ys, us, record.dt, lower=ph.lo, upper=ph.hi,
+    fit = fit_joint(ph.systems, P[rows], ys, us, record.dt, lower=ph.lo, upper=ph.hi,
                     initial=initial)
     A, b, c, d = (np.array(np.atleast_1d(v) if est.batched else np.asarray(v)[None],
                            dtype=np.float64, copy=True) for v in (est.A, est.b, est.c, est.d))

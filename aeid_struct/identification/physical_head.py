@@ -35,7 +35,8 @@ import numpy as np
 from aeid_struct.refinement import Pattern, fit_rows
 from aeid_struct.structures import Numeric
 
-__all__ = ["PhysicalHead", "parameter_errors", "physical_head", "standard_errors"]
+__all__ = ["PhysicalHead", "parameter_errors", "parameters_of", "physical_head",
+           "standard_errors"]
 
 #: Points of the box on which a coefficient must not move to count as structurally constant.
 PROBES = 12
@@ -224,11 +225,15 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
         # channel's spare coefficients as much as the others; the same number of iterations of
         # the joint output-error fit in the parameters (the one refine=True converges) reads
         # every record at once
-        found[ok] = _joint_steps(ph, found[ok], [v[rows[ok]] for v in ys],
-                                 [np.ones_like(y[rows[ok]]) if u is None else
-                                  np.broadcast_to(u, y.shape)[rows[ok]]
-                                  for y, u in zip(ys, us, strict=True)],
-                                 ident._dts, ph.patterns[0].initial, head.iterations)
+        from aeid_struct.refinement import fit_joint
+
+        done = rows[ok]
+        found[ok] = fit_joint(ph.systems, found[ok], [y[done] for y in ys],
+                              [np.ones_like(y[done]) if u is None else
+                               np.broadcast_to(u, y.shape)[done]
+                               for y, u in zip(ys, us, strict=True)],
+                              ident._dts, lower=ph.lo, upper=ph.hi,
+                              initial=ident.initial == "fitted", max_iter=head.iterations).p
     for i, row in enumerate(rows):
         if not ok[i]:
             failed[row] = True
@@ -243,17 +248,6 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
                 A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
         el[row] = p
     return (A, b, c, d, el), failed
-
-
-def _joint_steps(ph, start, ys, us, dts, initial, iterations) -> np.ndarray:
-    """``iterations`` steps of ``refinement.fit_joint`` from ``start (B, q)``; rows that do
-    not descend keep their start (``fit_joint`` never returns a worse point)."""
-    from aeid_struct.refinement import fit_joint
-
-    margin = 1e-9 * (ph.hi - ph.lo)
-    fit = fit_joint(ph.systems, np.clip(start, ph.lo + margin, ph.hi - margin), ys, us, dts,
-                    lower=ph.lo, upper=ph.hi, initial=initial, max_iter=iterations)
-    return fit.p
 
 
 def standard_errors(est) -> dict[str, np.ndarray]:
@@ -279,8 +273,7 @@ def standard_errors(est) -> dict[str, np.ndarray]:
     ph = physical_head(est.structure, initial)
     names = est.structure.element_names
     record = est.record
-    P = np.atleast_2d(np.stack([np.atleast_1d(np.asarray(est.elements[k], dtype=np.float64))
-                                for k in names], 1))
+    P = parameters_of(est)
     out = np.full(P.shape, math.nan)
     for i, p in enumerate(P):
         if not np.isfinite(p).all():
@@ -291,6 +284,22 @@ def standard_errors(est) -> dict[str, np.ndarray]:
     if not est.batched:
         return {k: float(out[0, j]) for j, k in enumerate(names)}
     return {k: out[:, j] for j, k in enumerate(names)}
+
+
+def parameters_of(est) -> np.ndarray:
+    """A physical estimate's parameters as ``(batch, q)`` float64 rows (one row unbatched), in
+    the structure's element order.
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    (batch, q) array
+    """
+    return np.atleast_2d(np.stack([np.atleast_1d(np.asarray(est.elements[k], dtype=np.float64))
+                                   for k in est.structure.element_names], 1))
 
 
 def parameter_errors(ph: PhysicalHead, p: np.ndarray, ys: list, us: list, dts: tuple,

@@ -30,8 +30,10 @@ def polish(est: Estimate, mode) -> Estimate:
     Estimate
         With ``info["refined_rows"]`` for ``"auto"`` or a partial refinement.
     """
-    if is_joint(est) and mode is True:
-        return refine_joint(est)   # records set aside are kept as they are
+    if is_joint(est):
+        # the shared parameters of several records: the joint fit, of every record or of the
+        # flagged ones (records set aside are kept as they are)
+        return refine_joint(est, rows=None if mode is True else _flags(est))
     if mode == "auto":
         return _flagged(est)
     if est._good is not None:      # errors="collect" set records aside: refine the rest
@@ -54,7 +56,7 @@ def with_standard_errors(est: Estimate) -> Estimate:
     """
     from aeid_struct.structures import type_of
 
-    if type_of(est.structure) != "Physical" or est.structure.records != 1 or "std" in est.info:
+    if type_of(est.structure) != "Physical" or "std" in est.info:
         return est
     from aeid_struct.identification.physical_head import standard_errors
 
@@ -90,32 +92,29 @@ def polish_at_bounds(est: Estimate) -> Estimate:
     if not est.batched:
         if not mask[0]:
             return dataclasses.replace(est, info={**est.info, "refined_rows": False})
-        out = _refine(est)
+        out = refine(est)
         return dataclasses.replace(out, info={**out.info, "refined_rows": True})
     return _rows(est, mask)
 
 
-def _refine(est: Estimate) -> Estimate:
-    """The refinement of ``est``'s structure: the joint fit of several records' shared
-    parameters, else the CasADi NLP."""
-    return refine_joint(est) if is_joint(est) else refine(est)
-
-
-def _flagged(est: Estimate) -> Estimate:
-    """Refine exactly the records flagged ``outside`` (and identified: a record set aside by
-    ``errors="collect"`` has nothing to start from)."""
+def _flags(est: Estimate):
+    """``est.outside``, or the error of an identifier without a calibrated training range."""
     flags = est.outside
     if flags is None:
         raise ValueError("refine='auto' needs an identifier that knows its calibrated "
                          "training range (trained by this version of train(), a shipped "
                          "one, or one passed through training.recalibrate)")
-    good = est._good
-    if is_joint(est):
-        return refine_joint(est, rows=flags)      # records set aside are kept as they are
+    return flags
+
+
+def _flagged(est: Estimate) -> Estimate:
+    """Refine exactly the records flagged ``outside`` (and identified: a record set aside by
+    ``errors="collect"`` has nothing to start from)."""
+    flags, good = _flags(est), est._good
     if not est.batched:
         if not flags or (good is not None and not good[0]):
             return dataclasses.replace(est, info={**est.info, "refined_rows": False})
-        est = _refine(est)
+        est = refine(est)
         return dataclasses.replace(est, info={**est.info, "refined_rows": True})
     return _rows(est, flags if good is None else flags & good)
 
@@ -126,7 +125,7 @@ def _rows(est: Estimate, mask: np.ndarray) -> Estimate:
     rows = np.flatnonzero(mask)
     if rows.size == 0:
         return dataclasses.replace(est, info={**est.info, "refined_rows": mask})
-    sub = _refine(est.take(rows))
+    sub = refine(est.take(rows))
     A, b, c, d = (np.array(x, copy=True) for x in (est.A, est.b, est.c, est.d))
     A[rows], b[rows], c[rows], d[rows] = sub.A, sub.b, sub.c, sub.d
     elements = {k: np.array(v, copy=True) for k, v in est.elements.items()}

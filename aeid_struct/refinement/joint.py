@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -139,6 +140,7 @@ class _Problem:
             * self.width[:, None] for zi, i in zip(e["z"], e["rows"], strict=True)])
 
 
+@dataclass(frozen=True)
 class JointFit:
     """Where :func:`fit_joint` ended, one row per set of records.
 
@@ -152,8 +154,10 @@ class JointFit:
     converged : (B,) bool array
     """
 
-    def __init__(self, p, cost, iterations, converged) -> None:
-        self.p, self.cost, self.iterations, self.converged = p, cost, iterations, converged
+    p: np.ndarray
+    cost: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
 
 
 def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tuple, *,
@@ -167,7 +171,8 @@ def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tup
     systems : callable
         ``p (q,) -> [(A, b, c, d), ...]``, one system per record.
     start : (B, q) array
-        Inside the box.
+        Taken into the box (a margin of ``1e-9`` of its width inside each bound: a start on a
+        bound would hold that parameter there from the first step).
     ys, us : lists of R (B, steps_r) arrays
         The records of each row (checked by the caller; ``u`` a unit step where none).
     dts : tuple of R floats
@@ -184,7 +189,9 @@ def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tup
     """
     lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
     problem = _Problem(systems, ys, us, dts, initial, lo, hi)
-    z0 = (np.asarray(start, dtype=np.float64) - lo) / (hi - lo)
+    margin = 1e-9 * (hi - lo)
+    start = np.clip(np.asarray(start, dtype=np.float64), lo + margin, hi - margin)
+    z0 = (start - lo) / (hi - lo)
     B = z0.shape[0]
     rules = core.Rules(max_iter=int(max_iter), lambda_max=1e12, cost_tol=FLAT,
                        step_tol=1e-12)

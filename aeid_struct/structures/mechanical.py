@@ -53,7 +53,8 @@ def channel_specs(channel, channels) -> tuple[tuple, ...]:
     Raises
     ------
     ValueError
-        Both given, a malformed channel, or an output named twice.
+        Both given, a malformed channel (not a pair or triple, an index that is not a
+        non-negative integer), or an output named twice.
     """
     if channel is not None and channels is not None:
         raise ValueError("give channel (one) or channels (several), not both")
@@ -73,8 +74,13 @@ def channel_specs(channel, channels) -> tuple[tuple, ...]:
             raise ValueError(f"{name} must hold (output, input) or (output, input, states); "
                              f"got {spec!r}")
         output, input, *states = spec
-        specs.append((output, input, tuple(states[0]) if states and states[0] is not None
-                      else None))
+        if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0
+                   for v in (output, input)):
+            name = "channel" if channels is None else "channels"
+            raise ValueError(f"{name} must hold non-negative integer indices (output, input); "
+                             f"got {spec!r}")
+        specs.append((int(output), int(input), tuple(states[0]) if states and
+                      states[0] is not None else None))
     outputs = [s[0] for s in specs]
     if len(set(outputs)) != len(outputs):
         raise ValueError(f"channels must name each output once (a record's output is one "

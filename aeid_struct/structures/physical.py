@@ -91,7 +91,7 @@ class Physical(Structure):
                              "from a symbolic.Mechanism; a casadi.Function map fixes them itself")
         elif channels is not None:
             # a map of R records that are channels of one record (a named factory's)
-            self._channels = tuple(tuple(int(v) for v in c[:2]) for c in channels)
+            self._channels = tuple(spec[:2] for spec in channel_specs(None, channels))
         if not isinstance(function, casadi.Function):
             raise ValueError(f"function must be a casadi.Function; got {type(function).__name__}")
         fname = function.name()
