@@ -127,6 +127,52 @@ def test_one_pass_and_refinement_reach_the_truth_on_noise_free_records(cart_pole
     np.testing.assert_allclose(refined.A[0, 1], np.array(out["A2"]), rtol=1e-12, atol=1e-12)
 
 
+def test_the_information_weighted_parameters_start_near_the_joint_optimum(cart_pole):
+    # oracle: the joint optimum of each record set (fit_joint to convergence, which the scipy
+    # test above checks); the parameters nearest the channels' own fits weighted by their
+    # information (PhysicalHead.information) must cost less than relatively weighted ones,
+    # and the one pass (those plus five joint iterations) must be near that optimum
+    from aeid_struct.refinement import fit_joint, fit_rows
+
+    ident, family = cart_pole
+    rec = ae.data.records(family, 12, **GRID, excitation_kind="prbs", seed=9, noise=0.02)
+    ph = physical_head(ident.structure, initial=False)
+    ident.head = None
+    try:
+        encoder = ident.identify(rec.y, rec.u)
+    finally:
+        ident.head = Head(iterations=5)
+    start = np.stack([encoder.physical[k] for k in NAMES], 1)
+    one = ident.identify(rec.y, rec.u)
+    ys, us, dts = list(rec.y), list(rec.u), (0.01, 0.01)
+    optimum = fit_joint(ph.at, start, ys, us, dts, lower=ph.lo, upper=ph.hi, initial=False)
+
+    def cost(P):
+        return np.array([np.sum(joint_residual(ph.at, p, [y[i] for y in ys],
+                                               [u[i] for u in us], dts, False) ** 2)
+                         for i, p in enumerate(P)])
+
+    weighted, relative = np.empty_like(start), np.empty_like(start)
+    for i in range(12):
+        fitted = []
+        for r, pattern in enumerate(ph.patterns):
+            a0 = ph.systems(start[i])[r][4][pattern.free_a]
+            a, c, d, _ = fit_rows(pattern, a0[None], ys[r][i][None], us[r][i][None], 0.01,
+                                  iterations=5)
+            fitted.append(np.concatenate([a[0], c[0], d]))
+        target = np.concatenate(fitted)[ph.free]
+        S = ph.information(target, [y[i] for y in ys], [u[i] for u in us], dts, False)
+        weighted[i] = ph.parameters(target, start[i], S)
+        relative[i] = ph.parameters(target, start[i])
+    excess = {name: cost(P) / optimum.cost - 1 for name, P in (
+        ("weighted", weighted), ("relative", relative),
+        ("one pass", np.stack([one.physical[k] for k in NAMES], 1)))}
+    assert np.median(excess["weighted"]) < 0.5 * np.median(excess["relative"])
+    # measured: weighted median 1.0 against 110 relative; the one pass at the optimum on 10
+    # of 12 (this encoder trained for three epochs misses one record's channel fit)
+    assert np.median(excess["one pass"]) < 1e-3 and np.sum(excess["one pass"] < 0.01) >= 10
+
+
 def test_a_record_with_several_outputs_is_split_by_channel(cart_pole):
     ident, family = cart_pole
     rec = ae.data.records(family, 1, **GRID, excitation_kind="prbs", seed=4, noise=0.01)
@@ -170,7 +216,7 @@ def test_the_joint_residual_and_optimum_match_scipy(cart_pole):
     for i in range(2):
         ys, us = [y[i] for y in rec.y], [u[i] for u in rec.u]
         p = np.array([rec.systems.params[k][i] for k in NAMES])
-        np.testing.assert_allclose(joint_residual(ph.systems, p, ys, us, (0.01, 0.01), True),
+        np.testing.assert_allclose(joint_residual(ph.at, p, ys, us, (0.01, 0.01), True),
                                    _oracle_residual(ident.structure, p, ys, us, 0.01),
                                    rtol=1e-6, atol=1e-9)
         lo, hi = ph.lo, ph.hi

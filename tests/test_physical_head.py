@@ -54,6 +54,23 @@ def test_the_coefficient_inverse_recovers_the_parameters():
         np.testing.assert_allclose(head.parameters(target, start), p, rtol=1e-10)
 
 
+def test_the_batch1_path_maps_theta_as_the_structure_does(lever):
+    # oracle: the structure's own torch maps (elements, then the CasADi op) in float64
+    import torch
+
+    from aeid_struct.identification.fast_path import fast_path
+
+    ident, _ = lever
+    fast = fast_path(ident)
+    assert fast is not None and fast.physical is not None
+    theta = np.random.default_rng(0).normal(0.0, 3.0, (8, ident.structure.p))
+    for t in theta:
+        el = ident.structure.elements(torch.from_numpy(t[None]))
+        sys = ident.structure.assemble(el)
+        for got, want in zip(fast._physical(t), (sys.A, sys.b, sys.c, sys.d, el), strict=True):
+            np.testing.assert_allclose(got, want.numpy(), rtol=1e-12, atol=1e-12)
+
+
 def test_a_physical_head_refuses_fixed_elements(lever):
     ident, _ = lever
     with pytest.raises(ValueError, match="constant coefficients itself"):

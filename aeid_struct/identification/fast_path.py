@@ -46,7 +46,23 @@ class Batch1:
                 return sys.A, sys.b, sys.c, sys.d, el
 
         self.structure = _Structure().eval()
-        if not isinstance(structure, Physical):
+        self.physical = None
+        if isinstance(structure, Physical):
+            # theta -> parameters -> (A, B, C, D) in numpy: the interval maps and the head's
+            # expanded SX map (physical_head.PhysicalHead.model), a few microseconds where the
+            # torch op that carries CasADi's derivatives costs about half a millisecond
+            from aeid_struct.identification.physical_head import physical_head
+
+            fixed = structure.fixed_values
+            free = [k for k in structure.element_names if k not in fixed]
+            bounds = structure.bounds
+            self.physical = (physical_head(structure, ident.initial == "fitted"),
+                             np.array([bounds[k][0] for k in free]),
+                             np.array([bounds[k][1] for k in free]),
+                             [structure.element_names.index(k) for k in free],
+                             np.array([fixed.get(k, np.nan)
+                                       for k in structure.element_names]))
+        else:
             with warnings.catch_warnings(), torch.no_grad():
                 warnings.simplefilter("ignore")
                 self.structure = torch.jit.freeze(torch.jit.trace(
@@ -63,12 +79,27 @@ class Batch1:
             ident = self.ident
             z = np.append(z, (np.log(gain) - ident.feature_mean) / ident.feature_scale)[None]
         z = self.net.dense(z)[0]
-        theta = torch.from_numpy((self.mean + self.scale * z)[None])
-        with torch.no_grad():
-            A, b, c, d, el = (t.numpy() for t in self.structure(theta))
+        theta = self.mean + self.scale * z
+        if self.physical is not None:
+            A, b, c, d, el = self._physical(theta)
+        else:
+            with torch.no_grad():
+                A, b, c, d, el = (t.numpy() for t in self.structure(
+                    torch.from_numpy(theta[None])))
         if self.ident.scale == "denormalise":
             c, d, el = denormalise(c, d, el, np.array([gain]), self.mask > 0)
         return A, b, c, d, el
+
+
+    def _physical(self, theta: np.ndarray) -> tuple:
+        """A physical structure's ``A (1, n, n), b, c (1, n), d (1,), elements (1, q)`` of
+        raw ``theta (p,)``: ``lo + (hi - lo) sigmoid(theta)`` per free parameter
+        (``constraints.ElementMap``), the fixed ones held."""
+        head, lo, hi, where, fixed = self.physical
+        el = fixed.copy()
+        el[where] = np.clip(lo + (hi - lo) / (1.0 + np.exp(-theta)), lo, hi)
+        A, b, c, d, _ = head.systems(el)[0]
+        return A[None], b[None], c[None], np.array([d]), el[None]
 
 
 def fast_path(ident):

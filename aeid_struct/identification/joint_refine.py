@@ -78,7 +78,7 @@ def refine_joint(est: Estimate, rows=None) -> Estimate:
     ys = [y[rows] for y in record.y]
     us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
     initial = est.initial == "fitted"
-    fit = fit_joint(ph.systems, P[rows], ys, us, record.dt, lower=ph.lo, upper=ph.hi,
+    fit = fit_joint(ph.at, P[rows], ys, us, record.dt, lower=ph.lo, upper=ph.hi,
                     initial=initial)
     A, b, c, d = (np.array(np.atleast_1d(v) if est.batched else np.asarray(v)[None],
                            dtype=np.float64, copy=True) for v in (est.A, est.b, est.c, est.d))

@@ -8,9 +8,13 @@ paper Eq. 5 some of their coefficients are the same for every ``p`` (a mass-spri
 1. the separable Levenberg-Marquardt of the partly fixed CCF (``refinement.fit_rows``: the
    poles from the encoder's model, the numerator, ``x0`` and the offset projected out), with
    the structurally constant coefficients held at their values;
-2. the parameters whose coefficients are closest to the fitted ones, relatively, within the
-   bounds: least squares on ``w (k(p) - k_fit)`` from the encoder's parameters, with
-   CasADi's Jacobian of the coefficient map ``k(p)`` (Gauss-Newton with step halving).
+2. the parameters whose coefficients are closest to the fitted ones within the bounds:
+   least squares on ``S (k(p) - k_fit)`` from the encoder's parameters, with CasADi's
+   Jacobian of the coefficient map ``k(p)`` (Gauss-Newton with step halving). ``S^T S`` is
+   the information of the fitted coefficients (``J J^T`` of each record's residual in its
+   coefficients, :meth:`PhysicalHead.information`) where the map is not square, so the
+   distance is the Gauss-Newton model of the output error itself; a square map reaches
+   ``k_fit`` whatever the weights, and ``S`` is the relative ``diag(1 / |k_fit|)``.
 
 Where the free coefficients are as many as the parameters (the map is square: a lever-driven
 mass, the leg's subsystems, a two-mass system), step 2 solves ``k(p) = k_fit`` and the head's
@@ -19,11 +23,12 @@ result is the output-error optimum of the structure itself.
 A structure of several records (the channels of one record, the joint leg) fits each record's
 CCF alone in step 1, takes the parameters nearest all their coefficients in step 2, and then
 runs as many iterations of the joint output-error fit in the parameters
-(``refinement.fit_joint``, what ``refine=True`` converges) as step 1 had: the nearest
-coefficients weigh a noisy channel's spare coefficients (each channel fits its own poles) as
-much as the others, the joint fit reads every record at once. Where there are more coefficients
-(several parameters shape several coefficients jointly), it is the nearest parameter set, an
-approximation the refinement (``identify(refine=True)``) polishes in the parameters."""
+(``refinement.fit_joint``, what ``refine=True`` converges) as step 1 had: each channel fits its
+own poles, and the joint fit reads every record at once from the nearest parameters (relative
+weights count a channel's poorly determined coefficient as much as a sharp one, and start the
+joint fit far from its optimum: ``tests/test_joint_refine.py`` compares the two). Where one
+record has more coefficients than parameters, the head's result is the nearest parameter set, an approximation the
+refinement (``identify(refine=True)``) polishes in the parameters."""
 
 from __future__ import annotations
 
@@ -96,11 +101,14 @@ class PhysicalHead:
         self.coefficients = Numeric(_expanded(casadi.Function("k_free", [p], [
             casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))])))
         # per record: A, B, C, D and the CCF's a
-        self.model = Numeric(_expanded(casadi.Function("model", [p], [
+        model = casadi.Function("model", [p], [
             casadi.densify(v) for r, system in enumerate(systems)
-            for v in (*system, coefficients[r * width: r * width + n])])))
+            for v in (*system, coefficients[r * width: r * width + n])])
+        self.model = Numeric(_expanded(model))
+        self._model, self._mapped = model, {}
         self.lo, self.hi, self.n, self.q, self.records = lo, hi, n, q, R
         self.square = self.free.size == q
+        self._level = level
 
     def systems(self, p: np.ndarray) -> list[tuple]:
         """``(A (n, n), b (n,), c (n,), d, a (n,))`` of each record at the parameters ``p``.
@@ -118,9 +126,92 @@ class PhysicalHead:
         return [(out[5 * r].reshape(n, n).T, out[5 * r + 1], out[5 * r + 2],
                  float(out[5 * r + 3][0]), out[5 * r + 4]) for r in range(self.records)]
 
-    def parameters(self, target: np.ndarray, start: np.ndarray) -> np.ndarray:
+    def at(self, points: np.ndarray) -> list[tuple]:
+        """The systems of many parameter points in one evaluation: ``A (P, n, n), b (P, n),
+        c (P, n), d (P,)`` of each record (``refinement.fit_joint``'s ``systems``).
+
+        Why: a Jacobian by central differences needs ``2 q`` points, and one call of the
+        map over all of them costs about what one point's call does.
+
+        Parameters
+        ----------
+        points : (P, q) array
+
+        Returns
+        -------
+        list of R tuples
+        """
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        P, n = points.shape[0], self.n
+        numeric = self._mapped.get(P)
+        if numeric is None:
+            if len(self._mapped) > 16:
+                self._mapped.clear()
+            numeric = self._mapped[P] = Numeric(_expanded(self._model.map(P)))
+        # column-major blocks, one per point: (q, P) in, (rows, cols * P) out
+        out = numeric(points.ravel())
+        return [(out[5 * r].reshape(P, n, n).transpose(0, 2, 1), out[5 * r + 1].reshape(P, n),
+                 out[5 * r + 2].reshape(P, n), out[5 * r + 3]) for r in range(self.records)]
+
+    def information(self, target: np.ndarray, ys: list, us: list, dts: tuple,
+                    initial: bool) -> np.ndarray | None:
+        """``S`` with ``S^T S = F``, the information of each record's fitted coefficients:
+        ``F_r = J_r J_r^T``, ``J_r`` the Jacobian of the record's residual (its CCF at
+        ``target``, Eq. 10-13, weighted as ``refinement.joint_residual``) in its free
+        coefficients, by forward differences; block-diagonal over the records.
+
+        Why: ``||S (k(p) - target)||^2`` is the Gauss-Newton model of the records' summed
+        cost about each record's own fit, so the parameters nearest in it start the joint fit
+        near its optimum; relative weights count a channel's poorly determined coefficient
+        (the pole angle's view of the cart's pole) as much as a sharp one.
+
+        Parameters
+        ----------
+        target : (k,) array
+            The fitted free coefficients, record after record.
+        ys, us : lists of R (steps_r,) arrays
+        dts : tuple of R floats
+        initial : bool
+
+        Returns
+        -------
+        (k, k) array, or None where a record's Jacobian is not finite
+        """
+        from aeid_struct.refinement import joint_jacobian
+
+        n, width = self.n, 2 * self.n + 1
+        F = np.zeros((target.size, target.size))
+        for r in range(self.records):
+            part = np.flatnonzero((self.free >= r * width) & (self.free < (r + 1) * width))
+            if part.size == 0:
+                continue
+            where, base = self.free[part] - r * width, self._level[r * width: (r + 1) * width]
+
+            def ccf(points, where=where, base=base):
+                # the record's CCF (paper Eq. 5) at points of its free coefficients
+                full = np.tile(base, (points.shape[0], 1))
+                full[:, where] = points
+                A = np.zeros((points.shape[0], n, n))
+                A[:, :-1, 1:] = np.eye(n - 1)
+                A[:, -1] = -full[:, :n]
+                b = np.zeros((points.shape[0], n))
+                b[:, -1] = 1.0
+                return [(A, b, full[:, n: 2 * n], full[:, 2 * n])]
+
+            k = target[part]
+            J = joint_jacobian(ccf, k, [ys[r]], [us[r]], (dts[r],), initial,
+                               np.maximum(np.abs(k), 1e-9 * np.abs(k).max() + 1e-300),
+                               central=False)
+            F[np.ix_(part, part)] = J @ J.T
+        if not np.isfinite(F).all():
+            return None
+        s, V = np.linalg.eigh(F)
+        return np.sqrt(np.clip(s, 0.0, None))[:, None] * V.T
+
+    def parameters(self, target: np.ndarray, start: np.ndarray,
+                   weight: np.ndarray | None = None) -> np.ndarray:
         """The parameters in the bounds whose free coefficients are nearest ``target``
-        (relative least squares, Gauss-Newton with step halving from ``start``).
+        (weighted least squares, Gauss-Newton with step halving from ``start``).
 
         Parameters
         ----------
@@ -128,6 +219,9 @@ class PhysicalHead:
             The fitted free coefficients.
         start : (q,) array
             The encoder's parameters.
+        weight : (k, k) array, optional
+            ``S`` of the distance ``||S (k(p) - target)||`` (:meth:`information`); relative
+            (``S = diag(1 / |target|)``) where None.
 
         Returns
         -------
@@ -136,21 +230,24 @@ class PhysicalHead:
         margin = 1e-9 * (self.hi - self.lo)
         lo, hi = self.lo + margin, self.hi - margin
         p = np.clip(np.asarray(start, dtype=np.float64), lo, hi)
-        w = 1.0 / (np.abs(target) + 1e-9 * max(np.abs(target).max(), 1e-300))
+        if weight is None:
+            S = np.diag(1.0 / (np.abs(target) + 1e-9 * max(np.abs(target).max(), 1e-300)))
+        else:
+            S = weight
         k, J = self.coefficients(p)
-        r = w * (k - target)
+        r = S @ (k - target)
         cost = float(r @ r)
         # Gauss-Newton with step halving: the coefficient map is smooth and, where square,
         # regular near its solution (quadratic convergence in a few steps)
         for _ in range(INVERSE_ITERATIONS):
             if not cost > 1e-28:
                 break
-            Jw = w[:, None] * J.reshape(self.q, -1).T          # column-major (k, q)
+            Jw = S @ J.reshape(self.q, -1).T                    # column-major (k, q)
             step = np.linalg.lstsq(Jw, -r, rcond=None)[0]
             for _ in range(12):
                 trial = np.clip(p + step, lo, hi)
                 k2, J2 = self.coefficients(trial)
-                r2 = w * (k2 - target)
+                r2 = S @ (k2 - target)
                 cost2 = float(r2 @ r2)
                 if math.isfinite(cost2) and cost2 < cost:
                     break
@@ -219,7 +316,12 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
     found = np.full((rows.size, ph.q), math.nan)
     for i, row in enumerate(rows):
         if ok[i]:
-            found[i] = ph.parameters(fitted[i], el[row])
+            # a square map reaches the fitted coefficients whatever the weights
+            weight = None if ph.square else ph.information(
+                fitted[i], [y[row] for y in ys],
+                [np.ones(y.shape[1]) if u is None else np.broadcast_to(u, y.shape)[row]
+                 for y, u in zip(ys, us, strict=True)], ident._dts, ident.initial == "fitted")
+            found[i] = ph.parameters(fitted[i], el[row], weight)
     if R > 1 and ok.any():
         # several records: the nearest parameters of each record's own fit weigh a noisy
         # channel's spare coefficients as much as the others; the same number of iterations of
@@ -228,7 +330,7 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
         from aeid_struct.refinement import fit_joint
 
         done = rows[ok]
-        found[ok] = fit_joint(ph.systems, found[ok], [y[done] for y in ys],
+        found[ok] = fit_joint(ph.at, found[ok], [y[done] for y in ys],
                               [np.ones_like(y[done]) if u is None else
                                np.broadcast_to(u, y.shape)[done]
                                for y, u in zip(ys, us, strict=True)],
@@ -253,7 +355,7 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
 def standard_errors(est) -> dict[str, np.ndarray]:
     """Standard errors of a physical estimate's parameters at its optimum, as ``greyest``
     gives them: ``sqrt(diag(s^2 (J^T J)^-1))`` with ``J = dr / dp`` the Jacobian of the
-    residual of its records (central differences of the decoder's response, Eq. 10-13, each
+    residual of its records (forward differences of the decoder's response, Eq. 10-13, each
     record weighted by its normalisation, Eq. 15: ``refinement.joint_residual``) and ``s^2``
     the residual's mean square over the degrees of freedom (samples less parameters less the
     fitted initial states, which are projected out of ``J`` and the residual first: their
@@ -319,10 +421,10 @@ def parameter_errors(ph: PhysicalHead, p: np.ndarray, ys: list, us: list, dts: t
     (q,) array
         NaN where ``J`` is rank deficient or no degree of freedom is left.
     """
-    from aeid_struct.refinement import joint_jacobian, joint_residual
+    from aeid_struct.refinement import joint_jacobian
 
-    J = joint_jacobian(ph.systems, p, ys, us, dts, initial, ph.hi - ph.lo)
-    r = joint_residual(ph.systems, p, ys, us, dts, initial)
+    J, r = joint_jacobian(ph.at, p, ys, us, dts, initial, ph.hi - ph.lo, residual=True,
+                          central=False)
     dof = r.size - ph.q - (ph.records * ph.n if initial else 0)
     JJ = J @ J.T
     if dof <= 0 or not np.isfinite(JJ).all() or np.linalg.matrix_rank(JJ) < ph.q:

@@ -43,7 +43,8 @@ def joint_residual(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
     Parameters
     ----------
     systems : callable
-        ``p (q,) -> [(A (n, n), b (n,), c (n,), d), ...]``, one system per record.
+        ``points (P, q) -> [(A (P, n, n), b (P, n), c (P, n), d (P,)), ...]``, the systems
+        of every point, one tuple per record (``PhysicalHead.at``).
     p : (q,) array
     ys, us : lists of R (steps_r,) arrays
     dts : tuple of R floats
@@ -64,12 +65,11 @@ def _residuals(systems: Callable, points: np.ndarray, ys: list, us: list, dts: t
     as one batch per record (``simulation.outputs_and_basis``)."""
     from aeid_struct.simulation import outputs_and_basis
 
-    models = [systems(p) for p in points]
+    models = systems(points)
     out = np.empty((points.shape[0], sum(y.size for y in ys)))
     start = 0
-    for r, (y, u, dt) in enumerate(zip(ys, us, dts, strict=True)):
-        A, b, c = (np.stack([m[r][i] for m in models]) for i in range(3))
-        d = np.array([[m[r][3]] for m in models])
+    for (A, b, c, d), y, u, dt in zip(models, ys, us, dts, strict=True):
+        d = d[:, None]
         with np.errstate(all="ignore"):
             Y, O = outputs_and_basis(A, b, c[:, None], d, u, dt)
             e = y - Y[:, 0]                                             # (P, steps)
@@ -91,7 +91,8 @@ def _residuals(systems: Callable, points: np.ndarray, ys: list, us: list, dts: t
 
 
 def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple,
-                   initial: bool, width: np.ndarray) -> np.ndarray:
+                   initial: bool, width: np.ndarray, *, residual: bool = False,
+                   central: bool = True):
     """``dr/dp (q, N)`` by central differences of :func:`joint_residual`, the ``2 q`` points
     simulated as one batch.
 
@@ -101,16 +102,28 @@ def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
         As :func:`joint_residual`.
     width : (q,) array
         The box's widths (the steps are :data:`STEP` of them).
+    residual : bool
+        Also return ``r(p)``, simulated in the same batch.
+    central : bool
+        Central differences (``2 q`` points, errors of ``STEP^2``); forward ones
+        (``q + 1`` points, errors of ``STEP``) where False: enough for a weighting.
 
     Returns
     -------
-    (q, N) array
+    (q, N) array, or ``(J, r (N,))`` where ``residual``
     """
+    p = np.asarray(p, dtype=np.float64)
     h = STEP * np.asarray(width, dtype=np.float64)
     steps = np.diag(h)
-    r = _residuals(systems, np.concatenate([p + steps, p - steps]), ys, us, dts, initial)
     q = p.size
-    return (r[:q] - r[q:]) / (2 * h[:, None])
+    if not central:
+        r = _residuals(systems, np.concatenate([p + steps, p[None]]), ys, us, dts, initial)
+        J = (r[:q] - r[q]) / h[:, None]
+        return (J, r[q]) if residual else J
+    points = [p + steps, p - steps] + ([p[None]] if residual else [])
+    r = _residuals(systems, np.concatenate(points), ys, us, dts, initial)
+    J = (r[:q] - r[q: 2 * q]) / (2 * h[:, None])
+    return (J, r[2 * q]) if residual else J
 
 
 class _Problem:
@@ -169,7 +182,7 @@ def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tup
     Parameters
     ----------
     systems : callable
-        ``p (q,) -> [(A, b, c, d), ...]``, one system per record.
+        As :func:`joint_residual`.
     start : (B, q) array
         Taken into the box (a margin of ``1e-9`` of its width inside each bound: a start on a
         bound would hold that parameter there from the first step).

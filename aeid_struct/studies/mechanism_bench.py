@@ -166,7 +166,7 @@ def _cold_joint(ph, ys, us, dts, rng) -> tuple[np.ndarray, float]:
 
     t0 = time.perf_counter()
     starts = rng.uniform(ph.lo, ph.hi, (4, ph.q))
-    fit = fit_joint(ph.systems, starts, [np.repeat(y[None], 4, 0) for y in ys],
+    fit = fit_joint(ph.at, starts, [np.repeat(y[None], 4, 0) for y in ys],
                     [np.repeat(u[None], 4, 0) for u in us], dts, lower=ph.lo, upper=ph.hi,
                     initial=False)
     seconds = time.perf_counter() - t0
