@@ -127,6 +127,27 @@ def test_one_pass_and_refinement_reach_the_truth_on_noise_free_records(cart_pole
     np.testing.assert_allclose(refined.A[0, 1], np.array(out["A2"]), rtol=1e-12, atol=1e-12)
 
 
+def test_the_forward_jacobian_matches_the_central_one(cart_pole):
+    # the standard errors' and the head's weights' Jacobian (forward differences, q + 1
+    # simulations) against central differences (2 q, errors of STEP^2) and the residual
+    from aeid_struct.refinement import joint_jacobian
+
+    ident, family = cart_pole
+    rec = ae.data.records(family, 1, **GRID, excitation_kind="prbs", seed=4, noise=0.02,
+                          warmup=40)
+    ph = physical_head(ident.structure, initial=True)
+    ys, us = [y[0] for y in rec.y], [u[0] for u in rec.u]
+    p = np.array([rec.systems.params[k][0] for k in NAMES])
+    width = ph.hi - ph.lo
+    central, r = joint_jacobian(ph.at, p, ys, us, (0.01, 0.01), True, width, residual=True)
+    np.testing.assert_array_equal(r, joint_residual(ph.at, p, ys, us, (0.01, 0.01), True))
+    forward, r2 = joint_jacobian(ph.at, p, ys, us, (0.01, 0.01), True, width, residual=True,
+                                 central=False)
+    np.testing.assert_array_equal(r2, r)
+    scale = np.abs(central).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(forward / scale, central / scale, atol=1e-4)
+
+
 def test_the_information_weighted_parameters_start_near_the_joint_optimum(cart_pole):
     # oracle: the joint optimum of each record set (fit_joint to convergence, which the scipy
     # test above checks); the parameters nearest the channels' own fits weighted by their

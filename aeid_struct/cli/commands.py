@@ -1,5 +1,6 @@
 """The subcommands that run the library's studies on the robot leg: ``leg`` (the paper's study)
-and ``track`` (the wear scenario of online identification).
+and ``track`` (the wear scenario of online identification; a measured stream goes to
+``track_stream``).
 
 The seam: each of these runs one study of ``aeid_struct.studies`` and prints what it found; the
 training subcommands are in ``train`` and ``train_generic``, the benchmarks in ``benchmarks``, and
@@ -81,7 +82,7 @@ def run_leg(args: argparse.Namespace) -> int:
 def run_track(args: argparse.Namespace) -> int:
     """The ``track`` subcommand: follow a wearing robot leg window by window
     (``studies.wear``), print the tracking error, alarm delay and update time, write a PNG and a
-    JSON file.
+    JSON file; with ``--y``, a measured stream (``track_stream.run_track_stream``).
 
     Parameters
     ----------
@@ -102,11 +103,22 @@ def run_track(args: argparse.Namespace) -> int:
     from aeid_struct import studies
     from aeid_struct.online import TrackerConfig
 
+    stream = args.y is not None
+    watch = args.watch if args.watch is not None else ([] if stream else ["k"])
     try:
         config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, median=args.median,
                                threshold=args.threshold,
                                baseline=args.baseline, patience=args.patience,
-                               watch=tuple(args.watch), iterations=args.iterations)
+                               watch=tuple(watch), iterations=args.iterations)
+    except ValueError as err:
+        raise InputError(f"track: {err}") from None
+    if stream:
+        from aeid_struct.cli.track_stream import run_track_stream
+
+        return run_track_stream(args, ident, config)
+    if args.u is not None:
+        raise InputError("track: --u belongs to a measured stream; give its outputs by --y")
+    try:
         result = studies.wear.wear_study(ident, seconds=args.seconds, noise=args.noise,
                                          seed=args.seed, config=config, engine=args.engine)
     except ValueError as err:

@@ -118,11 +118,20 @@ def _add_track(sub, names: str) -> None:
     from aeid_struct.online import DEFAULT_SMOOTHING, TrackerConfig
 
     trk = sub.add_parser(
-        "track", help="follow a wearing robot leg window by window (online identification): "
-                      "prints tracking error, alarm delay, update time; writes a PNG")
+        "track", help="follow a stream window by window (online identification): a measured "
+                      "one (--y, --u) with any identifier of mid-motion windows, or the "
+                      "wearing robot leg; prints the drift, the alarm and the update time, "
+                      "writes a PNG")
     trk.add_argument("--model", default="leg-stable-window",
                      help="an identifier of mid-motion windows reading u: an .aeid file or a "
                           f"shipped name ({names}; default leg-stable-window)")
+    trk.add_argument("--y", nargs="+", default=None, metavar="FILE",
+                     help="a measured stream to track in place of the wear scenario: one "
+                          "file per output the identifier reads (columns as 'identify' "
+                          "reads them, any length of at least one window)")
+    trk.add_argument("--u", nargs="+", default=None, metavar="FILE",
+                     help="the stream's inputs, one file per input (or a u column in the "
+                          "--y file of a one-input identifier)")
     trk.add_argument("--seconds", type=POSITIVE, default=120.0, help="length of the scenario")
     trk.add_argument("--noise", type=FRACTION, default=0.01,
                      help="measurement noise, of max|y|")
@@ -142,8 +151,9 @@ def _add_track(sub, names: str) -> None:
                                 "head per window")):
         trk.add_argument(f"--{name}", type=kind, default=getattr(tracker, name),
                          help=f"{text} (default {by_head.get(name, getattr(tracker, name))})")
-    trk.add_argument("--watch", nargs="*", default=["k"],
-                     help="parameters whose drift raises the alarm (default: k, the spring)")
+    trk.add_argument("--watch", nargs="*", default=None,
+                     help="parameters whose drift raises the alarm (default: k, the spring, "
+                          "in the wear scenario; every parameter of a measured stream)")
     trk.add_argument("--seed", type=number(int, 0, strict=False), default=0,
                      help="seed of the scenario (default 0)")
     trk.add_argument("--engine", choices=("auto", "onnx", "identifier"), default="auto",

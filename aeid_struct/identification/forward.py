@@ -39,6 +39,10 @@ def differentiable(ident, y, u, *, raw: bool = False):
         In measured units.
     """
     ys, us = (tuple(y), tuple(u)) if ident.records > 1 else ((y,), (u,))
+    if ident.initial == "fitted":
+        from aeid_struct.identification.physical_head import centred
+
+        ys = centred(ident.structure, True, list(ys))      # as identification reads them
     y_bar = torch.stack([r.abs().amax(dim=1) for r in ys], 1)     # (batch, R)
     u_bar = torch.stack([r.abs().amax(dim=1) for r in us], 1)
     x = []

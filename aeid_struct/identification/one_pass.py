@@ -112,7 +112,7 @@ def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
         ys, us = [v[rows] for v in ys], [v[rows] for v in us]
     parts = None
     if rows.size:
-        parts = ident.backend.model(ident, list(ys), list(us))
+        parts = ident.backend.model(ident, _encoded(ident, list(ys)), list(us))
         if head is not None:
             parts, missed[rows] = apply_head(ident, head, list(ys), list(us), parts)
     if good.all():
@@ -126,6 +126,16 @@ def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
         for whole, part in zip(model, parts, strict=True):
             whole[rows] = part
     return model, missed
+
+
+def _encoded(ident, ys: list) -> list:
+    """The records as the encoder reads them (``physical_head.centred``: a physical
+    structure's integrating records less their first sample)."""
+    if type_of(ident.structure) != "Physical":
+        return ys
+    from aeid_struct.identification.physical_head import centred
+
+    return centred(ident.structure, ident.initial == "fitted", ys)
 
 
 def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:

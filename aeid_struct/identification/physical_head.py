@@ -27,8 +27,8 @@ runs as many iterations of the joint output-error fit in the parameters
 own poles, and the joint fit reads every record at once from the nearest parameters (relative
 weights count a channel's poorly determined coefficient as much as a sharp one, and start the
 joint fit far from its optimum: ``tests/test_joint_refine.py`` compares the two). Where one
-record has more coefficients than parameters, the head's result is the nearest parameter set, an approximation the
-refinement (``identify(refine=True)``) polishes in the parameters."""
+record has more coefficients than parameters, the head's result is the nearest parameter set,
+an approximation the refinement (``identify(refine=True)``) polishes in the parameters."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ import numpy as np
 from aeid_struct.refinement import Pattern, fit_rows
 from aeid_struct.structures import Numeric
 
-__all__ = ["PhysicalHead", "parameter_errors", "parameters_of", "physical_head",
+__all__ = ["PhysicalHead", "centred", "parameter_errors", "parameters_of", "physical_head",
            "standard_errors"]
 
 #: Points of the box on which a coefficient must not move to count as structurally constant.
@@ -284,6 +284,39 @@ def physical_head(structure, initial: bool) -> PhysicalHead:
             _HEADS.clear()
         hit = _HEADS[key] = (structure, PhysicalHead(structure, bool(initial)))
     return hit[1]
+
+
+def centred(structure, initial: bool, ys: list) -> list:
+    """The records as the encoder reads them: where the initial state is fitted, each record
+    of a physical structure whose map holds a pole at zero on the whole box (``a_0 = 0``: a
+    rigid-body mode, an integrator) less its first sample; the others as they are.
+
+    Why: a constant output is a free response of the mode at zero, so the fitted initial state
+    absorbs it and the fit does not depend on it; but Eq. 15 scales the encoder's input (and
+    its scale feature) by ``max|y|``, which the angle a drive train has turned to before the
+    window swamps. Training (``forward.differentiable``) and identification read the same.
+
+    Parameters
+    ----------
+    structure : Structure
+    initial : bool
+        Whether the identifier fits the initial state.
+    ys : list of R (count, steps_r) arrays or tensors
+
+    Returns
+    -------
+    list of R arrays or tensors
+        ``ys`` itself where no record is centred.
+    """
+    from aeid_struct.structures import type_of
+
+    if not initial or type_of(structure) != "Physical":
+        return ys
+    patterns = physical_head(structure, True).patterns
+    if not any(pattern.a[0] == 0.0 for pattern in patterns):
+        return ys
+    return [y - y[:, :1] if pattern.a[0] == 0.0 else y
+            for y, pattern in zip(ys, patterns, strict=True)]
 
 
 def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:

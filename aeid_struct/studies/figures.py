@@ -9,7 +9,7 @@ from aeid_struct.evaluation import PARAMETER_UNITS, check_title, finish_figure, 
 from aeid_struct.online import TrackerConfig
 
 
-def wear_figure(result, path=None, *, config=None, title=None):
+def wear_figure(result, path=None, *, config=None, title=None, units=None):
     """True against tracked physical parameters of a wear scenario, one panel per parameter
     (units from ``evaluation.PARAMETER_UNITS``), with the alarm threshold and the alarm time.
 
@@ -29,6 +29,9 @@ def wear_figure(result, path=None, *, config=None, title=None):
         ``wear_study`` uses by default).
     title : str, optional
         What produced the figure (identifier, noise, seed, engine).
+    units : dict name -> str, optional
+        The parameters' units (default: the leg's, ``evaluation.PARAMETER_UNITS``); a
+        parameter without one is labelled by its name alone.
 
     Returns
     -------
@@ -54,7 +57,8 @@ def wear_figure(result, path=None, *, config=None, title=None):
                              squeeze=False, layout="constrained")
     watched = [p for p in names if not config.watch or p in config.watch]
     for ax, p in zip(axes[:, 0], names, strict=True):
-        _panel(ax, result, p, config, p in watched)
+        _panel(ax, result, p, config, p in watched,
+               PARAMETER_UNITS if units is None else units)
     # One legend for all panels, under them: inside a panel it hides the data.
     handles = {}
     for ax in axes[:, 0]:
@@ -62,19 +66,22 @@ def wear_figure(result, path=None, *, config=None, title=None):
             handles.setdefault(label, h)
     fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3,
                fontsize=8)
-    axes[0, 0].set_title("True and tracked physical parameters")
+    truth = any(np.isfinite(np.asarray(v, dtype=np.float64)).any() for v in result.true.values())
+    axes[0, 0].set_title("True and tracked physical parameters" if truth
+                         else "Tracked physical parameters")
     axes[-1, 0].set_xlabel("time t [s]")
     finish_figure(fig, title, path)
     return fig
 
 
-def _panel(ax, result, p: str, config: TrackerConfig, watched: bool) -> None:
+def _panel(ax, result, p: str, config: TrackerConfig, watched: bool, units: dict) -> None:
     """One parameter's panel: truth, window estimates, smoothed estimates, the threshold band
     (``watched``), the alarm and the true drift."""
     estimates = np.asarray(result.estimate[p], dtype=np.float64)
     drawn = [np.asarray(result.true[p], dtype=np.float64), estimates,
              np.asarray(result.smoothed[p], dtype=np.float64)]
-    ax.plot(result.t, drawn[0], "k-", lw=1.5, label="true")
+    if np.isfinite(drawn[0]).any():          # a measured stream has no truth
+        ax.plot(result.t, drawn[0], "k-", lw=1.5, label="true")
     ax.plot(result.t, estimates, ".", color="C0", ms=3, alpha=0.5, label="window estimate")
     ax.plot(result.t, drawn[2], "-", color="C3", lw=1.2, label="smoothed")
     if watched and estimates.size >= config.baseline:
@@ -96,5 +103,5 @@ def _panel(ax, result, p: str, config: TrackerConfig, watched: bool) -> None:
     if values.size:
         pad = 0.08 * max(float(np.ptp(values)), 1e-3 * float(np.abs(values).max()), 1e-12)
         ax.set_ylim(values.min() - pad, values.max() + pad)
-    ax.set_ylabel(f"{p} {unit_label(PARAMETER_UNITS.get(p, ''))}")
+    ax.set_ylabel(f"{p} {unit_label(units[p])}" if p in units else p)
     ax.grid(True, alpha=0.3)

@@ -5,7 +5,8 @@ whose damping grows, tracked window by window by an ``online.Tracker``.
 (exact FOH discretisation of each sample interval, paper Eq. 10-11), and ``drifting`` any
 mechanism written as a Lagrangian (``symbolic.Mechanism``) whose parameters drift: "a parameter
 drifts", in the physical state; ``wear_study`` runs the scenario through a tracker and measures
-the tracking error, the alarm delay and the update time.
+the tracking error, the alarm delay and the update time; ``stream_study`` tracks a measured
+stream the same way, with any identifier the tracker takes (``aeid-struct track --y``).
 """
 
 from __future__ import annotations
@@ -295,4 +296,45 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
            for p in true}
     return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
                       1e3 * float(np.median(times)), tracker.engine,
+                      1e3 * float(np.percentile(times, 95)), tracker.config)
+
+
+def stream_study(tracker: Tracker, y, u) -> WearResult:
+    """A measured stream tracked window by window, as :func:`wear_study` tracks its scenario:
+    the samples pushed to ``tracker`` in chunks of one hop, as a controller would, with any
+    identifier the tracker takes (a mechanism's, one of several channels).
+
+    Parameters
+    ----------
+    tracker : online.Tracker
+        Fresh (or :meth:`~aeid_struct.online.Tracker.reset`); its identifier's ``dt`` is the
+        stream's.
+    y : (N,) or (N, p) array_like
+        The outputs (``(N, p)`` for an identifier of several channels: ``Tracker.width``).
+    u : (N,) or (N, m) array_like
+        The inputs.
+
+    Returns
+    -------
+    WearResult
+        ``true`` NaN (a measured stream has no truth), ``drift_time`` NaN and ``rms`` empty.
+
+    Raises
+    ------
+    ValueError
+        A stream shorter than one window, or samples ``tracker`` refuses.
+    """
+    y, u = np.asarray(y, dtype=np.float64), np.asarray(u, dtype=np.float64)
+    if len(y) < tracker.steps or len(u) != len(y):
+        raise ValueError(f"y and u must be streams of one length of at least one window "
+                         f"({tracker.steps} samples); got {len(y)} and {len(u)}")
+    updates, times = _track(tracker, u, y, tracker.config.hop)
+    ts = np.array([up.t for up in updates])
+    names = list(updates[0].estimate)
+    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
+    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
+    alarm = np.array([up.alarm for up in updates])
+    alarm_time = float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
+    return WearResult(ts, {p: np.full(ts.size, math.nan) for p in names}, est, smooth, alarm,
+                      math.nan, alarm_time, {}, 1e3 * float(np.median(times)), tracker.engine,
                       1e3 * float(np.percentile(times, 95)), tracker.config)
