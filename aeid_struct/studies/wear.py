@@ -231,6 +231,17 @@ def _track(tracker: Tracker, u: np.ndarray, y: np.ndarray, hop: int):
     return updates, times
 
 
+def _series(updates: list) -> tuple:
+    """The tracker's updates as series: ``t (W,)``, the window estimates and smoothed values
+    per parameter, the alarm ``(W,)`` and when it was first raised (NaN if never)."""
+    ts = np.array([up.t for up in updates])
+    names = list(updates[0].estimate)
+    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
+    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
+    alarm = np.array([up.alarm for up in updates])
+    return ts, est, smooth, alarm, float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
+
+
 def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed: int = 0,
                config: TrackerConfig = TrackerConfig(),  # noqa: B008
                engine: str = "auto") -> WearResult:
@@ -280,17 +291,12 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
     if not updates:
         raise ValueError(f"seconds must cover at least one window of {identifier.steps} samples")
     N = len(t)
-    ts = np.array([up.t for up in updates])
+    ts, est, smooth, alarm, alarm_time = _series(updates)
     mid = np.clip(np.round((ts - (identifier.steps - 1) * dt / 2) / dt).astype(int), 0, N - 1)
-    names = list(updates[0].estimate)
     truth = {"k": k, "d": d, "m": m}
-    true = {p: truth[p][mid] for p in names if p in truth}
-    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
-    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
-    alarm = np.array([up.alarm for up in updates])
+    true = {p: truth[p][mid] for p in est if p in truth}
     crossed = np.flatnonzero(np.abs(k / k[0] - 1) > config.threshold)
     drift_time = float(t[crossed[0]]) if crossed.size else math.nan
-    alarm_time = float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
     after = slice(config.baseline, None)
     rms = {p: float(100 * np.sqrt(np.mean((smooth[p][after] / true[p][after] - 1) ** 2)))
            for p in true}
@@ -329,12 +335,7 @@ def stream_study(tracker: Tracker, y, u) -> WearResult:
         raise ValueError(f"y and u must be streams of one length of at least one window "
                          f"({tracker.steps} samples); got {len(y)} and {len(u)}")
     updates, times = _track(tracker, u, y, tracker.config.hop)
-    ts = np.array([up.t for up in updates])
-    names = list(updates[0].estimate)
-    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
-    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
-    alarm = np.array([up.alarm for up in updates])
-    alarm_time = float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
-    return WearResult(ts, {p: np.full(ts.size, math.nan) for p in names}, est, smooth, alarm,
+    ts, est, smooth, alarm, alarm_time = _series(updates)
+    return WearResult(ts, {p: np.full(ts.size, math.nan) for p in est}, est, smooth, alarm,
                       math.nan, alarm_time, {}, 1e3 * float(np.median(times)), tracker.engine,
                       1e3 * float(np.percentile(times, 95)), tracker.config)
