@@ -105,11 +105,15 @@ def run_track(args: argparse.Namespace) -> int:
 
     stream = args.y is not None
     watch = args.watch if args.watch is not None else ([] if stream else ["k"])
+    # a measured stream runs the identifier's own head (None); the leg's scenario the
+    # tracker's default cap
+    iterations = args.iterations if args.iterations is not None else (
+        None if stream else TrackerConfig().iterations)
     try:
         config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, median=args.median,
                                threshold=args.threshold,
                                baseline=args.baseline, patience=args.patience,
-                               watch=tuple(watch), iterations=args.iterations)
+                               watch=tuple(watch), iterations=iterations)
     except ValueError as err:
         raise InputError(f"track: {err}") from None
     if stream:

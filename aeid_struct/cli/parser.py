@@ -139,7 +139,10 @@ def _add_track(sub, names: str) -> None:
     (m0, s0), (m1, s1) = DEFAULT_SMOOTHING["encoder"], DEFAULT_SMOOTHING["head"]
     by_head = {"median": f"{m1} for an identifier whose separable head iterates, {m0} "
                          "without", "smoothing": f"{s1} for an identifier whose separable head "
-                                                 f"iterates, {s0} without"}
+                                                 f"iterates, {s0} without",
+               "iterations": f"{tracker.iterations} in the wear scenario; the identifier's "
+                             "own head for a measured stream, whose mechanism's encoder may be "
+                             "a poor start"}
     for name, kind, text in (
             ("hop", int, "samples between identifications"),
             ("smoothing", float, "moving-average weight"),
@@ -149,7 +152,8 @@ def _add_track(sub, names: str) -> None:
             ("patience", int, "windows over the threshold"),
             ("iterations", int, "at most this many iterations of the identifier's separable "
                                 "head per window")):
-        trk.add_argument(f"--{name}", type=kind, default=getattr(tracker, name),
+        trk.add_argument(f"--{name}", type=kind,
+                         default=None if name == "iterations" else getattr(tracker, name),
                          help=f"{text} (default {by_head.get(name, getattr(tracker, name))})")
     trk.add_argument("--watch", nargs="*", default=None,
                      help="parameters whose drift raises the alarm (default: k, the spring, "

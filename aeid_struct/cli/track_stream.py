@@ -96,6 +96,7 @@ def run_track_stream(args: argparse.Namespace, ident, config) -> int:
         "samples": len(y), "window": tracker.steps, "hop": used.hop,
         "median": used.median, "smoothing": used.smoothing, "threshold": used.threshold,
         "baseline": used.baseline, "patience": used.patience, "watch": watched,
+        "iterations": used.iterations,
         "engine": result.engine, "latency_ms": result.latency_ms,
         "latency_p95_ms": result.latency_p95_ms,
         "alarm_time_s": None if not math.isfinite(result.alarm_time) else result.alarm_time,
