@@ -18,7 +18,10 @@ paper Eq. 5 some of their coefficients are the same for every ``p`` (a mass-spri
 
 Where the free coefficients are as many as the parameters (the map is square: a lever-driven
 mass, the leg's subsystems, a two-mass system), step 2 solves ``k(p) = k_fit`` and the head's
-result is the output-error optimum of the structure itself.
+result is the output-error optimum of the structure itself, unless ``k_fit`` lies beyond the box
+(a system near its edge, at noise): the nearest parameters then sit on a bound and are not the
+structure's optimum, and the head runs as many iterations of the output-error fit in the
+parameters within the box (``refinement.fit_joint``) as step 1 had.
 
 A structure of several records (the channels of one record, the joint leg) fits each record's
 CCF alone in step 1, takes the parameters nearest all their coefficients in step 2, and then
@@ -355,20 +358,24 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
                 [np.ones(y.shape[1]) if u is None else np.broadcast_to(u, y.shape)[row]
                  for y, u in zip(ys, us, strict=True)], ident._dts, ident.initial == "fitted")
             found[i] = ph.parameters(fitted[i], el[row], weight)
-    if R > 1 and ok.any():
-        # several records: the nearest parameters of each record's own fit weigh a noisy
-        # channel's spare coefficients as much as the others; the same number of iterations of
-        # the joint output-error fit in the parameters (the one refine=True converges) reads
-        # every record at once
+    # the same number of iterations of the output-error fit in the parameters (the one
+    # refine=True converges), within the bounds: for several records, which it reads at once
+    # (each channel fitted its own poles); for one, where the nearest parameters sit on a
+    # bound (the channel's own optimum lies outside the box, so they are not the structure's)
+    width = ph.hi - ph.lo
+    joint = ok & (R > 1 or np.any((found - ph.lo <= 1e-6 * width)
+                                  | (ph.hi - found <= 1e-6 * width), axis=1))
+    if joint.any():
         from aeid_struct.refinement import fit_joint
 
-        done = rows[ok]
-        found[ok] = fit_joint(ph.at, found[ok], [y[done] for y in ys],
-                              [np.ones_like(y[done]) if u is None else
-                               np.broadcast_to(u, y.shape)[done]
-                               for y, u in zip(ys, us, strict=True)],
-                              ident._dts, lower=ph.lo, upper=ph.hi,
-                              initial=ident.initial == "fitted", max_iter=head.iterations).p
+        done = rows[joint]
+        found[joint] = fit_joint(ph.at, found[joint], [y[done] for y in ys],
+                                 [np.ones_like(y[done]) if u is None else
+                                  np.broadcast_to(u, y.shape)[done]
+                                  for y, u in zip(ys, us, strict=True)],
+                                 ident._dts, lower=ph.lo, upper=ph.hi,
+                                 initial=ident.initial == "fitted",
+                                 max_iter=head.iterations).p
     for i, row in enumerate(rows):
         if not ok[i]:
             failed[row] = True
