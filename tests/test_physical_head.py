@@ -1,5 +1,5 @@
 """Tests for ``aeid_struct/identification/physical_head.py``: the one pass's head in a physical
-structure's parameters.
+structure's parameters; and ``physical_errors.py``, the standard errors at its optimum.
 
 Oracles: the closed-form CCF of a lever-driven mass (``a0 = k/m, a1 = d/m, c0 = r/m``, ``c1 =
 0``), the true parameters of noise-free records, and scipy's output-error least squares in the

@@ -12,11 +12,8 @@ import time
 import numpy as np
 
 from aeid_struct.estimates import Estimate
-from aeid_struct.identification.physical_head import (
-    parameter_errors,
-    parameters_of,
-    physical_head,
-)
+from aeid_struct.identification.physical_errors import parameter_errors, parameters_of
+from aeid_struct.identification.physical_head import physical_head
 
 __all__ = ["is_joint", "refine_joint"]
 

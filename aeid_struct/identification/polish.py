@@ -43,7 +43,7 @@ def polish(est: Estimate, mode) -> Estimate:
 
 def with_standard_errors(est: Estimate) -> Estimate:
     """A refined estimate of a physical structure with its parameters' standard errors in
-    ``info["std"]`` (``physical_head.standard_errors``, as ``greyest`` reports them); any
+    ``info["std"]`` (``physical_errors.standard_errors``, as ``greyest`` reports them); any
     other estimate as it is.
 
     Parameters
@@ -58,7 +58,7 @@ def with_standard_errors(est: Estimate) -> Estimate:
 
     if type_of(est.structure) != "Physical" or "std" in est.info:
         return est
-    from aeid_struct.identification.physical_head import standard_errors
+    from aeid_struct.identification.physical_errors import standard_errors
 
     return dataclasses.replace(est, info={**est.info, "std": standard_errors(est)})
 
