@@ -198,6 +198,30 @@ def _sample_time(t: np.ndarray, file: str, option: str) -> float | None:
 
 
 
+def check_dt(rec: RecordFile, option: str, dt: float, reads: str) -> None:
+    """Check a record file's t column (where it has one) against an identifier's sample time.
+
+    Parameters
+    ----------
+    rec : RecordFile
+    option : str
+        The option that named the file, for the errors.
+    dt : float
+        The identifier's sample time [s].
+    reads : str
+        What the identifier reads (``"records of 300 samples at dt = 0.01 s"``), for the errors.
+
+    Raises
+    ------
+    InputError
+        The t column is sampled at another ``dt`` (relative ``1e-4``).
+    """
+    if rec.dt is not None and not math.isclose(rec.dt, dt, rel_tol=1e-4):
+        raise InputError(f"{option} file {rec.path!r}: its t column is sampled every "
+                         f"{rec.dt:g} s; this identifier reads {reads}: resample the record, "
+                         f"or use an identifier trained at dt = {rec.dt:g} s")
+
+
 def on_grid(rec: RecordFile, option: str, steps: int, dt: float) -> None:
     """Check a record file against an identifier's grid, with a hint on the layouts where the
     file's shape suggests a misread.
@@ -219,10 +243,7 @@ def on_grid(rec: RecordFile, option: str, steps: int, dt: float) -> None:
         The record's length, or its t column's sample time, is not the identifier's.
     """
     grid = f"records of {steps} samples at dt = {dt:g} s"
-    if rec.dt is not None and not math.isclose(rec.dt, dt, rel_tol=1e-4):
-        raise InputError(f"{option} file {rec.path!r}: its t column is sampled every "
-                         f"{rec.dt:g} s; this identifier reads {grid}: resample the record, "
-                         f"or use an identifier trained at dt = {rec.dt:g} s")
+    check_dt(rec, option, dt, grid)
     v = rec.values
     if v.shape[-1] == steps:
         return

@@ -14,7 +14,7 @@ import numpy as np
 
 from aeid_struct.cli.errors import InputError
 from aeid_struct.cli.output import plain, write_json
-from aeid_struct.cli.records_io import RecordFile, read_record
+from aeid_struct.cli.records_io import RecordFile, check_dt, read_record
 
 __all__ = ["run_track_stream"]
 
@@ -66,7 +66,7 @@ def run_track_stream(args: argparse.Namespace, ident, config) -> int:
           f"{p} output{'s' if p > 1 else ''}, {m} input{'s' if m > 1 else ''}; one window of "
           f"{tracker.steps} samples every {used.hop}: {len(result.t)} windows"
           + (f", {failed} of them not identified (NaN in the CSV)" if failed else ""))
-    rows = _drifts(result, used.baseline)
+    rows = _drifts(result)
     print(f"{'parameter':<10} {'reference':>12} {'last smoothed':>14} {'drift':>9}")
     for k, (reference, last, drift) in rows.items():
         print(f"{k:<10} {reference:>12.6g} {last:>14.6g} {100 * drift:>8.2f} %")
@@ -149,19 +149,16 @@ def _one(rec: RecordFile, option: str, dt: float) -> RecordFile:
         raise InputError(f"{option} file {rec.path!r} holds {rec.values.shape[0]} rows of "
                          f"{rec.values.shape[1]} values; a stream is one series (one number "
                          "per line, or named columns such as 't,u,y')")
-    if rec.dt is not None and not math.isclose(rec.dt, dt, rel_tol=1e-4):
-        raise InputError(f"{option} file {rec.path!r}: its t column is sampled every "
-                         f"{rec.dt:g} s; this identifier reads windows at dt = {dt:g} s")
+    check_dt(rec, option, dt, f"windows at dt = {dt:g} s")
     return rec
 
 
-def _drifts(result, baseline: int) -> dict[str, tuple[float, float, float]]:
-    """Per parameter: the reference (the median of the first ``baseline`` identified windows,
-    the tracker's rule), the last smoothed estimate and its drift from the reference."""
+def _drifts(result) -> dict[str, tuple[float, float, float]]:
+    """Per parameter: the tracker's reference, the last smoothed estimate and the tracker's
+    drift from the reference after the last window (``Update.drift``; the reference is
+    ``smoothed / (1 + drift)``, NaN where the baseline never filled)."""
     out = {}
-    for k, est in result.estimate.items():
-        good = est[np.isfinite(est)][:baseline]
-        reference = float(np.median(good)) if good.size else math.nan
-        last = float(result.smoothed[k][-1])
-        out[k] = (reference, last, last / reference - 1.0)
+    for k, smoothed in result.smoothed.items():
+        last, drift = float(smoothed[-1]), float(result.drift[k][-1])
+        out[k] = (last / (1.0 + drift), last, drift)
     return out

@@ -48,20 +48,12 @@ class Batch1:
         self.structure = _Structure().eval()
         self.physical = None
         if isinstance(structure, Physical):
-            # theta -> parameters -> (A, B, C, D) in numpy: the interval maps and the head's
-            # expanded SX map (physical_head.PhysicalHead.model), a few microseconds where the
-            # torch op that carries CasADi's derivatives costs about half a millisecond
+            # elements -> (A, B, C, D) by the head's expanded SX map in numpy
+            # (physical_head.PhysicalHead.model): microseconds, where the torch op that carries
+            # CasADi's derivatives for training costs about half a millisecond
             from aeid_struct.identification.physical_head import physical_head
 
-            fixed = structure.fixed_values
-            free = [k for k in structure.element_names if k not in fixed]
-            bounds = structure.bounds
-            self.physical = (physical_head(structure, ident.initial == "fitted"),
-                             np.array([bounds[k][0] for k in free]),
-                             np.array([bounds[k][1] for k in free]),
-                             [structure.element_names.index(k) for k in free],
-                             np.array([fixed.get(k, np.nan)
-                                       for k in structure.element_names]))
+            self.physical = physical_head(structure, ident.initial == "fitted")
         else:
             with warnings.catch_warnings(), torch.no_grad():
                 warnings.simplefilter("ignore")
@@ -90,16 +82,14 @@ class Batch1:
             c, d, el = denormalise(c, d, el, np.array([gain]), self.mask > 0)
         return A, b, c, d, el
 
-
     def _physical(self, theta: np.ndarray) -> tuple:
         """A physical structure's ``A (1, n, n), b, c (1, n), d (1,), elements (1, q)`` of
-        raw ``theta (p,)``: ``lo + (hi - lo) sigmoid(theta)`` per free parameter
-        (``constraints.ElementMap``), the fixed ones held."""
-        head, lo, hi, where, fixed = self.physical
-        el = fixed.copy()
-        el[where] = np.clip(lo + (hi - lo) / (1.0 + np.exp(-theta)), lo, hi)
-        A, b, c, d, _ = head.systems(el)[0]
-        return A[None], b[None], c[None], np.array([d]), el[None]
+        raw ``theta (p,)``: the structure's own element maps (``Structure.elements``, the
+        bounds' intervals), then the head's numpy map."""
+        with torch.no_grad():
+            el = self.ident.structure.elements(torch.from_numpy(theta[None])).numpy()
+        A, b, c, d, _ = self.physical.systems(el[0])[0]
+        return A[None], b[None], c[None], np.array([d]), el
 
 
 def fast_path(ident):

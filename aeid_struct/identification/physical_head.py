@@ -41,7 +41,7 @@ import casadi
 import numpy as np
 
 from aeid_struct.refinement import Pattern, fit_rows
-from aeid_struct.structures import Numeric
+from aeid_struct.structures import Numeric, ccf_matrices
 
 __all__ = ["PhysicalHead", "centred", "physical_head"]
 
@@ -193,12 +193,7 @@ class PhysicalHead:
                 # the record's CCF (paper Eq. 5) at points of its free coefficients
                 full = np.tile(base, (points.shape[0], 1))
                 full[:, where] = points
-                A = np.zeros((points.shape[0], n, n))
-                A[:, :-1, 1:] = np.eye(n - 1)
-                A[:, -1] = -full[:, :n]
-                b = np.zeros((points.shape[0], n))
-                b[:, -1] = 1.0
-                return [(A, b, full[:, n: 2 * n], full[:, 2 * n])]
+                return [(*ccf_matrices(full[:, :n], full[:, n: 2 * n]), full[:, 2 * n])]
 
             k = target[part]
             J = joint_jacobian(ccf, k, [ys[r]], [us[r]], (dts[r],), initial,

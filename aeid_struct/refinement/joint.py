@@ -93,8 +93,8 @@ def _residuals(systems: Callable, points: np.ndarray, ys: list, us: list, dts: t
 def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple,
                    initial: bool, width: np.ndarray, *, residual: bool = False,
                    central: bool = True):
-    """``dr/dp (q, N)`` by central differences of :func:`joint_residual`, the ``2 q`` points
-    simulated as one batch.
+    """``dr/dp (q, N)`` by finite differences of :func:`joint_residual` (central by default),
+    all points simulated as one batch.
 
     Parameters
     ----------

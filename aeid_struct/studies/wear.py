@@ -170,6 +170,9 @@ class WearResult:
         The 95th percentile of the update's wall time.
     config : online.TrackerConfig or None
         The configuration the tracker used (``Tracker.config``: the smoothing resolved).
+    drift : dict of str to (W,) ndarray, optional
+        The tracker's own drift of each smoothed parameter from its reference after each
+        window (``Update.drift``: NaN until the reference exists).
     """
 
     t: np.ndarray
@@ -184,6 +187,7 @@ class WearResult:
     engine: str = "identifier"
     latency_p95_ms: float = math.nan
     config: TrackerConfig | None = None
+    drift: dict | None = None
 
     @property
     def delay(self) -> float:
@@ -232,14 +236,15 @@ def _track(tracker: Tracker, u: np.ndarray, y: np.ndarray, hop: int):
 
 
 def _series(updates: list) -> tuple:
-    """The tracker's updates as series: ``t (W,)``, the window estimates and smoothed values
-    per parameter, the alarm ``(W,)`` and when it was first raised (NaN if never)."""
+    """The tracker's updates as series: ``t (W,)``, the window estimates, smoothed values and
+    drifts per parameter, the alarm ``(W,)`` and when it was first raised (NaN if never)."""
     ts = np.array([up.t for up in updates])
     names = list(updates[0].estimate)
-    est = {p: np.array([up.estimate[p] for up in updates]) for p in names}
-    smooth = {p: np.array([up.smoothed[p] for up in updates]) for p in names}
+    est, smooth, drift = ({p: np.array([getattr(up, field)[p] for up in updates])
+                           for p in names} for field in ("estimate", "smoothed", "drift"))
     alarm = np.array([up.alarm for up in updates])
-    return ts, est, smooth, alarm, float(ts[np.argmax(alarm)]) if alarm.any() else math.nan
+    return (ts, est, smooth, drift, alarm,
+            float(ts[np.argmax(alarm)]) if alarm.any() else math.nan)
 
 
 def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed: int = 0,
@@ -291,7 +296,7 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
     if not updates:
         raise ValueError(f"seconds must cover at least one window of {identifier.steps} samples")
     N = len(t)
-    ts, est, smooth, alarm, alarm_time = _series(updates)
+    ts, est, smooth, drift, alarm, alarm_time = _series(updates)
     mid = np.clip(np.round((ts - (identifier.steps - 1) * dt / 2) / dt).astype(int), 0, N - 1)
     truth = {"k": k, "d": d, "m": m}
     true = {p: truth[p][mid] for p in est if p in truth}
@@ -302,7 +307,7 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
            for p in true}
     return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
                       1e3 * float(np.median(times)), tracker.engine,
-                      1e3 * float(np.percentile(times, 95)), tracker.config)
+                      1e3 * float(np.percentile(times, 95)), tracker.config, drift=drift)
 
 
 def stream_study(tracker: Tracker, y, u) -> WearResult:
@@ -335,7 +340,7 @@ def stream_study(tracker: Tracker, y, u) -> WearResult:
         raise ValueError(f"y and u must be streams of one length of at least one window "
                          f"({tracker.steps} samples); got {len(y)} and {len(u)}")
     updates, times = _track(tracker, u, y, tracker.config.hop)
-    ts, est, smooth, alarm, alarm_time = _series(updates)
+    ts, est, smooth, drift, alarm, alarm_time = _series(updates)
     return WearResult(ts, {p: np.full(ts.size, math.nan) for p in est}, est, smooth, alarm,
                       math.nan, alarm_time, {}, 1e3 * float(np.median(times)), tracker.engine,
-                      1e3 * float(np.percentile(times, 95)), tracker.config)
+                      1e3 * float(np.percentile(times, 95)), tracker.config, drift=drift)
