@@ -445,6 +445,28 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
     assert ident.identify(inside).outside is None        # unknown range: no verdict
 
 
+def test_a_head_given_to_train_is_calibrated_with():
+    # oracle: recalibrate, which re-creates the run's records and split, with the same head
+    # set afterwards; the encoder alone's range differs (its fits are lower)
+    from aeid_struct.identification import Head
+    from aeid_struct.training import ParameterFamily, recalibrate
+    from symbolic import mechanisms
+
+    structure = ae.Physical(mechanisms.lever(), bounds={"m": (0.5, 2.0), "k": (10.0, 50.0),
+                                                        "d": (0.5, 3.0)}, known={"r": 1.5})
+    family = ParameterFamily(structure)
+    config = TrainConfig(steps=100, dt=0.02, epochs=1, count=200, excitation="prbs",
+                         progress=False)
+    ident = train(structure, family, config, head=Head(iterations=5))
+    assert ident.head == Head(iterations=5)
+    calibrated = ident.meta["training_range"]
+    assert recalibrate(ident, family).meta["training_range"] == calibrated
+    ident.head = None
+    assert recalibrate(ident, family).meta["training_range"]["fit"] < calibrated["fit"]
+    with pytest.raises(ValueError, match=r"head must be an identification.Head .* got int"):
+        train(structure, family, config, head=5)
+
+
 def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_square():
     from aeid_struct.training import records
     from aeid_struct.training.objective import batch_loss as _batch_loss

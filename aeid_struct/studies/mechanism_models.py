@@ -80,11 +80,10 @@ def train_shipped(name: str, *, seconds: float = 240.0, seed: int = 0,
     Returns
     -------
     Identifier
-        With its head and the training range calibrated with that head
-        (``training.recalibrate``: ``train`` calibrates the encoder's pass it returns).
+        With its head, and the training range calibrated with that head.
     """
     from aeid_struct.identification import Head
-    from aeid_struct.training import ParameterFamily, TrainConfig, recalibrate, train
+    from aeid_struct.training import ParameterFamily, TrainConfig, train
 
     case, warmup = _case(name), SHIPPED[name][3]
     structure = shipped_structure(name)
@@ -93,9 +92,7 @@ def train_shipped(name: str, *, seconds: float = 240.0, seed: int = 0,
                          excitation="prbs", noise=(0.0, 0.03), warmup=warmup,
                          initial="fitted" if warmup else "rest", fresh=True, seed=seed,
                          progress=progress, checkpoint=checkpoint)
-    ident = train(structure, family, config)
-    ident.head = Head(iterations=5)
-    return recalibrate(ident, family)
+    return train(structure, family, config, head=Head(iterations=5))
 
 
 def accuracy_table(name: str, ident, *, records: int = 30, seed: int = 1) -> list[str]:

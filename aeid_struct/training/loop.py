@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from aeid_struct.encoder import Encoder, EncoderConfig
-from aeid_struct.identification import Identifier
+from aeid_struct.identification import Head, Identifier
 from aeid_struct.structures import Structure
 from aeid_struct.training import checkpoints, distributed
 from aeid_struct.training.calibration import training_range
@@ -67,7 +67,7 @@ class _Run:
 def train(structure: Structure, family, config: TrainConfig, *,
           encoder: EncoderConfig | None = None, inverse=None,
           meta: dict | None = None,
-          on_epoch: Callable[[int, dict], None] | None = None) -> Identifier:
+          on_epoch: Callable[[int, dict], None] | None = None, head=None) -> Identifier:
     """Train an identifier for ``structure`` on records simulated from ``family``.
 
     Parameters
@@ -90,6 +90,10 @@ def train(structure: Structure, family, config: TrainConfig, *,
         Called after each epoch, once its checkpoint is on disk (read the history, do not
         change it): for logging, or to stop a run (an exception propagates; the run resumes
         from the checkpoint).
+    head : identification.Head, optional
+        The separable head the identifier carries (``Identifier.head``), set before its
+        training range is calibrated: the range's fit threshold is then the one pass's, not
+        the encoder's alone (a head set afterwards needs ``training.recalibrate``).
 
     Returns
     -------
@@ -97,7 +101,7 @@ def train(structure: Structure, family, config: TrainConfig, *,
         The weights with the lowest held-out loss; its per-epoch history (``train_loss``,
         ``holdout_loss``, ``lr``, ``seconds``, ``grad_norm_median``, ``grad_norm_max`` (before
         clipping), ``skipped`` (non-finite batches)) in ``ident.meta["history"]``, the run's
-        settings in ``ident.meta["train"]`` and, for one record, the training range in
+        settings in ``ident.meta["train"]`` and the training range in
         ``ident.meta["training_range"]``.
 
     Raises
@@ -126,12 +130,15 @@ def train(structure: Structure, family, config: TrainConfig, *,
         ``ident.meta["train"]["warnings"]``).
     """
     _check_arguments(structure, family, config)
+    if head is not None and not isinstance(head, Head):
+        raise ValueError(f"head must be an identification.Head (ae.Head(iterations=...)) or "
+                         f"None; got {type(head).__name__}")
     ctx = distributed.setup(config.device)
     threads = torch.get_num_threads()
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     try:
-        return _train(structure, family, config, encoder, inverse, meta, on_epoch, ctx)
+        return _train(structure, family, config, encoder, inverse, meta, on_epoch, ctx, head)
     except Exception as err:
         if ctx.distributed and distributed.collective_error(err):
             raise distributed.failure(err, ctx, config.checkpoint) from err
@@ -177,7 +184,7 @@ def _check_shares(config: TrainConfig, world_size: int) -> None:
 
 
 def _train(structure: Structure, family, config: TrainConfig, encoder, inverse, meta,
-           on_epoch, ctx: distributed.Context) -> Identifier:
+           on_epoch, ctx: distributed.Context, head) -> Identifier:
     """``train()`` after its checks, on the run's torch threads: the stages in order."""
     _check_shares(config, ctx.world_size)
     torch.manual_seed(config.seed)
@@ -202,7 +209,7 @@ def _train(structure: Structure, family, config: TrainConfig, encoder, inverse, 
             on_epoch(run.state["epoch"], hist)
     if config.progress and tty and ctx.writer:
         sys.stderr.write("\n")
-    return _finish(run)
+    return _finish(run, head)
 
 
 def _model(structure: Structure, family, config: TrainConfig, data: RecordTensors, encoder,
@@ -368,9 +375,9 @@ def _record(run: _Run, train_loss: float, held: float, lr: float, norms: list[fl
     checkpoints.end_epoch(run, state, held, elapsed)
 
 
-def _finish(run: _Run) -> Identifier:
+def _finish(run: _Run, head) -> Identifier:
     """Stage 5: warn if under-trained, load the best weights, record the history, the settings
-    and (one record) the training range."""
+    and the training range, calibrated with ``head`` (the identifier's)."""
     config, state, ident = run.config, run.state, run.ident
     notes = undertrained(config, state["history"], state["best"])
     for note in notes if run.ctx.writer else ():
@@ -387,6 +394,7 @@ def _finish(run: _Run) -> Identifier:
         "world_size": run.ctx.world_size, "backend": run.ctx.backend,
         "device": str(run.ctx.device),
     }
+    ident.head = head
     ident.meta["training_range"] = training_range(ident, run.data.rec, run.data.held,
                                                   config.noise_range[1], config.seed + 4)
     return ident
