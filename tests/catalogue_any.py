@@ -147,12 +147,13 @@ def _identify_any() -> list[Case]:
              raises=None, check=lambda e: honest(e, ae.Record(y2, u, DT)) and e.fit < 90),
         Case(area, "max_delay beyond the record", lambda x: _identify(order=2,
                                                                       max_delay=10 ** 6),
-             match=r"^max_delay must leave at least the identifier's window \(256 samples\) "
-                   r"after the delay: at most 344 for this record of 600 samples; got 1000000"),
-        Case(area, "known delay beyond steps - window", lambda x: _identify(order=2,
-                                                                            delay=500),
-             match=r"^delay must leave at least the identifier's window \(256 samples\) after "
-                   r"it: at most 344 for this record of 600 samples; got 500"),
+             match=r"^max_delay must leave at least 16 samples after the delay \(twice the 8 "
+                   r"parameters of an order-2 model\): at most 584 for this record of 600 "
+                   r"samples; got 1000000"),
+        Case(area, "known delay beyond what the model needs", lambda x: _identify(order=2,
+                                                                                  delay=590),
+             match=r"^delay must leave at least 16 samples after it \(twice the 8 parameters "
+                   r"of an order-2 model\): at most 584 for this record of 600 samples; got 590"),
         Case(area, "max_delay at the limit, noisy record", lambda x: ae.identify(
             ae.Record(data(noise=0.05)[0], u, DT), order=2, max_delay=344),
              raises=None, check=lambda e: abs(e.delay - DELAY) <= 1 and honest(
@@ -188,10 +189,10 @@ def _identify_any() -> list[Case]:
              match=r"^order must be None \(selected\) or an integer >= 1; got 0"),
         Case(area, "structure a string", lambda x: _identify(order=2, structure="modal"),
              match=r"^structure must be 'ccf', 'mcf' or a Structure; got 'modal'"),
-        Case(area, "record too short", lambda x: ae.identify(ae.Record(y[:100], u[:100], DT),
+        Case(area, "record too short", lambda x: ae.identify(ae.Record(y[:15], u[:15], DT),
                                                              order=2),
-             match=r"^the record has 100 samples; the generic identifier of order 2 needs at "
-                   r"least 256 \(its window\)"),
+             match=r"^the record has 15 samples; a model of order 2 needs at least 16 \(twice "
+                   r"its 8 fitted parameters\)"),
         Case(area, "record a 4-tuple", lambda x: ae.identify((y, u, DT, 0), order=2),
              match=r"^record must be a Record, a \(y, u\) or \(y, u, dt\) tuple"),
         Case(area, "tiny output, c1 = 0 fixed (zero gain element)", lambda x: ae.identify(
@@ -217,8 +218,12 @@ def _identify_any() -> list[Case]:
              raises=None, check=lambda e: exact(e) and e.info["max_delay"] == 10),
         Case(area, "exactly the window, default max_delay", lambda x: ae.identify(
             ae.Record(y[:256], u[:256], DT), order=2),
-             raises=None, check=lambda e: e.info["max_delay"] == 0 and honest(
-                 e, ae.Record(y[:256], u[:256], DT))),
+             raises=None, check=lambda e: e.info["max_delay"] == 10 and e.delay == DELAY
+             and honest(e, ae.Record(y[:256], u[:256], DT))),
+        Case(area, "shorter than the window, max_delay capped by the model", lambda x: (
+            ae.identify(ae.Record(y[:64], u[:64], DT), order=2)),
+             raises=None, check=lambda e: e.info["max_delay"] == 10 and e.delay == DELAY
+             and e.fit > 99.99 and honest(e, ae.Record(y[:64], u[:64], DT))),
         Case(area, "negative delay", lambda x: _identify(order=2, delay=-1),
              match=r"^delay must be None \(unknown\) or an integer number of samples in "
                    r"\[0, 598\]; got -1"),

@@ -158,7 +158,7 @@ def _bad_files(tmp_path) -> dict:
     f = {"lab.csv": _write_csv(tmp_path / "lab.csv", "t,u,y", [t, u, y]),
          "y.csv": _write_csv(tmp_path / "y.csv", "y", [y]),
          "u2.csv": _write_csv(tmp_path / "u2.csv", "u", [u[:100]]),
-         "short.csv": _write_csv(tmp_path / "short.csv", "t,u,y", [t[:100], u[:100], y[:100]]),
+         "short.csv": _write_csv(tmp_path / "short.csv", "t,u,y", [t[:12], t[:12], y[:12]]),
          "batch.csv": str(tmp_path / "batch.csv"), "folder": str(tmp_path)}
     np.savetxt(f["batch.csv"], np.vstack([y, y]), delimiter=",")
     return f
@@ -194,9 +194,9 @@ GENERIC_ERRORS = [
      r"--u file '.*u2.csv' holds \(100,\) values; expected one input of 800 samples"),
     (["{batch.csv}", "--order", "2", "--dt", "0.05"], r"RECORD file '.*batch.csv' holds 2 rows "
                                                       r"of 800 values; expected one record"),
-    (["{short.csv}", "--order", "2"], r"identify .*short.csv --order 2: the record has 100 "
-                                      r"samples; the generic identifier of order 2 needs at "
-                                      r"least 256 \(its window\)"),
+    (["{short.csv}", "--order", "2"], r"identify .*short.csv --order 2: the record has 12 "
+                                      r"samples; a model of order 2 needs at least 16 \(twice "
+                                      r"its 8 fitted parameters\)"),
     (["/nonexistent.csv", "--order", "1", "--dt", "1"], r"RECORD: file not found: "
                                                         r"'/nonexistent.csv'"),
     # the two uses do not mix: generic options with an identifier, a record without --order
@@ -230,3 +230,27 @@ def test_transfer_function_against_scipy_and_at_a_tiny_gain():
     # 2e-200 / (s^2 + 2 s + 5): linear in c, no cancellation against the denominator
     num, den = transfer_function([[0.0, 1.0], [-5.0, -2.0]], [0.0, 1.0], [2e-200, 0.0], 0.0)
     assert num.tolist() == [0.0, 0.0, 2e-200] and den.tolist() == [1.0, 2.0, 5.0]
+
+
+def test_identify_a_held_record_with_intersample_zoh(tmp_path, capsys):
+    """A DAC-held input (Rao-Garnier, PRBS held 7 samples, scipy's zero-order-hold oracle):
+    --intersample zoh gives the system's transfer function; without it the model is the
+    first-order hold's, with a spurious high-order numerator; a trained identifier refuses it."""
+    num, den, dt = [-6400.0, 1600.0], [1.0, 5.0, 408.0, 416.0, 1600.0], 0.01
+    u = np.repeat(np.random.default_rng(0).integers(0, 2, 160) * 2.0 - 1.0, 7)[:1000]
+    Ad, Bd, Cd, Dd, _ = scipy.signal.cont2discrete(scipy.signal.tf2ss(num, den), dt,
+                                                   method="zoh")
+    y = scipy.signal.dlsim((Ad, Bd, Cd, Dd, dt), u)[1][:, 0]
+    csv = _write_csv(tmp_path / "held.csv", "t,u,y", [dt * np.arange(1000), u, y])
+    js = tmp_path / "held.json"
+    assert main(["identify", csv, "--order", "4", "--intersample", "zoh", "--json",
+                 str(js)]) == 0
+    assert "held between samples" in capsys.readouterr().out
+    out = json.loads(js.read_text())
+    assert out["intersample"] == "zoh"
+    np.testing.assert_allclose(out["denominator"], den, rtol=1e-6)
+    np.testing.assert_allclose(out["numerator"], [0.0, 0.0, 0.0, *num], atol=1e-5 * 6400)
+    assert main(["identify", csv, "--order", "4", "--json", str(js)]) == 0
+    assert abs(json.loads(js.read_text())["numerator"][2]) > 1.0
+    assert "--intersample applies to the generic identifiers" in _refused(
+        ["identify", "leg-stable", "--y", csv, "--intersample", "zoh"], capsys)

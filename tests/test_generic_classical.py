@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from aeid_struct.generic.classical import steiglitz_mcbride
+from aeid_struct.generic.classical import EARLY, classical_candidates, steiglitz_mcbride
 from aeid_struct.simulation import simulate
 
 
@@ -57,3 +57,25 @@ def test_with_noise_it_beats_plain_arx():
 
 def test_too_short_gives_none():
     assert steiglitz_mcbride(np.ones(8), np.arange(8.0), 3) is None
+
+
+def test_the_refits_run_to_the_fixed_point():
+    """At a low signal-to-noise ratio a fixed five refits stop short of the fixed point; the
+    default runs to it (a refit from it moves nothing), which is what the early iterate and
+    the fixed point of ``classical_candidates`` are."""
+    den, y, u = record(4, 0.05, seed=1)
+    fixed = steiglitz_mcbride(y, u, 4, delay=2)
+    np.testing.assert_allclose(steiglitz_mcbride(y, u, 4, delay=2, iterations=200), fixed,
+                               rtol=1e-8)
+    early = steiglitz_mcbride(y, u, 4, delay=2, iterations=EARLY)
+    both = classical_candidates(y, u, 4, delay=2)
+    assert both.shape == (2, 5)
+    np.testing.assert_array_equal(both[0], early)
+    np.testing.assert_array_equal(both[1], fixed)
+    # noise-free, the fixed point is reached early and is the true denominator: one candidate
+    den, y, u = record(2, 0.0)
+    one = classical_candidates(y, u, 2, delay=2)
+    assert one.shape == (1, 3)
+    np.testing.assert_allclose(np.sort_complex(np.roots(one[0])), np.sort_complex(POLES[2]),
+                               atol=1e-6)
+    assert classical_candidates(np.ones(8), np.arange(8.0), 3).shape == (0, 4)

@@ -222,10 +222,32 @@ def test_identify_any_length_from_the_window_on(steps):
     assert est.delay == 2 and est.fit > 99.9
 
 
-def test_identify_a_record_shorter_than_the_window_is_refused():
-    y, u = make_record(steps=200)
-    with pytest.raises(ValueError, match=r"the record has 200 samples; .* at least 256"):
-        identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))
+@pytest.mark.parametrize("steps", [64, 128, 200])
+def test_identify_a_record_shorter_than_the_window(steps):
+    """One window over the whole record at a finer grid (linear interpolation): noise-free,
+    the one pass and the refinement are exact (the candidates are starts, scored and iterated
+    on the record itself)."""
+    y, u = make_record(steps=steps)
+    for refine in (False, True):
+        est = identify((y, u, DT), 3, refine=refine, identifier=ArxDouble(3))
+        assert est.delay == 2 and est.fit > 99.99
+        np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(est.A)),
+                                   np.sort_complex(POLES), rtol=1e-5)
+    with pytest.raises(ValueError, match=r"the record has 21 samples; a model of order 3 needs "
+                                         r"at least 22 \(twice its 11 fitted parameters\)"):
+        identify((y[:21], np.arange(21.0), DT), 3, refine=False, identifier=ArxDouble(3))
+
+
+def test_the_windows_of_a_short_record_interpolate_it_at_the_window():
+    from aeid_struct.generic.windows import Windows
+
+    y, u = np.sin(0.3 * np.arange(64)), np.cos(0.2 * np.arange(64))
+    w = Windows(y, u, 256)
+    assert w.y.shape == w.u.shape == (1, 256)
+    np.testing.assert_allclose(w.scale, [63 / 255])
+    grid = np.arange(256) * 63 / 255
+    np.testing.assert_allclose(w.y[0], np.interp(grid, np.arange(64), y))
+    assert w.y[0, 0] == y[0] and w.y[0, -1] == y[-1] and w.u[0, -1] == u[-1]
 
 
 def test_identify_perturbed_double_keeps_the_best_candidate():

@@ -71,13 +71,14 @@ def _failed(order, y, u, dt, start, info, reason):
     return estimate(nan_model(order), {}, np.array(y), np.array(u), dt, start, info, None)
 
 
-def _subspace(y, u, dt, order, block_rows, offset, feedthrough):
-    """The continuous model ``(A, b, c, d)`` of nfoursid on the record without padding."""
+def _subspace(y, u, dt, order, block_rows, offset, feedthrough, intersample="foh"):
+    """The continuous model ``(A, b, c, d)`` of nfoursid on the record without padding, its
+    input converted under the record's hold (``intersample``)."""
     if offset == "mean":
-        channels, holds = [u - u.mean()], ("foh",)
+        channels, holds = [u - u.mean()], (intersample,)
         y = y - y.mean()
     else:    # a constant channel: its column absorbs the offset and the input level
-        channels, holds = [u, np.ones_like(u)], ("foh", "zoh")
+        channels, holds = [u, np.ones_like(u)], (intersample, "zoh")
     Phi, B, C, D, sv = nfoursid_model(y, channels, order, block_rows, 0)
     model = convert(Phi, B[:, :1], C[0], D[0][:1], dt, holds[:1], feedthrough)
     return (model.A, model.b, model.c, model.d), (Phi, B, C, D), sv
@@ -136,9 +137,11 @@ def _n4sid(record, *, order: int, feedthrough: bool = False,
                          f"order={order}, block_rows={block_rows}; got {y.shape[0]}")
     record.require_informative()
     info = {"method": "n4sid", "failed": False, "reason": "", "order": order,
-            "block_rows": block_rows, "pre_zeros": 0, "offset": offset, "delay": delay}
+            "block_rows": block_rows, "pre_zeros": 0, "offset": offset, "delay": delay,
+            "intersample": record.intersample}
     try:
-        model, discrete, sv = _subspace(y, u, record.dt, order, block_rows, offset, feedthrough)
+        model, discrete, sv = _subspace(y, u, record.dt, order, block_rows, offset, feedthrough,
+                                        record.intersample)
     except NoRealLogarithm as err:
         return _failed(order, y, u, record.dt, start, info, str(err))
     except (np.linalg.LinAlgError, ValueError) as err:
@@ -149,7 +152,7 @@ def _n4sid(record, *, order: int, feedthrough: bool = False,
     if not all(np.all(np.isfinite(v)) for v in model):
         return _failed(order, y, u, record.dt, start, info, "non-finite model")
     with np.errstate(all="ignore"):
-        fitted = fit_initial(*model, y, u, record.dt)
+        fitted = fit_initial(*model, y, u, record.dt, intersample=record.intersample)
     if not np.isfinite(fitted.fit):
         return _failed(order, y, u, record.dt, start, info, "the model's response overflows")
     return _finish(model, {}, y, u, record.dt, start, info, fitted)
@@ -175,14 +178,15 @@ def _arx_poles(y, u, order: int, dt: float) -> np.ndarray:
     return np.log(z.astype(complex)) / dt
 
 
-def _fit_poles(y, u, dt, alpha0, feedthrough, max_nfev):
-    """Variable-projection output error from the normalised coefficients ``alpha0``."""
+def _fit_poles(y, u, dt, alpha0, feedthrough, max_nfev, intersample="foh"):
+    """Variable-projection output error from the normalised coefficients ``alpha0`` (the input
+    under the record's hold, ``intersample``)."""
     scale = 1.0 / max(float(np.max(np.abs(y - y.mean()))), 1e-300)
 
     def residual(alpha):
         A, b = _ccf(alpha, dt)
         with np.errstate(all="ignore"):
-            p = project(A, b, y, u, dt, feedthrough=feedthrough)
+            p = project(A, b, y, u, dt, feedthrough=feedthrough, intersample=intersample)
         r = (p.y_hat - y) * scale
         return r if np.all(np.isfinite(r)) else np.full(y.shape, 1e8)
 
@@ -190,7 +194,7 @@ def _fit_poles(y, u, dt, alpha0, feedthrough, max_nfev):
                                           xtol=1e-14, ftol=1e-14, gtol=1e-14,
                                           max_nfev=max_nfev)
     A, b = _ccf(result.x, dt)
-    return result, project(A, b, y, u, dt, feedthrough=feedthrough)
+    return result, project(A, b, y, u, dt, feedthrough=feedthrough, intersample=intersample)
 
 
 def least_squares_record(record, *, order: int, feedthrough: bool = False,
@@ -255,7 +259,7 @@ def _least_squares(record, *, order: int, feedthrough: bool = False, max_nfev: i
                          f"{y.shape[0]}")
     record.require_informative()
     info = {"method": "least_squares", "failed": False, "reason": "", "order": order,
-            "delay": delay, "start": "n4sid"}
+            "delay": delay, "start": "n4sid", "intersample": record.intersample}
     try:
         sub = n4sid_record(record, order=order, feedthrough=feedthrough)
         ok = not sub.info["failed"]
@@ -271,7 +275,7 @@ def _least_squares(record, *, order: int, feedthrough: bool = False, max_nfev: i
             restarts += 1
         try:
             result, fitted = _fit_poles(y, u, dt, _alpha_of_poles(poles * factor, dt),
-                                        feedthrough, max_nfev)
+                                        feedthrough, max_nfev, record.intersample)
         except (ValueError, np.linalg.LinAlgError):
             continue
         nfev += int(result.nfev)

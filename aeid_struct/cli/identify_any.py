@@ -89,7 +89,8 @@ def _record(args: argparse.Namespace):
                          f"{args.model!r} ({steps} samples); got {args.delay}")
     try:
         record = Record(rec.values, u, args.dt if rec.dt is None else rec.dt,
-                        t0=rec.t0 or 0.0, name=Path(args.model).name)
+                        t0=rec.t0 or 0.0, name=Path(args.model).name,
+                        intersample=args.intersample or "foh")
     except ValueError as err:
         raise InputError(f"RECORD {args.model!r}: {err}") from None
     return record, source
@@ -163,6 +164,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
     fits = est.info.get("order_fits")
     return {
         "record": args.model, "steps": record.steps, "dt": record.dt, "input": source,
+        "intersample": record.intersample,
         "order": int(est.A.shape[0]),
         "order_fits": None if fits is None else {str(n): f for n, f in sorted(fits.items())},
         "identifier": f"generic-{est.A.shape[0]}", "structure": repr(est.structure),
@@ -181,7 +183,9 @@ def _print(s: dict, est) -> None:
     np.set_printoptions(precision=6, suppress=False)
     chosen = "" if s["order_fits"] is None else " selected by validation fit (" + ", ".join(
         f"order {n}: {f:.2f} %" for n, f in s["order_fits"].items()) + ")"
-    print(f"{s['record']}: {s['steps']} samples at dt = {s['dt']:g} s; input: {s['input']}")
+    held = " (held between samples)" if s["intersample"] == "zoh" else ""
+    print(f"{s['record']}: {s['steps']} samples at dt = {s['dt']:g} s; input: "
+          f"{s['input']}{held}")
     print(f"{s['identifier']}: order {s['order']}{chosen}, structure {s['structure']}")
     print("A =\n", est.A)
     print("b =", est.b, " c =", est.c, " d =", est.d)

@@ -222,6 +222,10 @@ def _add_identify(sub, names: str, generic: str) -> None:
                      metavar="D",
                      help="with --order: the largest input delay considered when it is "
                           "estimated [samples] (default 10)")
+    idp.add_argument("--intersample", choices=("foh", "zoh"), default=None,
+                     help="with --order: the input between samples: foh (linear from one "
+                          "sample to the next, default) or zoh (held: an input applied through "
+                          "a DAC), as MATLAB's InterSample")
     idp.add_argument("--structure", choices=("ccf", "mcf"), default=None,
                      help="with --order: ccf (controllable canonical form with feedthrough, "
                           "default) or mcf (modal form, stable by construction)")

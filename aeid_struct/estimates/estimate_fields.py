@@ -44,6 +44,13 @@ class EstimateFields:
         """Constant output offset (``info["y_offset"]``)."""
         return float(self.info.get("y_offset", 0.0))
 
+    @property
+    def intersample(self) -> str:
+        """The input between samples the model was identified under (``info["intersample"]``,
+        ``records.Record.intersample``): ``"foh"`` (linear, the paper's Eq. 10-13) or
+        ``"zoh"`` (held)."""
+        return str(self.info.get("intersample", "foh"))
+
     # -- the record and the provenance ---------------------------------------------------------
     @property
     def y(self):

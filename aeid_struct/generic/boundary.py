@@ -38,7 +38,8 @@ def measured(record, delay=None, *, what: str = "ae.identify") -> Record:
     Parameters
     ----------
     record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-        Any object with attributes ``y`` (and optionally ``u``, ``dt``, ``delay``, ``t0``); a
+        Any object with attributes ``y`` (and optionally ``u``, ``dt``, ``delay``, ``t0``,
+        ``intersample``); a
         lone array is ``y`` with a unit step input and ``dt = 1``.
     delay : int, optional
         A known input delay in samples, over the record's own.
@@ -60,7 +61,8 @@ def measured(record, delay=None, *, what: str = "ae.identify") -> Record:
         rec = record
     elif hasattr(record, "y"):
         rec = Record(record.y, getattr(record, "u", None), getattr(record, "dt", 1.0),
-                     delay=getattr(record, "delay", None), t0=getattr(record, "t0", 0.0))
+                     delay=getattr(record, "delay", None), t0=getattr(record, "t0", 0.0),
+                     intersample=getattr(record, "intersample", "foh"))
     elif isinstance(record, (tuple, list)) and len(record) in (2, 3):
         rec = Record(*record)
     elif isinstance(record, (tuple, list)):
@@ -74,10 +76,28 @@ def measured(record, delay=None, *, what: str = "ae.identify") -> Record:
     return rec if given is None or given == known else rec.with_delay(given)
 
 
+def shortest(order: int) -> int:
+    """The fewest samples a record must leave after its delay for a model of ``order``: twice
+    the parameters fitted to it (``n`` poles, ``n`` numerator terms, a feedthrough, ``n``
+    initial states, an offset: ``3 n + 2``).
+
+    Parameters
+    ----------
+    order : int, >= 1
+
+    Returns
+    -------
+    int
+    """
+    return 2 * (3 * int(order) + 2)
+
+
 def check_grid(data: Record, identifiers: dict, max_delay: int | None, default: int) -> int:
-    """Refuse a record shorter than an identifier's window, a known delay or a given
-    ``max_delay`` that leaves less than the window, and a sample time whose de-normalised model
-    cannot be represented in float64; return the largest delay to consider.
+    """Refuse a record too short for the model (:func:`shortest` samples after the delay), a
+    known delay or a given ``max_delay`` that leaves fewer, and a sample time whose
+    de-normalised model cannot be represented in float64; return the largest delay to consider.
+    A record shorter than an identifier's window is read at a finer grid
+    (``generic.windows.Windows``).
 
     Parameters
     ----------
@@ -86,7 +106,7 @@ def check_grid(data: Record, identifiers: dict, max_delay: int | None, default: 
     identifiers : dict order -> generic identifier
         Their ``config.window`` (samples) and ``config.band`` (``|p| dt``, rad/sample).
     max_delay : int or None
-        The user's; None: ``default`` capped by what the record leaves after the window.
+        The user's; None: ``default`` capped by what the record leaves.
     default : int
 
     Returns
@@ -99,25 +119,22 @@ def check_grid(data: Record, identifiers: dict, max_delay: int | None, default: 
     ValueError
         Naming the record's length, ``delay``, ``max_delay`` or ``dt``.
     """
-    window = max(int(i.config.window) for i in identifiers.values())
-    if data.steps < window:
-        raise ValueError(f"the record has {data.steps} samples; the generic identifier"
-                         f"{'s' if len(identifiers) > 1 else ''} of order "
-                         f"{'/'.join(map(str, sorted(identifiers)))} need"
-                         f"{'' if len(identifiers) > 1 else 's'} at least {window} (its "
-                         f"window)")
-    room = data.steps - window
+    n = max(identifiers)
+    need = shortest(n)
+    if data.steps < need:
+        raise ValueError(f"the record has {data.steps} samples; a model of order {n} needs at "
+                         f"least {need} (twice its {3 * n + 2} fitted parameters)")
+    room = data.steps - need
     if data.delay is not None and data.delay > room:
-        raise ValueError(f"delay must leave at least the identifier's window ({window} samples) "
-                         f"after it: at most {room} for this record of {data.steps} samples; "
-                         f"got {data.delay}")
+        raise ValueError(f"delay must leave at least {need} samples after it (twice the "
+                         f"{3 * n + 2} parameters of an order-{n} model): at most {room} for "
+                         f"this record of {data.steps} samples; got {data.delay}")
     if max_delay is None:
         max_delay = min(default, room)
     if data.delay is None and max_delay > room:
-        raise ValueError(f"max_delay must leave at least the identifier's window ({window} "
-                         f"samples) after the delay: at most {room} for this record of "
-                         f"{data.steps} samples; got {max_delay}")
-    n = max(identifiers)
+        raise ValueError(f"max_delay must leave at least {need} samples after the delay "
+                         f"(twice the {3 * n + 2} parameters of an order-{n} model): at most "
+                         f"{room} for this record of {data.steps} samples; got {max_delay}")
     lo = min(float(i.config.band[0]) for i in identifiers.values())
     hi = max(float(i.config.band[1]) for i in identifiers.values())
     # the CCF's coefficients in the user's time unit are products of up to n poles |p| / dt

@@ -13,9 +13,13 @@ the best. ``ae.identify`` reports which start won (``info["start"]``).
 
 is repeated on the signals prefiltered by ``1 / A`` of the previous fit; at the fixed point the
 equation error is the output error filtered by ``1 / A``, so the estimate is consistent under
-white output noise where plain ARX is biased. Unstable roots are reflected into the unit circle.
-The discrete poles ``z`` become continuous ones ``s = log z`` in normalised time (``dt = 1``);
-a negative real ``z`` (no real continuous counterpart) is replaced by ``|z|``.
+white output noise where plain ARX is biased. The refits run to that fixed point (the
+denominator changing by less than :data:`TOL`, relative), at most :data:`MAX_ITERATIONS`: at
+low signal-to-noise ratios a fixed few leave the estimate far from it (a resonant pair still
+split into two real poles), and it is the start the one pass's few iterations need. Unstable
+roots are reflected into the unit circle. The discrete poles ``z`` become continuous ones
+``s = log z`` in normalised time (``dt = 1``); a negative real ``z`` (no real continuous
+counterpart) is replaced by ``|z|``.
 """
 
 from __future__ import annotations
@@ -23,7 +27,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
-__all__ = ["arx", "steiglitz_mcbride"]
+__all__ = ["EARLY", "MAX_ITERATIONS", "TOL", "arx", "classical_candidates", "steiglitz_mcbride"]
+
+#: The early iterate :func:`classical_candidates` keeps beside the fixed point.
+EARLY = 5
+#: The most prefiltered refits of :func:`steiglitz_mcbride`.
+MAX_ITERATIONS = 50
+#: The fixed point: a refit that moves the denominator by less than this (relative, max norm).
+TOL = 1e-10
 
 
 def arx(y: np.ndarray, u: np.ndarray, n: int, extra: np.ndarray | None = None) -> np.ndarray:
@@ -70,7 +81,8 @@ def _stable(a: np.ndarray) -> np.ndarray:
     return np.real(np.poly(roots))
 
 
-def steiglitz_mcbride(y, u, order: int, delay: int = 0, iterations: int = 5) -> np.ndarray | None:
+def steiglitz_mcbride(y, u, order: int, delay: int = 0,
+                      iterations: int = MAX_ITERATIONS) -> np.ndarray | None:
     """A continuous monic denominator in normalised time from Steiglitz-McBride iterations.
 
     Parameters
@@ -81,24 +93,64 @@ def steiglitz_mcbride(y, u, order: int, delay: int = 0, iterations: int = 5) -> 
     delay : int, >= 0
         Input delay in samples: ``y[delay:]`` against ``u[:steps - delay]``.
     iterations : int, >= 0
-        Prefiltered refits after the ARX fit.
+        Prefiltered refits after the ARX fit, at most (fewer where the fixed point is
+        reached: :data:`TOL`).
 
     Returns
     -------
     (order + 1,) float64 array or None
         Highest power first; None where the fit is not finite (a record with too few samples).
     """
+    found = _iterates(y, u, order, delay, iterations, ())
+    return None if found is None else found[-1]
+
+
+def classical_candidates(y, u, order: int, delay: int = 0) -> np.ndarray:
+    """The classical candidates of the one pass: the Steiglitz-McBride estimate after
+    :data:`EARLY` refits and at its fixed point (:func:`steiglitz_mcbride`), as continuous
+    monic denominators in normalised time; one row where they coincide.
+
+    Why both: at a low signal-to-noise ratio only the fixed point is near the optimum, but on
+    the generic benchmark's records the early iterate, a coarser start, was as often the better
+    one to iterate from; they are scored alike (whole-record projection) and the better kept.
+
+    Parameters
+    ----------
+    y, u : (steps,) arrays
+    order : int, >= 1
+    delay : int, >= 0
+
+    Returns
+    -------
+    (k, order + 1) float64 array
+        ``k`` is 0 (no finite fit), 1 or 2.
+    """
+    found = _iterates(y, u, order, delay, MAX_ITERATIONS, (EARLY,))
+    if found is None:
+        return np.zeros((0, order + 1))
+    rows = [d for d in found if d is not None]
+    if len(rows) == 2 and np.array_equal(rows[0], rows[1]):
+        rows = rows[1:]
+    return np.array(rows).reshape(-1, order + 1)
+
+
+def _iterates(y, u, order: int, delay: int, iterations: int, keep: tuple):
+    """The denominators after the refits in ``keep`` (where reached; the fixed point before
+    them stands for them) and at the last refit, or None where the record is too short or
+    the fit not finite."""
     y = np.asarray(y, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
     N = y.shape[0] - delay
     if N <= 3 * order + 2:
         return None
     yy, uu = y[delay:] - y[delay:].mean(), u[:N] - u[:N].mean()
+    kept = []
     with np.errstate(all="ignore"):
         a = _stable(arx(yy, uu, order))
         impulses = np.zeros((N, order + 1))
         impulses[np.arange(order), np.arange(order)] = 1.0
         impulses[:, order] = 1.0
+        done = 0
         for _ in range(iterations):
             # Filtering from zero initial conditions leaves a transient of 1 / A driven by the
             # first n equation errors and by the constant: its n impulse responses and its step
@@ -108,12 +160,24 @@ def steiglitz_mcbride(y, u, order: int, delay: int = 0, iterations: int = 5) -> 
                                   scipy.signal.lfilter([1.0], a, uu), order, extra))
             if not np.all(np.isfinite(a_next)):
                 break
-            a = a_next
+            settled = np.max(np.abs(a_next - a)) <= TOL * np.max(np.abs(a_next))
+            a, done = a_next, done + 1
+            if done in keep:
+                kept.append(_continuous(a))
+            if settled:
+                break
         if not np.all(np.isfinite(a)):
             return None
-        z = np.roots(a)
-        z = np.where((np.abs(z.imag) < 1e-12) & (z.real < 0), np.abs(z), z)
-        z = np.where(np.abs(z) > 0, z, 1e-300)
-        s = np.log(z.astype(complex))
-        den = np.real(np.poly(s))
+        kept += [_continuous(a)] * (len(keep) - len(kept))
+        return [*kept, _continuous(a)]
+
+
+def _continuous(a: np.ndarray) -> np.ndarray | None:
+    """The continuous monic denominator (normalised time) of a discrete one ``a``: poles
+    ``s = log z`` (module docstring); None where not finite."""
+    z = np.roots(a)
+    z = np.where((np.abs(z.imag) < 1e-12) & (z.real < 0), np.abs(z), z)
+    z = np.where(np.abs(z) > 0, z, 1e-300)
+    s = np.log(z.astype(complex))
+    den = np.real(np.poly(s))
     return den if np.all(np.isfinite(den)) else None

@@ -3,7 +3,8 @@ offset) fitted, and the figure of measured vs simulated output.
 
 For a model ``(A, b, c, d)`` and a record with input delay ``D`` (docs/architecture.md, "Any
 system, any record"), ``x_0`` (the state at sample ``D``) and ``y_offset`` minimise
-``||y[D:] - yhat||`` (:func:`~aeid_struct.simulation.fit_initial`, exact FOH, Eq. 10-13), and
+``||y[D:] - yhat||`` (:func:`~aeid_struct.simulation.fit_initial`, exact under the record's
+hold: first order, Eq. 10-13, or zero order for ``Record(..., intersample="zoh")``), and
 
     fit = 100 (1 - ||y[D:] - yhat|| / ||y[D:] - mean(y[D:])||)   [%].
 """
@@ -150,7 +151,8 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
         A continuous-time SISO model in the record's time unit (a discrete-time one is
         refused).
     record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-        As for :func:`~aeid_struct.generic.boundary.measured`.
+        As for :func:`~aeid_struct.generic.boundary.measured`; the model is simulated under
+        the record's hold (``Record.intersample``).
     delay : int, optional
         Input delay in samples; default: the estimate's (converted through time units to the
         record's ``dt``), else the record's, else 0.
@@ -186,7 +188,8 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
                          f"{abs(d):.3g}) on a record with max|y| = {units.sy:.3g} and max|u| = "
                          f"{units.su:.3g} (powers of two) leaves float64")
     with np.errstate(all="ignore"):
-        p = fit_initial(A, b, cs, ds, work.y, work.u, data.dt, delay=D, offset=True)
+        p = fit_initial(A, b, cs, ds, work.y, work.u, data.dt, delay=D, offset=True,
+                        intersample=data.intersample)
     _, _, x0, y_offset = units.linear(A, b, cs, ds, p.x0, p.y_offset)
     t = data.t0 + data.dt * np.arange(data.steps)
     return Comparison(fit=float(p.fit), y_hat=units.output(p.y_hat), x0=x0,

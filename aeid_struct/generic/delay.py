@@ -9,8 +9,9 @@ ARX model of order ``n`` with ``n + 1`` input terms (the FOH discretisation of a
 is fitted by least squares on the same samples ``k >= max_delay + n`` for every ``D``; the
 delay with the least residual sum of squares is the estimate. A delay one sample too short
 misses the term ``u_{k-D-n}``, one too long the term ``u_{k-D}``, so the true ``D`` has the
-least residual on noise-free data. All ``D`` share one Gram matrix of the lagged signals; each
-``D`` is a small sub-block solve.
+least residual on noise-free data (a held input's strictly proper model has no ``b_0``: ``D``
+and ``D + 1`` then fit alike, and the smaller is kept). All ``D`` share one Gram matrix of the
+lagged signals; each ``D`` is a small sub-block solve.
 
 *Re-scan* (:func:`rescan`): equation error is biased by noise, so ``D`` is re-scanned over
 ``D_arx - width .. D_arx + width`` by the model of a record (output error with ``c, d, x_0``
@@ -96,7 +97,8 @@ def _lagged(y: np.ndarray, u: np.ndarray, n: int, max_delay: int,
 
 
 def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay: int, *,
-           width: int = 1, feedthrough: bool = True, offset: bool = True) -> tuple[int, float]:
+           width: int = 1, feedthrough: bool = True, offset: bool = True,
+           intersample: str = "foh") -> tuple[int, float]:
     """The delay in ``around - width .. around + width`` (within ``[0, max_delay]``) with the
     least output error per fitted sample for the denominator ``den`` (normalised time).
 
@@ -110,6 +112,7 @@ def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay
     max_delay : int
     width : int, >= 0
     feedthrough, offset : bool
+    intersample : {"foh", "zoh"}
 
     Returns
     -------
@@ -118,5 +121,6 @@ def rescan(den: np.ndarray, y: np.ndarray, u: np.ndarray, around: int, max_delay
         Its mean squared residual.
     """
     delays = range(max(0, around - width), min(max_delay, around + width) + 1)
-    chosen = select(den[None], y, u, delays, feedthrough=feedthrough, offset=offset)
+    chosen = select(den[None], y, u, delays, feedthrough=feedthrough, offset=offset,
+                    intersample=intersample)
     return chosen.delay, float(chosen.costs[0, list(delays).index(chosen.delay)])

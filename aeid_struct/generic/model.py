@@ -126,7 +126,8 @@ class GenericIdentifier:
         Parameters
         ----------
         record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-            At least ``config.window`` samples (``ae.identify``).
+            As ``ae.identify`` takes it (a record shorter than ``config.window`` is read at a
+            finer grid).
         **options
             ``structure, refine, delay, max_delay, method, iterations, classical`` as
             ``ae.identify`` takes them.

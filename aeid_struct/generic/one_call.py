@@ -39,7 +39,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     Parameters
     ----------
     record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
-        See :func:`measured`; ``steps`` at least the identifier's window.
+        See :func:`measured`; at least ``2 (3 order + 2)`` samples after the delay, twice the
+        fitted parameters (``generic.boundary.shortest``): a record shorter than the
+        identifier's window is read by it at a finer grid (``generic.windows.Windows``). Its
+        ``intersample`` (the input linear or held between samples) is modelled exactly.
     order : int, optional
         Model order; None selects it among the available generic identifiers (module
         docstring). Taken from ``structure`` when that is a Structure.
@@ -54,8 +57,8 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     delay : int, optional
         A known input delay in samples (over the record's); None: the record's, else estimated.
     max_delay : int, >= 0, optional
-        Largest delay considered when it is estimated; it must leave the identifier's window
-        after it. None: :data:`MAX_DELAY`, capped by what the record leaves.
+        Largest delay considered when it is estimated; it must leave the samples the model
+        needs after it. None: :data:`MAX_DELAY`, capped by what the record leaves.
     identifier : generic identifier or dict order -> identifier, optional
         Default: the shipped ``generic-n`` (``load_generic``).
     method : {"auto", "separable", "casadi"}
@@ -76,15 +79,15 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         ``A, b, c, d`` in physical time units, ``elements`` of the structure, ``delay``,
         ``x0`` (the state at sample ``delay``), ``offset``, ``fit``, ``y_hat``, ``seconds``,
         ``refined`` (False for the one pass); ``info`` holds ``delay, x0, y_offset, fit, y_hat,
-        cost, candidates, order_fits, start`` (``"encoder"`` or ``"classical"``: the candidate
-        or start that won) and, where they ran, the iterations' ``iterations, converged`` (and
-        the one pass's ``delay_moved``: its re-scan moved the delay).
+        cost, intersample, candidates, order_fits, start`` (``"encoder"`` or ``"classical"``:
+        the candidate or start that won) and, where they ran, the iterations' ``iterations,
+        converged`` (and the one pass's ``delay_moved``: its re-scan moved the delay).
 
     Raises
     ------
     ValueError
         For a bad record, order, structure, delay, max_delay, method, iterations or classical,
-        or a record shorter than the identifier's window.
+        or a record too short for the model.
     """
     return run(functools.partial(_identifiers, identifier=identifier), record, order,
                structure=structure, refine=refine, delay=delay, max_delay=max_delay,

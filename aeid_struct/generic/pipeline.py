@@ -24,11 +24,12 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
    separable optimum is not stable, and every other structure (fixed elements, physical):
    CasADi (``refinement.refine_record``) with delays ``D - 1, D, D + 1``.
 
-*The one pass* (``refine=False``): steps 2-4 with one more candidate beside the encoder's, the
-Steiglitz-McBride estimate at the ARX delay (``generic.classical``; ``classical=False`` leaves
-it out), then a fixed number of separable Levenberg-Marquardt iterations (``iterations``,
-default :data:`ITERATIONS`; ``refinement.refine_separable`` with ``max_iter``) from the chosen
-candidate at the chosen delay, for the free CCF and MCF (a structure with fixed elements: the
+*The one pass* (``refine=False``): steps 2-4 with classical candidates beside the encoder's,
+the Steiglitz-McBride estimate at the ARX delay after five refits and at its fixed point
+(``generic.classical.classical_candidates``; ``classical=False`` leaves them out), then a
+fixed number of separable Levenberg-Marquardt iterations (``iterations``, default
+:data:`ITERATIONS`; ``refinement.refine_separable`` with ``max_iter``) from the chosen candidate
+at the chosen delay, for the free CCF and MCF (a structure with fixed elements: the
 iterations run in the free CCF, and the closest model in the structure is returned, its initial
 state, offset and fit its own); where the delay is unknown, it is re-scanned by projection with
 the iterated poles, and at a better delay as many iterations again. A bounded cost: at most
@@ -58,9 +59,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeid_struct.generic.boundary import METHODS as METHODS
-from aeid_struct.generic.boundary import checked
+from aeid_struct.generic.boundary import checked, shortest
 from aeid_struct.generic.boundary import measured as measured
-from aeid_struct.generic.classical import steiglitz_mcbride
+from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.normalised import Model, structure_of
 from aeid_struct.generic.polish import (
@@ -106,23 +107,21 @@ class _Fit:
 
 
 def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
-                 classical=False) -> _Fit:
+                 classical=False, intersample="foh") -> _Fit:
     """Steps 2-4 of the module docstring, in normalised time (``classical``: the
-    Steiglitz-McBride candidate too, as in the one pass)."""
-    window = int(identifier.config.window)
-    if y.shape[0] < window:
-        raise ValueError(f"the record has {y.shape[0]} samples; the generic identifier of "
-                         f"order {order} needs at least {window} (its window)")
+    Steiglitz-McBride candidate too, as in the one pass; ``intersample``: the record's
+    hold)."""
     N = y.shape[0]
-    D0 = known if known is not None else arx_delay(y, u, order, min(max_delay, N - window))
+    room = N - shortest(order)
+    D0 = known if known is not None else arx_delay(y, u, order, min(max_delay, room))
     dens = candidates(identifier, y[D0:], u[: N - D0])
     if dens.shape[1] != order + 1:
         raise ValueError(f"identifier must give denominators of order {order} ((K, "
                          f"{order + 1}) arrays); got shape {dens.shape}")
     if len(dens) == 0:
         Record(y, u).require_informative()     # the one message for a constant y or u
-    sm = steiglitz_mcbride(y, u, order, D0) if classical else None
-    if len(dens) == 0 and sm is None:
+    sm = classical_candidates(y, u, order, D0) if classical else np.zeros((0, order + 1))
+    if len(dens) == 0 and len(sm) == 0:
         raise ValueError(f"the generic identifier of order {order} found no usable model in "
                          f"any window of this record ({N} samples)")
     if len(dens) >= 3:
@@ -131,12 +130,11 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
         # their median beat both the median alone and the candidates alone
         dens = np.vstack([dens, np.median(dens, axis=0)])
     encoder = len(dens)
-    if sm is not None:
-        dens = np.vstack([dens, sm])
-    top = min(max_delay, N - window)
+    dens = np.vstack([dens, sm])
+    top = min(max_delay, room)
     delays = [D0] if known is not None else range(top + 1)
     chosen = select(dens, y, u, delays, feedthrough=feedthrough, shortlist=SHORTLIST,
-                    around=D0)
+                    around=D0, intersample=intersample)
     return _Fit(dens[chosen.index], chosen.projection, len(dens),
                 "encoder" if chosen.index < encoder else "classical")
 
@@ -148,11 +146,12 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
     holdout = cut >= max(int(i.config.window) for i in identifiers.values())
-    part = Record(data.y[:cut], data.u[:cut], data.dt, delay=data.delay) if holdout else data
+    part = Record(data.y[:cut], data.u[:cut], data.dt, delay=data.delay,
+                  intersample=data.intersample) if holdout else data
     fits = {}
     for n, ident in sorted(identifiers.items()):
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough,
-                           classical and not refine)
+                           classical and not refine, data.intersample)
         model = Model.of_ccf(fit.den, fit.projection)
         ccf_n = CCF(n, feedthrough=feedthrough)
         if refine:
@@ -165,7 +164,8 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
             fits[n] = model.fit
             continue
         fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
-                              1.0, delay=min(model.delay, N - cut - 2)).fit
+                              1.0, delay=min(model.delay, N - cut - 2),
+                              intersample=data.intersample).fit
     return fits
 
 
@@ -205,7 +205,7 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
     fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, max_delay,
-                       feedthrough, bool(classical) and not refine)
+                       feedthrough, bool(classical) and not refine, work.intersample)
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, structure_of(structure, order, fit.den)
     refined = False

@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from aeid_struct.generic.classical import steiglitz_mcbride
+from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.normalised import (
     Model,
     common_cost,
@@ -50,7 +50,7 @@ def refine_casadi(structure: Structure, m: Model, data, max_delay: int):
     if data.steps - min(delays) > BUCKETS[-1]:
         return None, {"refinement": f"skipped: more than {BUCKETS[-1]} samples"}
     r = refine_record(structure, start.to(torch.float64).numpy(), data.y, data.u, dt,
-                      delay=D, delays=delays, offset=True)
+                      delay=D, delays=delays, offset=True, intersample=data.intersample)
     if not np.isfinite(r.info["cost"]):
         return None, {"refinement": "failed: no finite cost"}
     y_hat = np.asarray(r.y_hat, dtype=np.float64)
@@ -100,7 +100,8 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
     def run(den, D):
         nonlocal seconds, iterations
         r = refine_separable(den, data.y, data.u, 1.0, delay=D, feedthrough=feedthrough,
-                             cost_tol=COST_TOL, max_iter=max_iter)
+                             cost_tol=COST_TOL, max_iter=max_iter,
+                             intersample=data.intersample)
         seconds, iterations = seconds + r.seconds, iterations + r.info["iterations"]
         y_hat = np.asarray(r.y_hat, dtype=np.float64)
         cost = float(np.mean((data.y[D:] - y_hat[D:]) ** 2))
@@ -149,7 +150,8 @@ def _delay_search(run, best: Model, converged: bool, y: np.ndarray, top: int):
 
 def classical_start(data, order: int, delay: int, max_delay: int,
                     feedthrough: bool) -> Model | None:
-    """The Steiglitz-McBride start (``generic.classical``) at the delay that fits it best.
+    """The Steiglitz-McBride start (``generic.classical.classical_candidates``: early and at
+    its fixed point) and the delay that fit the record best.
 
     Parameters
     ----------
@@ -165,15 +167,19 @@ def classical_start(data, order: int, delay: int, max_delay: int,
     Model or None
         None where the estimate is not finite.
     """
-    den = steiglitz_mcbride(data.y, data.u, order, delay)
-    if den is None:
+    dens = classical_candidates(data.y, data.u, order, delay)
+    if len(dens) == 0:
         return None
     top = min(max_delay, data.y.shape[0] - 4 * order - 4)
     delays = [delay] if data.delay is not None else range(max(top, 0) + 1)
-    chosen = select(den[None], data.y, data.u, delays, feedthrough=feedthrough)
+    try:
+        chosen = select(dens, data.y, data.u, delays, feedthrough=feedthrough,
+                        intersample=data.intersample)
+    except ValueError:              # no finite response
+        return None
     if not np.isfinite(chosen.projection.cost):
         return None
-    return Model.of_ccf(den, chosen.projection)
+    return Model.of_ccf(dens[chosen.index], chosen.projection)
 
 
 def better_of(models, y: np.ndarray) -> Model | None:
@@ -375,7 +381,7 @@ def iterate(spec, structure: Structure, model: Model, data, iterations: int, max
     if data.delay is None and top > 0:
         feedthrough = "d" in structure.element_names
         D = select(denominator_of(better.A)[None], data.y, data.u, range(top + 1),
-                   feedthrough=feedthrough).delay
+                   feedthrough=feedthrough, intersample=data.intersample).delay
         if D != better.delay:
             moved, about = refine_free(structure, replace(better, delay=D), data, 0,
                                        split=split, search=False, max_iter=iterations)

@@ -35,7 +35,8 @@ def estimate_of(m: Model, structure: Structure, data, seconds: float, refined: b
     seconds : float
     refined : bool
     info : dict
-        The pipeline's diagnostics; ``delay, x0, y_offset, fit, y_hat, cost`` are added.
+        The pipeline's diagnostics; ``delay, x0, y_offset, fit, y_hat, cost`` and the record's
+        ``intersample`` are added.
 
     Returns
     -------
@@ -49,10 +50,11 @@ def estimate_of(m: Model, structure: Structure, data, seconds: float, refined: b
         # element the data contradict moves it): the initial state, offset, output and
         # fit are the returned model's own
         with np.errstate(all="ignore"):
-            p = fit_initial(A, b, c, d, data.y, data.u, dt, delay=m.delay, offset=True)
+            p = fit_initial(A, b, c, d, data.y, data.u, dt, delay=m.delay, offset=True,
+                            intersample=data.intersample)
         x0, y_offset, fit, y_hat, cost = p.x0, p.y_offset, p.fit, p.y_hat, p.cost
     info = {**info, "delay": m.delay, "x0": x0, "y_offset": y_offset,
-            "fit": fit, "y_hat": y_hat, "cost": cost}
+            "fit": fit, "y_hat": y_hat, "cost": cost, "intersample": data.intersample}
     return Estimate(A=A, b=b, c=c, d=d, elements=elements, record=data,
                     provenance=Provenance(structure=structure, initial="fitted"),
                     seconds=seconds, refined=refined, info=info)

@@ -52,13 +52,15 @@ def ccf(den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (A[0], b[0]) if one else (A, b)
 
 
-def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: bool):
+def _regressors(dens: np.ndarray, uu: np.ndarray, feedthrough: bool, offset: bool,
+                intersample: str = "foh"):
     """The regressors of :func:`~aeid_struct.simulation.project` for each candidate (dt = 1),
-    one per row: ``M (K, p, N)``, with ``Phi (K, n, n)`` and ``gamma2 (K, n)``."""
+    one per row: ``M (K, p, N)``, with ``Phi (K, n, n)`` and ``gamma2 (K, n)`` (zero for a held
+    input, ``simulation.discrete_foh``)."""
     A, b = ccf(dens)
     K, n = b.shape
     N = uu.shape[0]
-    Phi, gamma1, gamma2 = discrete_foh(A, b)
+    Phi, gamma1, gamma2 = discrete_foh(A, b, 1.0, intersample)
     Bd = gamma1 - gamma2 + np.einsum("kij,kj->ki", Phi, gamma2)
     # discrete denominator from the poles (exp of the continuous ones), as np.poly would
     z = np.exp(np.linalg.eigvals(A))
@@ -129,7 +131,8 @@ class Selection:
 
 def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
            feedthrough: bool = True, offset: bool = True,
-           shortlist: int | None = None, around: int | None = None) -> Selection:
+           shortlist: int | None = None, around: int | None = None,
+           intersample: str = "foh") -> Selection:
     """Every candidate denominator at every delay, evaluated on the whole record with ``c, d,
     x_0`` and the offset projected (normalised time, dt = 1), and the best pair by the mean
     squared residual on the samples that every delay fits (from the largest delay on).
@@ -159,6 +162,8 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         best few on 32,768 samples of a stationary record does not win on all of them.
     around : int, optional
         One of ``delays`` (default: the middle one).
+    intersample : {"foh", "zoh"}
+        The input between samples (``records.Record.intersample``).
 
     Returns
     -------
@@ -180,7 +185,8 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         # the candidates at one delay, then the best few at every delay
         mid = L // 2 if around is None else delays.index(int(around))
         P = PREFIX if prefix else N
-        for part, M, G_all, *_ in _blocks(dens, pool, u[:P], feedthrough, offset, 1):
+        for part, M, G_all, *_ in _blocks(dens, pool, u[:P], feedthrough, offset, 1,
+                                          intersample):
             costs[part, mid] = _solve_delays(M, G_all, y[: D0 + P], [delays[mid]], D0,
                                              delays[-1])[0][:, 0]
         ranked = np.argsort(costs[:, mid], kind="stable")
@@ -189,7 +195,7 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         if prefix:       # costs on the prefix do not compare with the whole record's
             costs[:, mid] = np.inf
     last = None
-    for last in _blocks(dens, pool, u[:N], feedthrough, offset, L):
+    for last in _blocks(dens, pool, u[:N], feedthrough, offset, L, intersample):
         part, M, G_all = last[:3]
         for js in _delay_blocks(L, part.size, N):
             costs[part[:, None], js[None, :]] = _solve_delays(
@@ -212,7 +218,8 @@ def select(dens: np.ndarray, y: np.ndarray, u: np.ndarray, delays, *,
         M, G_all, Phi, gamma2 = (v[i : i + 1] for v in last[1:])
     else:
         with np.errstate(all="ignore"):
-            M, Phi, gamma2 = _regressors(dens[k : k + 1], u[:N], feedthrough, offset)
+            M, Phi, gamma2 = _regressors(dens[k : k + 1], u[:N], feedthrough, offset,
+                                         intersample)
         G_all = M @ M.transpose(0, 2, 1)
     _, Z, fitted, rows = _solve_delays(M, G_all, y, [delays[j]], D0, delays[-1])
     return Selection(int(k), delays[j], costs, _projection(
@@ -232,7 +239,7 @@ BLOCK_BYTES = 256 * 2 ** 20
 
 
 def _blocks(dens: np.ndarray, pool: np.ndarray, uu: np.ndarray, feedthrough: bool,
-            offset: bool, delays: int):
+            offset: bool, delays: int, intersample: str = "foh"):
     """``(candidates, M, G, Phi, gamma2)`` of the finite candidates of ``pool`` in blocks
     that fit :data:`BLOCK_BYTES` (with ``delays`` targets each)."""
     n = dens.shape[1] - 1
@@ -242,7 +249,7 @@ def _blocks(dens: np.ndarray, pool: np.ndarray, uu: np.ndarray, feedthrough: boo
     for start in range(0, pool.size, size):
         part = pool[start : start + size]
         with np.errstate(all="ignore"):
-            M, Phi, gamma2 = _regressors(dens[part], uu, feedthrough, offset)
+            M, Phi, gamma2 = _regressors(dens[part], uu, feedthrough, offset, intersample)
             good = np.isfinite(M).all(axis=(1, 2))
         if good.any():
             M = M[good]
@@ -326,7 +333,8 @@ def _projection(z, fitted, M, Phi, gamma2, y, u, delay, feedthrough, offset) -> 
 
 
 def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
-           feedthrough: bool = True, offset: bool = True) -> np.ndarray:
+           feedthrough: bool = True, offset: bool = True,
+           intersample: str = "foh") -> np.ndarray:
     """Mean squared output error on the whole record of each candidate denominator at one
     delay (:func:`select`'s costs).
 
@@ -336,6 +344,7 @@ def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
     y, u : (steps,) arrays
     delay : int, 0 <= delay < steps - 1
     feedthrough, offset : bool
+    intersample : {"foh", "zoh"}
 
     Returns
     -------
@@ -343,13 +352,15 @@ def scores(dens: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
         ``inf`` where the candidate's response is not finite.
     """
     try:
-        return select(dens, y, u, [delay], feedthrough=feedthrough, offset=offset).costs[:, 0]
+        return select(dens, y, u, [delay], feedthrough=feedthrough, offset=offset,
+                      intersample=intersample).costs[:, 0]
     except ValueError:
         return np.full(dens.shape[0], np.inf)
 
 
 def solution(den: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
-             feedthrough: bool = True, offset: bool = True) -> Projection:
+             feedthrough: bool = True, offset: bool = True,
+             intersample: str = "foh") -> Projection:
     """:func:`~aeid_struct.simulation.project` of the CCF of one denominator (dt = 1) by the
     solver of :func:`select`: the same model, a cheaper solve.
 
@@ -359,9 +370,11 @@ def solution(den: np.ndarray, y: np.ndarray, u: np.ndarray, *, delay: int = 0,
     y, u : (steps,) arrays
     delay : int
     feedthrough, offset : bool
+    intersample : {"foh", "zoh"}
 
     Returns
     -------
     Projection
     """
-    return select(den[None], y, u, [delay], feedthrough=feedthrough, offset=offset).projection
+    return select(den[None], y, u, [delay], feedthrough=feedthrough, offset=offset,
+                  intersample=intersample).projection

@@ -12,6 +12,9 @@ scale ``m`` (poles in decimated time) is rescaled to the original sample time (p
 
     a(s) = s^n + a_{n-1} s^{n-1} + ... + a_0   ->   a_k / m^{n-k}.
 
+A record shorter than the window is read once at a finer grid: ``window`` samples linearly
+interpolated over its ``steps`` (``m = (steps - 1) / (window - 1) < 1``), the same rescaling.
+
 The whole-record choice among the candidates is :mod:`aeid_struct.generic.scoring`.
 """
 
@@ -86,19 +89,32 @@ class Windows:
     Parameters
     ----------
     y, u : (steps,) arrays
-    window : int, <= steps
+    window : int
+        Samples per window; a shorter record is one window at a finer grid (linear
+        interpolation, ``window`` samples over its ``steps``).
     most : int
         Windows per scale, at most.
 
     Attributes
     ----------
     y, u : (K, window) arrays
-    scale : (K,) int array
-        The decimation factor of each window.
+    scale : (K,) array
+        Record samples per window sample: the decimation factor of each window (``< 1`` for
+        a short record's).
     """
 
     def __init__(self, y: np.ndarray, u: np.ndarray, window: int,
                  most: int = MOST_WINDOWS) -> None:
+        steps = y.shape[0]
+        if steps < window:
+            # a record shorter than the window: one window over all of it at a finer grid,
+            # linearly interpolated (the first-order hold's own input; for y a start only: the
+            # candidates are scored and refined on the record itself), its poles rescaled
+            grid = np.linspace(0.0, steps - 1.0, window)
+            self.y = np.interp(grid, np.arange(steps), y)[None]
+            self.u = np.interp(grid, np.arange(steps), u)[None]
+            self.scale = np.array([(steps - 1.0) / (window - 1.0)])
+            return
         ys, us, ms = [], [], []
         for m in scales(y.shape[0], window):
             yd, ud = decimate(y, m), decimate(u, m)
@@ -137,7 +153,7 @@ def candidates(identifier, y: np.ndarray, u: np.ndarray,
     ----------
     identifier : object
         ``config.window`` (samples) and ``denominators(Y (K, window), U) -> (K, n + 1)``.
-    y, u : (steps,) arrays, steps >= window
+    y, u : (steps,) arrays
     most : int
 
     Returns

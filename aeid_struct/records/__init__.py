@@ -23,6 +23,7 @@ from aeid_struct.records.checks import overflow_problem as overflow_problem
 from aeid_struct.records.checks import record_problems as record_problems
 from aeid_struct.records.checks import require_finite as require_finite
 from aeid_struct.records.checks import unit_step as unit_step
+from aeid_struct.records.measured import INTERSAMPLE as INTERSAMPLE
 from aeid_struct.records.measured import SAFE_EXPONENT as SAFE_EXPONENT
 from aeid_struct.records.measured import Record as Record
 from aeid_struct.records.measured import exact_scale as exact_scale
@@ -32,6 +33,7 @@ from aeid_struct.records.record import check_record as check_record
 from aeid_struct.records.units import Units as Units
 
 __all__ = [
+    "INTERSAMPLE",
     "SAFE_EXPONENT",
     "Checked",
     "Record",

@@ -2,7 +2,9 @@
 sample time, offsets and a known or unknown input delay, validated once when it is made.
 
 Time axis: sample ``k`` is taken at ``t_k = t0 + k dt``; the input is linear between samples
-(first-order hold, docs/architecture.md). An input delay of ``D`` samples means that ``y_k``
+(first-order hold, docs/architecture.md), or held from one sample to the next where the record
+says so (``intersample="zoh"``, MATLAB's ``InterSample``: an input applied through a DAC). An
+input delay of ``D`` samples means that ``y_k``
 answers ``u_{k-D}``: :meth:`Record.shifted` pairs ``y[D:]`` with ``u[:steps - D]``.
 """
 
@@ -16,10 +18,13 @@ import numpy as np
 
 from aeid_struct.records.checks import as_array, check_dt, require_finite, unit_step
 
-__all__ = ["DETRENDS", "Record", "exact_scale"]
+__all__ = ["DETRENDS", "INTERSAMPLE", "Record", "exact_scale"]
 
 #: What :meth:`Record.detrend` removes.
 DETRENDS = ("mean", "initial", "linear")
+#: The input between samples (:attr:`Record.intersample`): linear (first-order hold) or held
+#: (zero-order hold).
+INTERSAMPLE = ("foh", "zoh")
 #: Peaks within ``2^-SAFE_EXPONENT .. 2^SAFE_EXPONENT`` are used as they are: their squares and
 #: the products of the normal equations stay far inside float64 (1e-308 .. 1e308).
 SAFE_EXPONENT = 64
@@ -191,12 +196,17 @@ class Record(_Channels):
     y_offset, u_offset : float, or (p,) / (m,) array for several channels
         Offsets already removed from ``y`` and ``u`` (:meth:`detrend` adds to them): the
         measured signals are ``y + y_offset`` and ``u + u_offset``.
+    intersample : {"foh", "zoh"}
+        The input between samples (MATLAB's ``InterSample``): ``"foh"`` linear from one sample
+        to the next (the paper's first-order hold, Eq. 10-13), ``"zoh"`` held at each sample's
+        value until the next (an input applied through a DAC). ``ae.identify`` models the
+        record under its own hold.
 
     Raises
     ------
     ValueError
         Naming the argument: not real numbers, a wrong shape, a non-finite sample, ``u`` of
-        another length, a bad ``dt``, ``delay``, ``name``, ``t0`` or offset.
+        another length, a bad ``dt``, ``delay``, ``name``, ``t0``, offset or ``intersample``.
     """
 
     y: np.ndarray
@@ -208,6 +218,7 @@ class Record(_Channels):
     t0: float = 0.0
     y_offset: float = 0.0
     u_offset: float = 0.0
+    intersample: str = "foh"
 
     def __post_init__(self) -> None:
         y = _samples("y", self.y)
@@ -225,6 +236,10 @@ class Record(_Channels):
             delay = int(delay)
         if not isinstance(self.name, str):
             raise ValueError(f"name must be a str; got {type(self.name).__name__}")
+        if not isinstance(self.intersample, str) or self.intersample not in INTERSAMPLE:
+            raise ValueError(f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))} "
+                             f"(the input between samples: linear, or held); got "
+                             f"{self.intersample!r}")
         values = {"y": y, "u": u, "dt": check_dt(self.dt), "delay": delay,
                   "t0": _number("t0", self.t0),
                   "y_offset": _offset("y_offset", self.y_offset, _width(y)),
@@ -251,8 +266,9 @@ class Record(_Channels):
         offsets = ", ".join(f"{k}={np.array2string(np.asarray(v), precision=6)}"
                             if np.ndim(v) else f"{k}={v:g}"
                             for k, v in (("y_offset", self.y_offset), ("u_offset", self.u_offset)))
+        hold = "" if self.intersample == "foh" else f", intersample={self.intersample!r}"
         return (f"Record(name={self.name!r}, steps={self.steps}, {channels}dt={self.dt:g}, "
-                f"delay={self.delay}, {offsets})")
+                f"delay={self.delay}, {offsets}{hold})")
 
     def _like(self, **changes) -> Record:
         """A Record with ``changes``, the rest kept (checked again: a split part may be short)."""

@@ -235,9 +235,9 @@ def arrays_of(y, u, dt, *, what: str, records: int = 1, channels=None):
     Raises
     ------
     ValueError
-        A ``u`` beside a Record, a record of several channels or with a known input delay
-        (these identifiers model neither), a number of Records other than ``records``, or a
-        ``dt`` that is not the Records'.
+        A ``u`` beside a Record, a record of several channels, with a known input delay or a
+        held input (``intersample="zoh"``; these identifiers model none of them), a number of
+        Records other than ``records``, or a ``dt`` that is not the Records'.
     """
     several = isinstance(y, (list, tuple)) and len(y) > 0 and all(
         isinstance(r, Record) for r in y)
@@ -264,6 +264,14 @@ def arrays_of(y, u, dt, *, what: str, records: int = 1, channels=None):
         if rec.delay:
             raise ValueError(f"{what} models no input delay; the record has delay={rec.delay} "
                              f"samples: pass record.shifted() (y[D:] with u[:steps - D])")
+        if rec.intersample != "foh":
+            # the encoder was trained on, and the head and refinement model, an input linear
+            # between samples; a held input would come back as a slightly wrong model, unflagged
+            raise ValueError(f"{what} models an input linear between samples (first-order "
+                             f"hold, Eq. 10-13: its encoder was trained on such records); the "
+                             f"record's input is held (intersample={rec.intersample!r}): "
+                             f"identify it with ae.identify(record, order=n), which models the "
+                             f"hold")
     dts = tuple(rec.dt for rec in given)
     if dt is not None and tuple(np.atleast_1d(dt)) != dts:
         raise ValueError(f"dt must be the record's own ({dts[0] if records == 1 else dts}) when "

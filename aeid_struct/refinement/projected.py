@@ -61,13 +61,14 @@ def _ccf(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return A, b[0]
 
 
-def _discrete(alpha: np.ndarray):
+def _discrete(alpha: np.ndarray, intersample: str = "foh"):
     """The small map of ``alpha (K, n)`` (complex-safe, for the complex step): discrete
-    denominator ``a (K, n + 1)`` (``a_0 = 1``), FOH numerators ``num (K, n + 1, n)`` of the
-    forced states (as ``simulation.project``) and ``gamma2 (K, n)``."""
+    denominator ``a (K, n + 1)`` (``a_0 = 1``), numerators ``num (K, n + 1, n)`` of the
+    forced states (as ``simulation.project``) and ``gamma2 (K, n)`` (zero for a held input:
+    ``simulation.discrete_foh``)."""
     K, n = alpha.shape
     A, b = _ccf(alpha)
-    Phi, gamma1, gamma2 = discrete_foh(A, b)
+    Phi, gamma1, gamma2 = discrete_foh(A, b, 1.0, intersample)
     Bd = gamma1 - gamma2 + np.einsum("kij,kj->ki", Phi, gamma2)
     # characteristic polynomial of Phi by Faddeev-LeVerrier: only products and traces, so the
     # complex step goes through it (np.poly of the eigenvalues does not)
@@ -88,14 +89,14 @@ def _discrete(alpha: np.ndarray):
     return a, num, gamma2
 
 
-def _with_derivatives(alpha: np.ndarray):
+def _with_derivatives(alpha: np.ndarray, intersample: str = "foh"):
     """``a, num, gamma2`` at ``alpha (n,)`` and their derivatives along each ``alpha_j`` (a
     leading axis of ``n``), by one batched complex step."""
     n = alpha.shape[0]
     h = _STEP * np.maximum(np.abs(alpha), 1e-8)
     batch = np.repeat(alpha[None].astype(complex), n + 1, axis=0)
     batch[1 + np.arange(n), np.arange(n)] += 1j * h
-    a, num, gamma2 = _discrete(batch)
+    a, num, gamma2 = _discrete(batch, intersample)
     d = (1.0 / h)[:, None]
     return (a[0].real, num[0].real, gamma2[0].real, a[1:].imag * d,
             num[1:].imag * d[:, :, None], gamma2[1:].imag * d)
@@ -167,12 +168,15 @@ def _differences(x: np.ndarray, k: int, out: np.ndarray) -> None:
 
 
 class Problem:
-    """The projected residual of one record at one delay (normalised time)."""
+    """The projected residual of one record at one delay (normalised time), under the
+    record's hold (``intersample``: with a feedthrough both holds span every ``B / A u`` of
+    degree ``n``; without one the strictly proper numerators differ)."""
 
-    def __init__(self, y, u, delay, feedthrough, offset):
+    def __init__(self, y, u, delay, feedthrough, offset, intersample: str = "foh"):
         self.m = m = y.shape[0] - delay
         self.y, self.u = y[delay:], u[:m]
         self.feedthrough, self.offset = feedthrough, offset
+        self.intersample = intersample
         self.impulse = np.zeros(m)
         self.impulse[0] = 1.0
 
@@ -192,7 +196,7 @@ class Problem:
             # with d free, X and u span every B(q^-1) / A(q^-1) u of degree n
             _differences(w, n + 1, M[: n + 1])
         else:
-            num, gamma2 = _discrete(alpha[None])[1:]
+            num, gamma2 = _discrete(alpha[None], self.intersample)[1:]
             W = _shifts(w, 0, n)
             M[:n] = (W @ num[0]).T + gamma2[0][:, None] * self.u
         _differences(g, n, M[forced : forced + n])    # every free response C / A delta
@@ -239,7 +243,7 @@ class Problem:
                 da = _denominator_derivative(alpha)
                 parts = None
             else:
-                _, num, gamma2, da, dnum, dgamma2 = _with_derivatives(alpha)
+                _, num, gamma2, da, dnum, dgamma2 = _with_derivatives(alpha, self.intersample)
                 da, parts = da.T, (num, gamma2, dnum, dgamma2)
             dynamic = e["fitted"] - (z[-1] if self.offset else 0.0)
             v = scipy.signal.lfilter([1.0], a, dynamic)
@@ -256,7 +260,7 @@ class Problem:
 
 
 def projected_cost(den, y, u, *, delay: int = 0, feedthrough: bool = True,
-                   offset: bool = True) -> tuple[float, np.ndarray]:
+                   offset: bool = True, intersample: str = "foh") -> tuple[float, np.ndarray]:
     """The separable cost ``V(alpha)`` of the module docstring and its gradient.
 
     Parameters
@@ -266,7 +270,7 @@ def projected_cost(den, y, u, *, delay: int = 0, feedthrough: bool = True,
         ``[1, alpha_{n-1}, ..., alpha_0]``.
     y, u : (steps,) arrays
     delay : int
-    feedthrough, offset : bool
+    feedthrough, offset, intersample
         As for :func:`~aeid_struct.simulation.project`.
 
     Returns
@@ -279,7 +283,7 @@ def projected_cost(den, y, u, *, delay: int = 0, feedthrough: bool = True,
     """
     y, u, den = as_arrays(y, u, den)
     check_arguments(den, y, delay)
-    problem = Problem(y, u, int(delay), bool(feedthrough), bool(offset))
+    problem = Problem(y, u, int(delay), bool(feedthrough), bool(offset), intersample)
     e = problem.evaluate(den[:0:-1].copy())
     if not math.isfinite(e["cost"]):
         return e["cost"], np.full(den.shape[0] - 1, np.nan)

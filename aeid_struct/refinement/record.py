@@ -42,7 +42,7 @@ import casadi
 import numpy as np
 
 from aeid_struct.estimates import Estimate
-from aeid_struct.records import require_finite
+from aeid_struct.records import INTERSAMPLE, require_finite
 from aeid_struct.refinement import core, nlp
 from aeid_struct.refinement.config import MAX_SQUARINGS, RefineConfig
 from aeid_struct.refinement.result import fitted
@@ -77,7 +77,8 @@ def _elements(structure: Structure, z, scale):
     return casadi.vertcat(*cols)
 
 
-def build_record_graph(structure: Structure, bucket: int) -> nlp.Numeric:
+def build_record_graph(structure: Structure, bucket: int,
+                       intersample: str = "foh") -> nlp.Numeric:
     """Build the response graph of one structure and bucket (uncached).
 
     Parameters
@@ -85,6 +86,9 @@ def build_record_graph(structure: Structure, bucket: int) -> nlp.Numeric:
     structure : Structure
     bucket : int
         Samples ``B`` of the unrolled response.
+    intersample : {"foh", "zoh"}
+        The input between samples: a held input is the same recursion with ``gamma2 = 0``
+        (``simulation.discrete_foh``).
 
     Returns
     -------
@@ -105,6 +109,8 @@ def build_record_graph(structure: Structure, bucket: int) -> nlp.Numeric:
         # derivative follows the branch taken.
         E = casadi.if_else(s > i + 0.5, E @ E, E)
     Phi, gamma1, gamma2 = E[:n, :n], E[:n, n], E[:n, n + 1]
+    if intersample == "zoh":
+        gamma2 = casadi.SX.zeros(n, 1)
     # As simulation.casadi_simulate, from x_0 = x0: x_1 = Phi x0 + (gamma1 - gamma2) u_0 +
     # gamma2 u_1, and zeta_k = x_k - gamma2 u_k obeys zeta_{k+1} = Phi zeta_k + Bd u_k.
     Bd, Dd = gamma1 - gamma2 + Phi @ gamma2, d + c.T @ gamma2
@@ -123,7 +129,8 @@ def build_record_graph(structure: Structure, bucket: int) -> nlp.Numeric:
                                        ["yhat", "O", "J"]))
 
 
-def record_graph(structure: Structure, key: str, length: int) -> tuple[int, nlp.Numeric]:
+def record_graph(structure: Structure, key: str, length: int,
+                 intersample: str = "foh") -> tuple[int, nlp.Numeric]:
     """The cached graph of the smallest bucket holding ``length`` samples.
 
     Parameters
@@ -133,14 +140,18 @@ def record_graph(structure: Structure, key: str, length: int) -> tuple[int, nlp.
         :func:`nlp.structure_key` of ``structure``.
     length : int
         Samples to fit (``N - D``).
+    intersample : {"foh", "zoh"}
 
     Returns
     -------
     (bucket, Numeric)
     """
     bucket = next(bk for bk in BUCKETS if bk >= length)
-    return bucket, nlp.cached(("record", key, bucket),
-                              lambda: build_record_graph(structure, bucket))
+    # the first-order hold keeps the key it always had (its cached graphs are shared)
+    cache_key = ("record", key, bucket) if intersample == "foh" else (
+        "record", key, bucket, intersample)
+    return bucket, nlp.cached(cache_key,
+                              lambda: build_record_graph(structure, bucket, intersample))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -149,10 +160,10 @@ def record_graph(structure: Structure, key: str, length: int) -> tuple[int, nlp.
 class _Delay:
     """The projected residual of one record at one delay, evaluated on the cached graph."""
 
-    def __init__(self, structure, key, asm, y, u, dt, delay, offset):
+    def __init__(self, structure, key, asm, y, u, dt, delay, offset, intersample="foh"):
         self.asm, self.n, self.dt, self.offset = asm, structure.n, dt, offset
         self.m = m = y.shape[0] - delay
-        self.bucket, self.graph = record_graph(structure, key, m)
+        self.bucket, self.graph = record_graph(structure, key, m, intersample)
         self.y = y[delay:]
         self.u = np.zeros(self.bucket)
         self.u[:m] = u[:m]
@@ -302,7 +313,8 @@ def _fit(problem: _Delay, x, config):
     return x, now, iterations, converged
 
 
-def _result(structure, problem: _Delay, x, now, delay, iterations, converged, y, u, seconds):
+def _result(structure, problem: _Delay, x, now, delay, iterations, converged, y, u, seconds,
+            intersample: str):
     """The Estimate at elements ``x`` from its evaluation ``now``: ``x0`` and the offset by
     least squares (SVD) on the unweighted record."""
     n = structure.n
@@ -319,12 +331,12 @@ def _result(structure, problem: _Delay, x, now, delay, iterations, converged, y,
                   y, u, problem.dt, seconds=seconds, method="refine_record", delay=int(delay),
                   x0=theta[:n], y_offset=float(theta[n]) if problem.offset else 0.0,
                   fit=100.0 * (1.0 - math.sqrt(cost)), y_hat=y_hat, cost=cost,
-                  iterations=iterations, converged=converged)
+                  iterations=iterations, converged=converged, intersample=intersample)
 
 
 def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt: float, *,
                   delay: int = 0, delays=None, offset: bool = True,
-                  config: RefineConfig | None = None) -> Estimate:
+                  config: RefineConfig | None = None, intersample: str = "foh") -> Estimate:
     """Refine a structure's elements on a whole record with its initial state, an output
     offset and an input delay (the module docstring's model; docs/architecture.md).
 
@@ -350,6 +362,8 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
         ``max_iter`` (per delay), ``tol`` (on the gradient of the cost with respect to
         relative element changes), ``step_tol`` and ``verbose`` apply; ``solver`` does not
         (the iterations are this module's Levenberg-Marquardt).
+    intersample : {"foh", "zoh"}
+        The input between samples (``records.Record.intersample``): linear, or held.
 
     Returns
     -------
@@ -379,6 +393,9 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
         raise ValueError(f"y and u must have the same shape (N,); got {y.shape} and {u.shape}")
     require_finite("y", y)
     require_finite("u", u)
+    if intersample not in INTERSAMPLE:
+        raise ValueError(f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))}; "
+                         f"got {intersample!r}")
     candidates = _candidates(delay, delays, y.shape[0], structure.n)
     if y.shape[0] - min(candidates) > BUCKETS[-1]:
         raise ValueError(f"y must have at most {BUCKETS[-1]} samples after the delay (the "
@@ -392,7 +409,7 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
         # wrong delay is absorbed by a fast pole far from the start (measured: CCF order 4,
         # delay 1 of a delay-2 record ends at a_i 70x off), and the next delay then converged
         # to a worse optimum than from the start itself.
-        problem = _Delay(structure, key, asm, y, u, float(dt), D, bool(offset))
+        problem = _Delay(structure, key, asm, y, u, float(dt), D, bool(offset), intersample)
         x_D, now, its, converged = _fit(problem, x, config)
         iterations += its
         if now[4] is None:     # the start itself overflows at this delay's length
@@ -404,4 +421,4 @@ def refine_record(structure: Structure, start, y: np.ndarray, u: np.ndarray, dt:
                          f"(dt={dt}); start from a model that does not")
     x, problem, now, D, converged = best
     return _result(structure, problem, x, now, D, iterations, converged, y, u,
-                   time.perf_counter() - t0)
+                   time.perf_counter() - t0, intersample)

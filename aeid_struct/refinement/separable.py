@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from aeid_struct.estimates import Estimate
+from aeid_struct.records import INTERSAMPLE
 from aeid_struct.refinement import core
 from aeid_struct.refinement.projected import Problem, as_arrays, check_arguments, projected_cost
 from aeid_struct.refinement.result import fitted
@@ -86,7 +87,7 @@ def _controllability(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 # both reaching the same cost (tests/test_refine_separable.py checks it to 1e-8 relative).
 def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough: bool = True,
                      offset: bool = True, max_iter: int = 100, cost_tol: float = 1e-10,
-                     step_tol: float = 1e-10) -> Estimate:
+                     step_tol: float = 1e-10, intersample: str = "foh") -> Estimate:
     """Refine a free CCF (denominator and, by projection, ``c, d, x_0, y_offset``) on a whole
     record by separable least squares (module docstring).
 
@@ -95,7 +96,8 @@ def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough:
     den : (n + 1,) array
         Monic start denominator in the time unit of ``dt``, highest power first.
     y, u : (steps,) arrays
-        The record (checked by the caller), ``u`` linear between samples.
+        The record (checked by the caller), ``u`` linear between samples (held for
+        ``intersample="zoh"``).
     dt : float, > 0
         Sample time; the refinement runs in normalised time (``alpha_j dt^(n-j)``).
     delay : int
@@ -107,6 +109,8 @@ def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough:
         Stop when an accepted step lowers the cost by less than this fraction.
     step_tol : float
         Stop when a step changes every ``alpha_j`` by less than this fraction.
+    intersample : {"foh", "zoh"}
+        The input between samples (``records.Record.intersample``).
 
     Returns
     -------
@@ -131,16 +135,19 @@ def refine_separable(den, y, u, dt: float = 1.0, *, delay: int = 0, feedthrough:
         raise ValueError(f"dt must be a positive finite number; got {dt!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1; got {max_iter!r}")
+    if intersample not in INTERSAMPLE:
+        raise ValueError(f"intersample must be one of {', '.join(map(repr, INTERSAMPLE))}; "
+                         f"got {intersample!r}")
     check_arguments(den, y, delay)
     n = den.shape[0] - 1
     powers = float(dt) ** np.arange(n + 1)
-    problem = Problem(y, u, int(delay), bool(feedthrough), bool(offset))
+    problem = Problem(y, u, int(delay), bool(feedthrough), bool(offset), intersample)
     alpha = (den * powers)[:0:-1].copy()
     alpha, iterations, converged = _levenberg_marquardt(problem, alpha, int(max_iter),
                                                         float(cost_tol), float(step_tol))
     den_n = np.concatenate([[1.0], alpha[::-1]])
     return _result(den_n, y, u, float(dt), int(delay), feedthrough, offset, iterations,
-                   converged, t0)
+                   converged, t0, intersample)
 
 
 @functools.lru_cache(maxsize=32)
@@ -150,7 +157,8 @@ def _ccf_structure(n: int, feedthrough: bool) -> CCF:
     return CCF(n, feedthrough=feedthrough)
 
 
-def _result(den_n, y, u, dt, delay, feedthrough, offset, iterations, converged, t0):
+def _result(den_n, y, u, dt, delay, feedthrough, offset, iterations, converged, t0,
+            intersample):
     """The Estimate of the normalised denominator ``den_n``: ``project`` for the
     linear part, then the physical-time CCF (``a_j / dt^(n-j)``, the state transformed)."""
     n = den_n.shape[0] - 1
@@ -158,7 +166,8 @@ def _result(den_n, y, u, dt, delay, feedthrough, offset, iterations, converged, 
     An[np.arange(n - 1), np.arange(1, n)] = 1.0
     An[-1] = -den_n[:0:-1]
     bn = np.eye(n)[-1]
-    p = project(An, bn, y, u, 1.0, delay=delay, feedthrough=feedthrough, offset=offset)
+    p = project(An, bn, y, u, 1.0, delay=delay, feedthrough=feedthrough, offset=offset,
+                intersample=intersample)
     den = den_n / dt ** np.arange(n + 1)
     As = np.zeros((n, n))
     As[np.arange(n - 1), np.arange(1, n)] = 1.0
@@ -178,4 +187,5 @@ def _result(den_n, y, u, dt, delay, feedthrough, offset, iterations, converged, 
                   {k: float(v) for k, v in zip(names, values, strict=True)}, y, u, dt,
                   seconds=time.perf_counter() - t0, method="refine_separable", delay=delay,
                   x0=T @ p.x0, y_offset=p.y_offset, fit=float(p.fit), y_hat=p.y_hat,
-                  cost=float(cost), iterations=iterations, converged=converged)
+                  cost=float(cost), iterations=iterations, converged=converged,
+                  intersample=intersample)

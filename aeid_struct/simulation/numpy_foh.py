@@ -95,21 +95,30 @@ def _outputs(discrete: tuple, C: np.ndarray, d: np.ndarray, u: np.ndarray):
     return Y, O
 
 
-def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0):
+def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0, intersample: str = "foh"):
     """Eq. 10 in numpy: ``Phi, gamma1, gamma2`` by one matrix exponential of
     ``[[A dt, b dt, 0], [0, 0, 1], [0, 0, 0]]`` (``scipy.linalg.expm``), for one system or a
     batch, real or complex (the complex step of ``refinement.projected`` goes through it).
+
+    A held input (``intersample="zoh"``) is the same recursion with ``gamma2 = 0``: the FOH
+    step ``x_{k+1} = Phi x_k + (gamma1 - gamma2) u_k + gamma2 u_{k+1}`` adds ``gamma2 (u_{k+1}
+    - u_k)`` for the input's ramp over the interval, and the zero-order hold's is
+    ``x_{k+1} = Phi x_k + gamma1 u_k`` (``gamma1 = int_0^dt e^{A s} ds b``). So every kernel
+    built on these three arrays serves both holds.
 
     Parameters
     ----------
     A : (..., n, n) array
     b : (..., n) array
     dt : float, > 0
+    intersample : {"foh", "zoh"}
+        The input between samples (``records.Record.intersample``).
 
     Returns
     -------
     Phi : (..., n, n) array
     gamma1, gamma2 : (..., n) arrays
+        ``gamma2`` zero for ``"zoh"``.
     """
     n = A.shape[-1]
     M = np.zeros(A.shape[:-2] + (n + 2, n + 2), dtype=np.result_type(A, b, np.float64))
@@ -117,7 +126,8 @@ def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0):
     M[..., :n, n] = b * dt
     M[..., n, n + 1] = 1.0
     X = scipy.linalg.expm(M)
-    return X[..., :n, :n], X[..., :n, n], X[..., :n, n + 1]
+    gamma2 = X[..., :n, n + 1] if intersample == "foh" else np.zeros_like(X[..., :n, n])
+    return X[..., :n, :n], X[..., :n, n], gamma2
 
 
 def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:

@@ -97,13 +97,14 @@ def forced_states(A, b, u, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return X, gamma2
 
 
-def _forced(A, b, u, dt: float):
-    """:func:`forced_states` and ``Phi``."""
+def _forced(A, b, u, dt: float, intersample: str = "foh"):
+    """:func:`forced_states` and ``Phi`` (a held input: ``gamma2 = 0``,
+    ``simulation.discrete_foh``)."""
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
     n = A.shape[0]
-    Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
+    Phi, gamma1, gamma2 = discrete_foh(A, b, dt, intersample)
     if not (np.all(np.isfinite(Phi)) and np.all(np.isfinite(gamma1))):
         # e^{A dt} overflowed (a fast unstable pole): no response to fit
         return np.full((u.shape[0], n), np.nan), gamma2, Phi
@@ -154,7 +155,7 @@ def _result(y, fitted, c, d, x0, offset, delay: int) -> Projection:
 
 
 def project(A, b, y, u, dt: float, *, delay: int = 0, feedthrough: bool = True,
-            offset: bool = True) -> Projection:
+            offset: bool = True, intersample: str = "foh") -> Projection:
     """``c, d, x_0, y_offset`` minimising the output error for a given ``(A, b)``.
 
     Unchecked (the caller validated the record); ``(A, b)`` in controllable canonical form, or any
@@ -172,6 +173,8 @@ def project(A, b, y, u, dt: float, *, delay: int = 0, feedthrough: bool = True,
         Fit ``d`` (else ``d = 0``).
     offset : bool
         Fit a constant output offset (else 0).
+    intersample : {"foh", "zoh"}
+        The input between samples (``records.Record.intersample``).
 
     Returns
     -------
@@ -182,7 +185,7 @@ def project(A, b, y, u, dt: float, *, delay: int = 0, feedthrough: bool = True,
     n = np.shape(A)[0]
     N = y.shape[0] - delay
     uu = u[:N]
-    X, gamma2, Phi = _forced(A, b, uu, dt)
+    X, gamma2, Phi = _forced(A, b, uu, dt, intersample)
     F = free_basis(Phi, np.eye(n)[:1], N)[:, 0, :]          # (N, n): e_1^T Phi^k
     cols = [X] + ([uu[:, None]] if feedthrough else []) + [F] + (
         [np.ones((N, 1))] if offset else [])
@@ -203,7 +206,7 @@ def project(A, b, y, u, dt: float, *, delay: int = 0, feedthrough: bool = True,
 
 
 def fit_initial(A, b, c, d, y, u, dt: float, *, delay: int = 0,
-                offset: bool = True) -> Projection:
+                offset: bool = True, intersample: str = "foh") -> Projection:
     """``x_0`` and ``y_offset`` minimising the output error of a given model (MATLAB's
     ``compare`` with the initial state estimated).
 
@@ -216,6 +219,8 @@ def fit_initial(A, b, c, d, y, u, dt: float, *, delay: int = 0,
     dt : float, > 0
     delay : int, 0 <= delay < steps - 1
     offset : bool
+    intersample : {"foh", "zoh"}
+        The input between samples (``records.Record.intersample``).
 
     Returns
     -------
@@ -226,7 +231,7 @@ def fit_initial(A, b, c, d, y, u, dt: float, *, delay: int = 0,
     c = np.asarray(c, dtype=np.float64)
     N = y.shape[0] - delay
     uu = u[:N]
-    X, gamma2, Phi = _forced(A, b, uu, dt)
+    X, gamma2, Phi = _forced(A, b, uu, dt, intersample)
     O = free_basis(Phi, c[None, :], N)[:, 0, :]
     forced = X @ c + float(d) * uu
     M = np.concatenate([O] + ([np.ones((N, 1))] if offset else []), axis=1)

@@ -27,9 +27,11 @@ the NRMSE fit with its initial state and output offset fitted (MATLAB's ``compar
 measured (noisy) output -- the true model's fit is the reference there -- and against the
 noise-free output (``*_clean``: the true model scores 100).
 
-Also two stand-ins for measured data sets (no data can be downloaded here; both are simulated with
-the structure of the public ones): a thermal process sampled at 0.08 s and a lightly damped
-mechanical system, 1,000 samples each, estimation on the first half, validation on the second.
+Also three stand-ins for measured data sets (no data can be downloaded here; all are simulated
+with the structure of the public ones): a thermal process sampled at 0.08 s, a lightly damped
+mechanical system, and CONTSID's Rao-Garnier benchmark under a zero-order hold (a PRBS held 7
+samples through a DAC, SNR 10 dB, ``Record(..., intersample="zoh")``), 1,000 samples each,
+estimation on the first half, validation on the second.
 """
 
 from __future__ import annotations
@@ -102,9 +104,9 @@ def _score(A, b, c, d, delay: int, validation: Record, clean: np.ndarray) -> tup
         return float("nan"), float("nan")
     with np.errstate(all="ignore"):
         measured = fit_initial(A, b, c, float(d), validation.y, validation.u, validation.dt,
-                               delay=delay).fit
+                               delay=delay, intersample=validation.intersample).fit
         truth = fit_initial(A, b, c, float(d), clean, validation.u, validation.dt,
-                            delay=delay).fit
+                            delay=delay, intersample=validation.intersample).fit
     return float(measured), float(truth)
 
 
@@ -257,8 +259,29 @@ def _stand_in(rng, dt, steps, delay, a, c, y_offset, noise, kind):
                                                               delay)
 
 
+def _held(rng) -> tuple[Record, Record, np.ndarray, tuple]:
+    """CONTSID's Rao-Garnier system, ``(-6400 s + 1600) / (s^4 + 5 s^3 + 408 s^2 + 416 s +
+    1600)`` (two resonances a decade apart, a non-minimum-phase zero), driven through a DAC:
+    a PRBS held 7 samples, the output sampled at 0.01 s (scipy's zero-order-hold oracle), white
+    noise at SNR 10 dB."""
+    import scipy.signal
+
+    dt, steps = 0.01, 1000
+    num, den = [-6400.0, 1600.0], [1.0, 5.0, 408.0, 416.0, 1600.0]
+    u = np.repeat(rng.integers(0, 2, 2 * steps // 7 + 2) * 2.0 - 1.0, 7)[: 2 * steps]
+    Ad, Bd, Cd, Dd, _ = scipy.signal.cont2discrete(scipy.signal.tf2ss(num, den), dt,
+                                                   method="zoh")
+    clean = scipy.signal.dlsim((Ad, Bd, Cd, Dd, dt), u)[1][:, 0]
+    y = clean + np.std(clean) / 10 ** 0.5 * rng.standard_normal(clean.shape)
+    estimation = Record(y[:steps], u[:steps], dt, intersample="zoh")
+    validation = Record(y[steps:], u[steps:], dt, intersample="zoh")
+    A, b, _ = ccf_matrices(np.asarray(den[1:][::-1])[None], None)
+    return estimation, validation, clean[steps:], (A[0], b[0], np.array([1600.0, -6400.0, 0, 0]),
+                                                   0.0, 0)
+
+
 def measured_stand_ins(seed: int = 7, identifiers=None) -> list[Row]:
-    """The two stand-ins for measured data sets, every method.
+    """The three stand-ins for measured data sets, every method.
 
     Parameters
     ----------
@@ -273,7 +296,8 @@ def measured_stand_ins(seed: int = 7, identifiers=None) -> list[Row]:
     """
     rng = np.random.default_rng(seed)
     rows = []
-    for label, make, order in (("thermal", _thermal, 2), ("mechanical", _mechanical, 4)):
+    for label, make, order in (("thermal", _thermal, 2), ("mechanical", _mechanical, 4),
+                               ("held input", _held, 4)):
         est, val, clean, true = make(rng)
         rows += _run_record(_methods(order, identifiers), est, val, clean, true, label, order, -1.0,
                             est.steps)
