@@ -24,6 +24,7 @@ _compat.install()      # old module paths (aeid_struct.decoder, .refine, ...) ke
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.encoder import EncoderConfig as EncoderConfig
+    from aeid_struct.generic import StableOnlyWarning as StableOnlyWarning
     from aeid_struct.generic import compare as compare
     from aeid_struct.generic import identify as identify
     from aeid_struct.identification import Estimate as Estimate
@@ -77,6 +78,7 @@ _SOURCES = {
     "System": "structures",
     "TrainConfig": "training",
     "UndertrainedWarning": "training",
+    "StableOnlyWarning": "generic",
     "train": "training",
 }
 
@@ -95,6 +97,7 @@ __all__ = [
     "Record",
     "RefineConfig",
     "Structure",
+    "StableOnlyWarning",
     "System",
     "TrainConfig",
     "UndertrainedWarning",

@@ -595,3 +595,41 @@ def test_reported_fit_is_the_returned_models_own_on_the_sweeps_hard_records():
         est = identify(rec, 4, **kw)
         assert est.fit == pytest.approx(compare(est, rec).fit, abs=1e-3)
         assert est.fit > 60
+
+
+def test_an_unstable_record_in_the_stable_modal_form_is_flagged():
+    """The modal form is stable by construction: on a record of an unstable plant (poles 0.3
+    and -2) it returns the best stable model, which must not pass for the system -- a
+    StableOnlyWarning and ``info["unstable"]`` carry the free CCF's unstable poles; the default
+    CCF identifies the plant (scipy's FOH oracle), and a stable plant raises nothing."""
+    import warnings
+
+    import scipy.signal
+
+    from aeid_struct.generic.pipeline import StableOnlyWarning
+
+    rng = np.random.default_rng(0)
+    dt, steps = 0.05, 400
+    u = np.repeat(rng.standard_normal(steps // 10 + 1), 10)[:steps]
+
+    def record(poles, noise):
+        num, den, _ = scipy.signal.cont2discrete(([1.0], np.poly(poles)), dt, method="foh")
+        y = scipy.signal.lfilter(num.ravel(), den, u)
+        return ae.Record(y + noise * np.std(y) * rng.standard_normal(steps), u, dt)
+
+    unstable = record([0.3, -2.0], 0.01)
+    for refine in (False, True):
+        with pytest.warns(StableOnlyWarning, match=r"best model is unstable .*structure='ccf'"):
+            est = ae.identify(unstable, order=2, structure="mcf", refine=refine)
+        assert np.all(np.linalg.eigvals(est.A).real < 0)
+        flagged = est.info["unstable"]
+        assert flagged["fit"] > est.fit + 5
+        assert abs(flagged["poles"].real.max() - 0.3) < 0.03
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StableOnlyWarning)
+        ccf = ae.identify(unstable, order=2)
+        np.testing.assert_allclose(np.sort(np.linalg.eigvals(ccf.A).real), [-2.0, 0.3],
+                                   atol=0.03)
+        assert "unstable" not in ccf.info
+        stable = ae.identify(record([-0.3, -2.0], 0.001), order=2, structure="mcf")
+        assert "unstable" not in stable.info

@@ -54,6 +54,7 @@ fits are compared instead by the same rule.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,7 +81,8 @@ from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
 
-__all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE", "run"]
+__all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE",
+           "StableOnlyWarning", "run"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``).
 ORDER_TOLERANCE = 0.5
@@ -219,7 +221,30 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
                                                         feedthrough, max_delay, method,
                                                         bool(classical))
     info |= about
+    info |= _stable_only(info.pop("unstable", None), model, work.dt)
     est = estimate_of(model, structure, work, time.perf_counter() - start, refined, info)
     return restore(units, est, data)
+
+
+class StableOnlyWarning(UserWarning):
+    """A record whose best model is unstable, identified in a structure that is stable by
+    construction (the modal form): the estimate is the best stable model, not the system."""
+
+
+def _stable_only(unstable: dict | None, model: Model, dt: float) -> dict:
+    """``{"unstable": ...}`` (and a :class:`StableOnlyWarning`) where the free CCF's fit of the
+    record, which the modal form could not take, is unstable and fits clearly better (a mean
+    squared residual below 0.99 times the returned model's, ``polish.better_of``'s margin): the
+    stable-only structure's estimate would otherwise pass for the system. Its poles in the
+    record's time unit; empty where there is nothing to say."""
+    if unstable is None or not unstable["cost"] < 0.99 * model.cost:
+        return {}
+    poles = np.sort_complex(np.asarray(unstable["poles"]) / dt)
+    fit = 100.0 * (1.0 - np.sqrt(unstable["cost"] / model.cost) * (1.0 - model.fit / 100.0))
+    warnings.warn(f"the record's best model is unstable (poles {np.round(poles, 4).tolist()}, "
+                  f"fit {fit:.1f} % against {model.fit:.1f} %): the modal form is stable by "
+                  f"construction and returns the best stable model, not the system; identify "
+                  f"it with structure='ccf' (the default)", StableOnlyWarning, stacklevel=4)
+    return {"unstable": {"poles": poles, "fit": float(fit)}}
 
 

@@ -116,7 +116,11 @@ def refine_free(structure: Structure, m: Model, data, max_delay: int, *,
     real = int(np.sum(np.abs(poles.imag) <= 1e-9 * np.abs(poles).max()))
     if isinstance(structure, MCF) and not (np.all(poles.real < 0) and (
             not split or real == structure.real)):
-        return None, {"refinement": "separable optimum not a stable MCF: CasADi"}
+        about = {"refinement": "separable optimum not a stable MCF: CasADi"}
+        if not np.all(poles.real < 0):
+            # what the stable form cannot represent, kept so the result can say so
+            about["unstable"] = {"poles": poles, "cost": best.cost, "delay": best.delay}
+        return None, about
     return best, {"iterations": iterations, "converged": converged, "refine_seconds": seconds,
                   "method": "separable"}
 
@@ -375,7 +379,7 @@ def iterate(spec, structure: Structure, model: Model, data, iterations: int, max
     better, about = refine_free(structure, model, data, 0, split=split, search=False,
                                 max_iter=iterations)
     if better is None:
-        return model, {}
+        return model, {k: v for k, v in about.items() if k == "unstable"}
     models, count = [model, better], about["iterations"]
     top = min(max_delay, data.steps - 4 * model.A.shape[0] - 4)
     if data.delay is None and top > 0:
