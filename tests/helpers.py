@@ -33,6 +33,16 @@ def tf_coeffs(A, b, c, d=0.0):
     return num, den
 
 
+def companion(den):
+    """The bottom-row controllable canonical form ``A (n, n), b = e_n`` of a monic denominator
+    (highest power first), written out: the test oracles' CCF (paper Eq. 5)."""
+    n = len(den) - 1
+    A = np.zeros((n, n))
+    A[:-1, 1:] = np.eye(n - 1)
+    A[-1] = -np.asarray(den[1:], float)[::-1]
+    return A, np.eye(n)[-1]
+
+
 def torchrun(args, *, cwd, env, timeout=240):
     """``python -m torch.distributed.run ARGS`` in a session of its own, as
     ``subprocess.run(..., capture_output=True, text=True)`` does, and afterwards every process

@@ -2,17 +2,12 @@
 
 import numpy as np
 import pytest
+from helpers import companion
 
 from aeid_struct.generic.classical import EARLY, classical_candidates, steiglitz_mcbride
 from aeid_struct.simulation import simulate
 
-
-def ccf(den):
-    n = len(den) - 1
-    A = np.zeros((n, n))
-    A[:-1, 1:] = np.eye(n - 1)
-    A[-1] = -np.asarray(den[1:], float)[::-1]
-    return A, np.eye(n)[-1]
+ccf = companion
 
 
 POLES = {

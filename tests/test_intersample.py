@@ -6,10 +6,10 @@ benchmark system."""
 
 import warnings
 
-import control
 import numpy as np
 import pytest
 import scipy.signal
+from helpers import companion, tf_coeffs
 
 import aeid_struct as ae
 from aeid_struct import baselines
@@ -21,14 +21,6 @@ from aeid_struct.structures import CCF
 #: Rao & Garnier (2002): (-6400 s + 1600) / (s^4 + 5 s^3 + 408 s^2 + 416 s + 1600), a
 #: non-minimum-phase zero and two resonances a decade apart; dt = 0.01, PRBS held 7 samples.
 NUM, DEN, DT = [-6400.0, 1600.0], [1.0, 5.0, 408.0, 416.0, 1600.0], 0.01
-
-
-def ccf(den):
-    n = len(den) - 1
-    A = np.zeros((n, n))
-    A[:-1, 1:] = np.eye(n - 1)
-    A[-1] = -np.asarray(den[1:], float)[::-1]
-    return A, np.eye(n)[-1]
 
 
 def held(steps=2000, seed=0, snr=None):
@@ -44,15 +36,8 @@ def held(steps=2000, seed=0, snr=None):
     return y0 + noise, y0, u
 
 
-def transfer(A, b, c, d):
-    """Numerator (padded to the denominator's length) and denominator of ``(A, b, c, d)``."""
-    tf = control.ss2tf(A, np.reshape(b, (-1, 1)), np.reshape(c, (1, -1)), np.atleast_2d(d))
-    num, den = np.asarray(tf.num[0][0], float), np.asarray(tf.den[0][0], float)
-    return np.concatenate([np.zeros(den.size - num.size), num]) / den[0], den / den[0]
-
-
 def test_a_held_input_discretises_as_scipys_zero_order_hold():
-    A, b = ccf(DEN)
+    A, b = companion(DEN)
     Phi, gamma1, gamma2 = discrete_foh(A, b, DT, "zoh")
     Ad, Bd, *_ = scipy.signal.cont2discrete((A, b[:, None], np.eye(4), np.zeros((4, 1))), DT,
                                             method="zoh")
@@ -65,7 +50,7 @@ def test_a_held_input_discretises_as_scipys_zero_order_hold():
 
 def test_project_and_fit_initial_are_exact_under_the_records_hold():
     y, _, u = held(600)
-    A, b = ccf(DEN)
+    A, b = companion(DEN)
     c = np.array([1600.0, -6400.0, 0.0, 0.0])
     p = project(A, b, y, u, DT, feedthrough=False, intersample="zoh")
     np.testing.assert_allclose(p.c, c, rtol=1e-7, atol=1e-6)
@@ -79,7 +64,7 @@ def test_both_refinements_reach_the_true_model_of_a_held_record():
     y, _, u = held(800)
     start = np.poly(np.roots(DEN) * 1.03).real
     sep = refine_separable(start, y, u, DT, feedthrough=False, intersample="zoh")
-    num, den = transfer(sep.A, sep.b, sep.c, sep.d)
+    num, den = tf_coeffs(sep.A, sep.b, sep.c, sep.d)
     np.testing.assert_allclose(den, DEN, rtol=1e-7)
     np.testing.assert_allclose(num[-2:], NUM, rtol=1e-7)
     assert sep.intersample == "zoh"
@@ -88,7 +73,7 @@ def test_both_refinements_reach_the_true_model_of_a_held_record():
     elements = {**{f"a{j}": a[j] for j in range(4)},
                 **{f"c{j}": v for j, v in enumerate([1600.0, -6400.0, 0.0, 0.0])}}
     rec = refine_record(structure, elements, y, u, DT, intersample="zoh")
-    num, den = transfer(rec.A, rec.b, rec.c, rec.d)
+    num, den = tf_coeffs(rec.A, rec.b, rec.c, rec.d)
     np.testing.assert_allclose(den, DEN, rtol=1e-6)
     np.testing.assert_allclose(num[-2:], NUM, rtol=1e-6)
     assert rec.fit > 99.999
@@ -100,7 +85,7 @@ def test_identify_returns_the_true_model_of_a_held_record_and_compare_uses_the_h
     y, y0, u = held()
     est = ae.identify(Record(y[:1000], u[:1000], DT, intersample="zoh"), order=4)
     assert est.intersample == "zoh" and est.delay == 0
-    num, den = transfer(est.A, est.b, est.c, est.d)
+    num, den = tf_coeffs(est.A, est.b, est.c, est.d)
     np.testing.assert_allclose(den, DEN, rtol=1e-6)
     np.testing.assert_allclose(num, [0.0, 0.0, 0.0, *NUM], atol=1e-6 * 6400)
     validation = Record(y0[1000:], u[1000:], DT, intersample="zoh")
@@ -108,7 +93,7 @@ def test_identify_returns_the_true_model_of_a_held_record_and_compare_uses_the_h
     # read as linear between samples, the same data give a first-order-hold model: a
     # spurious s^3 and s^2 in the numerator (the hold's half sample), not the system
     foh = ae.identify(Record(y[:1000], u[:1000], DT), order=4)
-    assert np.abs(transfer(foh.A, foh.b, foh.c, foh.d)[0][1:3]).max() > 1.0
+    assert np.abs(tf_coeffs(foh.A, foh.b, foh.c, foh.d)[0][1:3]).max() > 1.0
     # compare simulates under the validation record's hold
     assert ae.compare(est, Record(y0[1000:], u[1000:], DT)).fit < 99.9
 
@@ -135,7 +120,7 @@ def test_classical_baselines_read_the_hold():
         ls = baselines.least_squares(record, order=4)
     for est in (sub, ls):
         assert not est.info["failed"] and est.info["intersample"] == "zoh"
-        num, den = transfer(est.A, est.b, est.c, est.d)
+        num, den = tf_coeffs(est.A, est.b, est.c, est.d)
         np.testing.assert_allclose(den, DEN, rtol=2e-3)
         np.testing.assert_allclose(num[-2:], NUM, rtol=2e-3)
         assert abs(num[0]) < 1e-3 * 6400          # no first-order-hold numerator term

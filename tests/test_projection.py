@@ -4,17 +4,11 @@ per-step scipy ``expm`` recursion (an independent FOH oracle) and the exact kern
 import numpy as np
 import pytest
 import scipy.linalg
+from helpers import companion
 
 from aeid_struct.simulation import fit_initial, forced_states, project, simulate_outputs
 
-
-def ccf(den):
-    """Bottom-row companion form of a monic denominator (highest power first)."""
-    n = len(den) - 1
-    A = np.zeros((n, n))
-    A[:-1, 1:] = np.eye(n - 1)
-    A[-1, :] = -np.asarray(den[1:], float)[::-1]
-    return A, np.eye(n)[-1]
+ccf = companion
 
 
 def oracle(A, b, c, d, u, dt, x0):
