@@ -165,8 +165,8 @@ def _bad_files(tmp_path) -> dict:
 
 
 GENERIC_ERRORS = [
-    (["{lab.csv}", "--order", "5"], r"identify: argument --order: expected an order 1, 2, 3, 4 "
-                                    r"or auto; got '5'"),
+    (["{lab.csv}", "--order", "9"], r"identify: argument --order: expected an order 1-8 or "
+                                    r"auto; got '9'"),
     (["{lab.csv}", "--order", "two"], r"argument --order: expected an order .*; got 'two'"),
     (["{y.csv}", "--order", "2"], r"--dt: RECORD '.*y.csv' has no t column; give its sample "
                                   r"time by --dt DT"),

@@ -137,9 +137,9 @@ def test_deterministic_for_a_seed():
 
 
 @pytest.mark.parametrize("field, value, match", [
-    ("order", 0, "order must be an integer in 1..4"),
-    ("order", 5, "order must be an integer in 1..4"),
-    ("order", True, "order must be an integer in 1..4"),
+    ("order", 0, "order must be an integer in 1..8"),
+    ("order", 9, "order must be an integer in 1..8"),
+    ("order", True, "order must be an integer in 1..8"),
     ("band", (0.0, 1.0), "band must have lo > 0"),
     ("band", (2.0, 1.0), "band must satisfy lo <= hi"),
     ("band", "ab", "band must be a"),

@@ -167,12 +167,13 @@ def _add_track(sub, names: str) -> None:
 
 
 def _order(text: str):
-    """An argparse type: ``auto`` or an order 1..4 (the generic identifiers' orders)."""
+    """An argparse type: ``auto`` or an order 1..8 (the generic identifiers' encoders for 1-4,
+    the classical start alone above)."""
     if text == "auto":
         return text
-    if text.strip().isdigit() and 1 <= int(text) <= 4:
+    if text.strip().isdigit() and 1 <= int(text) <= 8:
         return int(text)
-    raise argparse.ArgumentTypeError(f"expected an order 1, 2, 3, 4 or auto; got {text!r}")
+    raise argparse.ArgumentTypeError(f"expected an order 1-8 or auto; got {text!r}")
 
 
 def _add_identify(sub, names: str, generic: str) -> None:
@@ -181,7 +182,7 @@ def _add_identify(sub, names: str, generic: str) -> None:
         "identify", help="identify a system from a record file: any SISO system with --order "
                          "(the generic identifiers), or with a trained identifier and its "
                          "self-check (fit, excess, inside or outside its training range)",
-        usage="aeid-struct identify RECORD --order {1,2,3,4,auto} [--dt DT] [options]\n"
+        usage="aeid-struct identify RECORD --order {1-8,auto} [--dt DT] [options]\n"
               "       aeid-struct identify MODEL --y FILE [FILE ...] [options]",
         description="Two uses. (1) Any SISO system, any sample time and record length: "
                     "'aeid-struct identify RECORD --order N' identifies a continuous-time model "
@@ -206,9 +207,10 @@ def _add_identify(sub, names: str, generic: str) -> None:
     idp.add_argument("model", metavar="RECORD|MODEL",
                      help="with --order: the record file (.csv or .npy, layouts below); "
                           f"otherwise an identifier file (.aeid) or a shipped name: {names}")
-    idp.add_argument("--order", type=_order, default=None, metavar="{1,2,3,4,auto}",
-                     help="identify RECORD with the generic identifiers: the model order 1-4, "
-                          "or auto (each order identified on the first 70 %% of the record, the "
+    idp.add_argument("--order", type=_order, default=None, metavar="{1-8,auto}",
+                     help="identify RECORD with the generic identifiers: the model order 1-8 "
+                          "(encoders for 1-4, the classical start alone above), or auto (each "
+                          "of orders 1-4 identified on the first 70 %% of the record, the "
                           "smallest within 0.5 points of the best validation fit on the rest)")
     idp.add_argument("--dt", type=POSITIVE, default=None,
                      help="with --order: the record's sample time [s] (default: from its t "

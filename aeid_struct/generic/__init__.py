@@ -12,6 +12,8 @@ projection re-scan), ``one_call`` (:func:`identify`; its steps in ``pipeline``),
 ``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
 """
 
+from aeid_struct.generic.classical import MAX_ORDER as MAX_ORDER
+from aeid_struct.generic.classical import NoEncoder as NoEncoder
 from aeid_struct.generic.classical import arx as arx
 from aeid_struct.generic.comparison import Comparison as Comparison
 from aeid_struct.generic.comparison import compare as compare
@@ -46,6 +48,8 @@ __all__ = [
     "GENERIC",
     "GenericConfig",
     "GenericIdentifier",
+    "MAX_ORDER",
+    "NoEncoder",
     "ORDERS",
     "ORDER_TOLERANCE",
     "StableOnlyWarning",

@@ -24,10 +24,17 @@ counterpart) is replaced by ``|z|``.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import scipy.signal
 
-__all__ = ["EARLY", "MAX_ITERATIONS", "TOL", "arx", "classical_candidates", "steiglitz_mcbride"]
+__all__ = ["EARLY", "MAX_ITERATIONS", "MAX_ORDER", "TOL", "NoEncoder", "arx",
+           "classical_candidates", "steiglitz_mcbride"]
+
+#: The highest order ``ae.identify`` takes (above the shipped encoders' through
+#: :class:`NoEncoder`): the orders the generic benchmark measures.
+MAX_ORDER = 8
 
 #: The early iterate :func:`classical_candidates` keeps beside the fixed point.
 EARLY = 5
@@ -79,6 +86,45 @@ def _stable(a: np.ndarray) -> np.ndarray:
         return a
     roots[outside] = 1.0 / np.conj(roots[outside])
     return np.real(np.poly(roots))
+
+
+class NoEncoder:
+    """The generic identifier protocol (``config.order, window, band``, ``denominators``) for an
+    order without a trained encoder: it proposes no candidate (NaN rows, which the candidates'
+    stage drops), so ``ae.identify`` starts from the classical candidates alone
+    (:func:`classical_candidates`), scored, iterated and refined as the encoder's would be.
+
+    Why not refuse: above the shipped orders the Steiglitz-McBride fixed point is a start the
+    separable iterations take to the output-error optimum on lightly damped multi-mode records,
+    where n4sid's model is far from it (``aeid-struct bench-generic``).
+
+    Parameters
+    ----------
+    order : int, >= 1
+    window : int
+        The holdout rule's length (``generic.pipeline``: order selection), as an encoder's.
+    band : (lo, hi)
+        ``|p| dt`` the float64 check assumes (``generic.boundary.check_grid``).
+    """
+
+    def __init__(self, order: int, window: int, band: tuple[float, float]) -> None:
+        self.config = SimpleNamespace(order=int(order), window=int(window), band=tuple(band))
+
+    def __repr__(self) -> str:
+        return f"NoEncoder(order={self.config.order})"
+
+    def denominators(self, Y, U) -> np.ndarray:
+        """No candidate: ``(K, order + 1)`` NaN rows for ``K`` windows.
+
+        Parameters
+        ----------
+        Y, U : (K, window) arrays
+
+        Returns
+        -------
+        (K, order + 1) array
+        """
+        return np.full((len(Y), self.config.order + 1), np.nan)
 
 
 def steiglitz_mcbride(y, u, order: int, delay: int = 0,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import os
 
+from aeid_struct.generic.classical import MAX_ORDER, NoEncoder
 from aeid_struct.generic.config import ORDERS
 from aeid_struct.generic.model import load_generic
 from aeid_struct.generic.pipeline import (
@@ -44,8 +45,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         identifier's window is read by it at a finer grid (``generic.windows.Windows``). Its
         ``intersample`` (the input linear or held between samples) is modelled exactly.
     order : int, optional
-        Model order; None selects it among the available generic identifiers (module
-        docstring). Taken from ``structure`` when that is a Structure.
+        Model order, 1 to ``MAX_ORDER`` (8): the shipped generic identifiers' encoders for
+        1-4, the classical start alone above (``generic.classical.NoEncoder``); None selects
+        it among the encoders' orders (module docstring). Taken from ``structure`` when that
+        is a Structure.
     structure : None, "ccf", "mcf" or Structure
         The structure of the estimate: default ``CCF(order, feedthrough=True)``; ``"mcf"`` the
         modal form with the start's real poles and pairs (stable by construction); any
@@ -97,11 +100,16 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
 @functools.cache
 def _shipped(order: int):
     """The shipped ``generic-n``, read once per process (reading it took two thirds of an
-    unrefined call; ``identify`` never changes an identifier)."""
-    if order not in ORDERS:
-        raise ValueError(f"order must be one of {ORDERS} (the shipped generic identifiers) or "
-                         f"None; got {order} (pass identifier= for another order)")
-    return load_generic(f"generic-{order}")
+    unrefined call; ``identify`` never changes an identifier); above the shipped orders, up to
+    ``MAX_ORDER``, the classical start alone (``generic.classical.NoEncoder``)."""
+    if order in ORDERS:
+        return load_generic(f"generic-{order}")
+    if order > MAX_ORDER:
+        raise ValueError(f"order must be at most {MAX_ORDER} (encoders for orders "
+                         f"{ORDERS[0]}-{ORDERS[-1]}, the classical start alone above) or None; "
+                         f"got {order} (pass identifier= for another order)")
+    shipped = _shipped(ORDERS[-1]).config
+    return NoEncoder(order, shipped.window, shipped.band)
 
 
 def _generic(ident):

@@ -109,9 +109,10 @@ class _Fit:
 
 
 def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
-                 classical=False, intersample="foh") -> _Fit:
+                 classical=False, intersample="foh", fallback=False) -> _Fit:
     """Steps 2-4 of the module docstring, in normalised time (``classical``: the
-    Steiglitz-McBride candidate too, as in the one pass; ``intersample``: the record's
+    Steiglitz-McBride candidates too, as in the one pass; ``fallback``: them where the
+    identifier proposes none, an order without an encoder; ``intersample``: the record's
     hold)."""
     N = y.shape[0]
     room = N - shortest(order)
@@ -122,10 +123,13 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
                          f"{order + 1}) arrays); got shape {dens.shape}")
     if len(dens) == 0:
         Record(y, u).require_informative()     # the one message for a constant y or u
-    sm = classical_candidates(y, u, order, D0) if classical else np.zeros((0, order + 1))
+    sm = (classical_candidates(y, u, order, D0) if classical or (fallback and len(dens) == 0)
+          else np.zeros((0, order + 1)))
     if len(dens) == 0 and len(sm) == 0:
         raise ValueError(f"the generic identifier of order {order} found no usable model in "
-                         f"any window of this record ({N} samples)")
+                         f"any window of this record ({N} samples)"
+                         + ("" if fallback else "; classical=False leaves out the classical "
+                            "start"))
     if len(dens) >= 3:
         # the coefficient-wise median as one more candidate: measured on 300 random systems
         # (orders 1-4, 5 perturbed candidates and an outlier), choosing among candidates plus
@@ -153,7 +157,7 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
     fits = {}
     for n, ident in sorted(identifiers.items()):
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough,
-                           classical and not refine, data.intersample)
+                           classical and not refine, data.intersample, classical)
         model = Model.of_ccf(fit.den, fit.projection)
         ccf_n = CCF(n, feedthrough=feedthrough)
         if refine:
@@ -207,7 +211,8 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
     fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, max_delay,
-                       feedthrough, bool(classical) and not refine, work.intersample)
+                       feedthrough, bool(classical) and not refine, work.intersample,
+                       bool(classical))
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, structure_of(structure, order, fit.den)
     refined = False
@@ -219,7 +224,7 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     else:
         model, structure, refined, about = refine_model(spec, structure, model, work, order,
                                                         feedthrough, max_delay, method,
-                                                        bool(classical))
+                                                        bool(classical), fit.start)
     info |= about
     info |= _stable_only(info.pop("unstable", None), model, work.dt)
     est = estimate_of(model, structure, work, time.perf_counter() - start, refined, info)

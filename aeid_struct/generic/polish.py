@@ -222,7 +222,7 @@ def better_of(models, y: np.ndarray) -> Model | None:
 
 
 def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
-                  split: bool = False, classical: bool = True):
+                  split: bool = False, classical: bool = True, origin: str = "encoder"):
     """:func:`refine_free` from the encoder's start ``m`` and from the classical start
     (:func:`classical_start`), the better kept (:func:`better_of`); ``info["start"]`` says
     which. Measured on the benchmark's stand-in for a flexible arm: from the encoder's start
@@ -238,6 +238,8 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
         As in :func:`refine_free`.
     classical : bool
         Refine from the classical start too (else from ``m`` alone).
+    origin : {"encoder", "classical"}
+        Where ``m`` came from (a classical candidate where no encoder proposed one).
 
     Returns
     -------
@@ -259,7 +261,7 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     if final is None:
         final, info = chosen, dict(results[k][1])
     info = dict(info)
-    info["start"] = ("encoder", "classical")[k]
+    info["start"] = (origin, "classical")[k]
     info["iterations"] = (sum(r[1].get("iterations", 0) for r in results)
                           + info.get("iterations", 0))
     info["refine_seconds"] = (sum(r[1].get("refine_seconds", 0.0) for r in results)
@@ -305,7 +307,8 @@ def one_pass(spec, structure: Structure, model: Model, work, order: int, feedthr
 
 
 def refine_model(spec, structure: Structure, model: Model, work, order: int,
-                 feedthrough: bool, max_delay: int, method: str, classical: bool):
+                 feedthrough: bool, max_delay: int, method: str, classical: bool,
+                 origin: str = "encoder"):
     """Step 5 of ``generic.pipeline``'s docstring, the refinement: ``(model, structure,
     refined, info)``.
 
@@ -325,6 +328,8 @@ def refine_model(spec, structure: Structure, model: Model, work, order: int,
     method : {"auto", "separable", "casadi"}
     classical : bool
         A Steiglitz-McBride second start.
+    origin : {"encoder", "classical"}
+        Where ``model`` came from (``refine_starts``).
 
     Returns
     -------
@@ -338,7 +343,8 @@ def refine_model(spec, structure: Structure, model: Model, work, order: int,
     better, about = None, {}
     if method != "casadi" and separable(spec):
         better, about = refine_starts(structure, model, work, max_delay,
-                                      split=isinstance(spec, MCF), classical=classical)
+                                      split=isinstance(spec, MCF), classical=classical,
+                                      origin=origin)
         if better is not None and spec == "mcf":
             # the refined poles decide the modal form's real poles and pairs
             structure = structure_of(spec, order, denominator_of(better.A))

@@ -1,4 +1,4 @@
-"""Generic families in normalised time: stable SISO systems of order 1-4 that look like real ones
+"""Generic families in normalised time: stable SISO systems of order 1-8 that look like real ones
 (zeros, resonances to overdamped modes, gains of either sign, feedthrough, input delay) and their
 records (excitations people apply, a mid-motion start, offsets, noise), for training and
 benchmarking the generic identifiers. This module is the family: the random draw and the
@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from aeid_struct.generic import MAX_ORDER
 from aeid_struct.simulation import states_batch
 from aeid_struct.structures import ccf_matrices
 from aeid_struct.training.checks import count as positive_int
@@ -86,7 +87,7 @@ class GenericFamily:
     Attributes
     ----------
     order : int
-        ``n``, 1..4.
+        ``n``, 1..8 (``generic.MAX_ORDER``; the shipped encoders are for 1-4).
     band : (lo, hi)
         Natural frequencies ``|p| dt`` (rad/sample), log-uniform; ``lo > 0``.
     damping : (lo, hi)
@@ -129,8 +130,8 @@ class GenericFamily:
     def __post_init__(self) -> None:
         order = self.order
         if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) \
-                or not 1 <= order <= 4:
-            raise ValueError(f"order must be an integer in 1..4; got {self.order!r}")
+                or not 1 <= order <= MAX_ORDER:
+            raise ValueError(f"order must be an integer in 1..{MAX_ORDER}; got {self.order!r}")
         setattr_ = object.__setattr__
         setattr_(self, "order", int(self.order))
         setattr_(self, "band", _pair_range("band", self.band, 0.0, strict=True))
