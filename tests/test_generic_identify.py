@@ -669,5 +669,14 @@ def test_orders_above_the_encoders_start_from_the_classical_candidates(noise):
         assert fit > (99.999 if noise == 0.0 else 99.5)
     if noise:
         assert ae.compare(baselines.n4sid(record, order=6), validation).fit < 90.0
+        # order=None selects among 1-8: the three modes need 6 (order 4 misses one: 73 %)
+        chosen = ae.identify(record, refine=False)
+        fits = chosen.info["order_fits"]
+        assert chosen.A.shape == (6, 6) and sorted(fits) == list(range(1, 9))
+        assert fits[6] > fits[4] + 10 and fits[6] > fits[5] + 10
     with pytest.raises(ValueError, match="classical=False leaves out the classical start"):
         ae.identify(record, order=6, classical=False)
+    # a record too short for the highest orders selects among those it has samples for
+    # (2 (3 n + 2) <= 30: orders 1-4)
+    short = ae.identify(ae.Record(y[:30], u[:30], dt))
+    assert sorted(short.info["order_fits"]) == [1, 2, 3, 4]

@@ -210,7 +210,7 @@ def _add_identify(sub, names: str, generic: str) -> None:
     idp.add_argument("--order", type=_order, default=None, metavar="{1-8,auto}",
                      help="identify RECORD with the generic identifiers: the model order 1-8 "
                           "(encoders for 1-4, the classical start alone above), or auto (each "
-                          "of orders 1-4 identified on the first 70 %% of the record, the "
+                          "of orders 1-8 identified on the first 70 %% of the record, the "
                           "smallest within 0.5 points of the best validation fit on the rest)")
     idp.add_argument("--dt", type=POSITIVE, default=None,
                      help="with --order: the record's sample time [s] (default: from its t "

@@ -47,8 +47,8 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     order : int, optional
         Model order, 1 to ``MAX_ORDER`` (8): the shipped generic identifiers' encoders for
         1-4, the classical start alone above (``generic.classical.NoEncoder``); None selects
-        it among the encoders' orders (module docstring). Taken from ``structure`` when that
-        is a Structure.
+        it among 1-8 (those the record has samples for; module docstring). Taken from
+        ``structure`` when that is a Structure.
     structure : None, "ccf", "mcf" or Structure
         The structure of the estimate: default ``CCF(order, feedthrough=True)``; ``"mcf"`` the
         modal form with the start's real poles and pairs (stable by construction); any
@@ -132,7 +132,8 @@ def _identifiers(order, *, identifier) -> dict:
         except ValueError as err:
             raise ValueError(f"identifier: {err}") from None
     if identifier is None:
-        chosen = {n: _shipped(n) for n in (ORDERS if order is None else (order,))}
+        chosen = {n: _shipped(n) for n in (range(1, MAX_ORDER + 1) if order is None
+                                            else (order,))}
     elif isinstance(identifier, dict):
         chosen = {n: _generic(ident) for n, ident in identifier.items()}
     else:

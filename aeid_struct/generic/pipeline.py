@@ -42,7 +42,8 @@ encoder's gives one; the re-scan undoes a delay chosen to absorb the start's err
 poles. ``aeid-struct bench-generic`` measures the pass, the encoder's pass alone and the
 refined model on the same records.
 
-*Order selection* (``order=None``): each available order is identified (refined where
+*Order selection* (``order=None``): each available order (``ae.identify``: 1-8, those the
+record has samples for) is identified (refined where
 ``refine``: an encoder's error in the poles would otherwise favour a higher order that absorbs
 it) on the first 70 % of the record and validated on the last 30 % (NRMSE fit with the initial
 state and offset fitted, MATLAB's ``compare``); the smallest order whose validation fit is
