@@ -33,8 +33,9 @@ def test_bench_generic_cli_writes_every_method_and_the_stand_ins(tmp_path, capsy
     assert np.isfinite(by[("1/0", "refined")]["fit"])
 
 
-def test_bench_generic_refuses_records_shorter_than_the_window(capsys):
+def test_bench_generic_refuses_records_too_short_for_the_highest_order(capsys):
     with pytest.raises(SystemExit) as err:
-        main(["bench-generic", "--lengths", "100", "--quiet"])
+        main(["bench-generic", "--lengths", "30", "--quiet"])
     assert err.value.code == 2
-    assert "--lengths must be >= 256" in capsys.readouterr().err
+    assert "--lengths must be >= 33 (twice the parameters of an order-4 model after a delay " \
+           "of up to 5 samples); got 30" in capsys.readouterr().err

@@ -115,7 +115,8 @@ def add_bench_generic(sub) -> None:
     gen.add_argument("--noise", type=FRACTION, nargs="+", default=[0.01, 0.05],
                      help="noise std / output std (default 0.01 0.05)")
     gen.add_argument("--lengths", type=POSITIVE_INT, nargs="+", default=None,
-                     help="estimation record lengths in samples (each >= 256, the window)")
+                     help="estimation record lengths in samples (each at least twice the "
+                          "highest order's parameters after a 5-sample delay: 33 for order 4)")
     gen.add_argument("--seed", type=number(int, 0, strict=False), default=20_261_123,
                      help="seed of the systems and records (default 20261123)")
     gen.add_argument("--json", default="out/bench_generic.json",

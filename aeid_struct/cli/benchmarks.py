@@ -170,15 +170,19 @@ def run_bench_generic(args: argparse.Namespace) -> int:
     Raises
     ------
     InputError
-        A record length shorter than the identifiers' window.
+        A record length shorter than the highest order needs after the records' largest delay.
     """
     from aeid_struct import studies
+    from aeid_struct.generic import shortest
 
     generic_bench = studies.generic_bench
     lengths = tuple(args.lengths or ((400, 1000) if args.quick else (400, 1000, 5000)))
-    if min(lengths) < 256:
-        raise InputError(f"bench-generic: --lengths must be >= 256 (the generic identifiers' "
-                         f"window); got {min(lengths)}")
+    # the benchmark's records have input delays up to 5 samples (generic_bench)
+    need = shortest(max(args.orders)) + 5
+    if min(lengths) < need:
+        raise InputError(f"bench-generic: --lengths must be >= {need} (twice the parameters of "
+                         f"an order-{max(args.orders)} model after a delay of up to 5 samples); "
+                         f"got {min(lengths)}")
     count = args.count or (3 if args.quick else 10)
     print(f"Generic identifiers on unseen systems: orders {args.orders}, noise {args.noise}, "
           f"lengths {list(lengths)}, {count} records per cell; validation on the record's "

@@ -12,6 +12,7 @@ projection re-scan), ``one_call`` (:func:`identify`; its steps in ``pipeline``),
 ``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
 """
 
+from aeid_struct.generic.boundary import shortest as shortest
 from aeid_struct.generic.classical import MAX_ORDER as MAX_ORDER
 from aeid_struct.generic.classical import NoEncoder as NoEncoder
 from aeid_struct.generic.classical import arx as arx
@@ -70,6 +71,7 @@ __all__ = [
     "rescan",
     "save_generic",
     "scores",
+    "shortest",
     "solution",
     "spectra",
 ]
