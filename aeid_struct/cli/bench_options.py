@@ -98,7 +98,8 @@ def add_bench_generic(sub) -> None:
         "bench-generic", help="the generic identifiers on unseen systems: encoder alone, one "
                               "pass, refined, n4sid, least squares and the true model, fits and "
                               "times",
-        description="Identify unseen simulated systems of orders 1-4 (random dt, delay, offsets, "
+        description="Identify unseen simulated systems of orders 1-4 by default, up to 8 with "
+                    "--orders (random dt, delay, offsets, "
                     "mid-motion start, noise) with the shipped generic identifiers and the "
                     "classical baselines, all on the same records; print the validation fits "
                     "(median per order, noise and record length), the one pass's gap to the "

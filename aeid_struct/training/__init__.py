@@ -1,7 +1,7 @@
 """Training: system families, excitations, simulated records and the unsupervised training loop
 (paper Eq. 14-15).
 
-Modules: ``families`` (the true systems), ``generic_family`` (stable systems of order 1-4 and
+Modules: ``families`` (the true systems), ``generic_family`` (stable systems of order 1-8 and
 their records in normalised time, for the generic identifiers; their types in
 ``generic_systems``, the polynomial algebra in ``generic_polynomials``), ``excitation`` (the
 inputs),
