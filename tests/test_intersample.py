@@ -46,6 +46,10 @@ def test_a_held_input_discretises_as_scipys_zero_order_hold():
     assert not gamma2.any()
     # the first-order hold keeps its ramp term (the default is unchanged)
     assert np.abs(discrete_foh(A, b, DT)[2]).max() > 1e-6
+    # a misspelt hold is refused where the hold is read, not taken for a held input
+    y, _, u = held(100)
+    with pytest.raises(ValueError, match="intersample must be 'foh' or 'zoh'; got 'ZOH'"):
+        project(A, b, y, u, DT, intersample="ZOH")
 
 
 def test_project_and_fit_initial_are_exact_under_the_records_hold():

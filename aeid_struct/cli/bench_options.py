@@ -110,7 +110,7 @@ def add_bench_generic(sub) -> None:
                           "400, 1000, 5000)")
     gen.add_argument("--count", type=POSITIVE_INT, default=None, help="records per cell")
     gen.add_argument("--orders", type=POSITIVE_INT, nargs="+", default=[1, 2, 3, 4],
-                     choices=range(1, 9), metavar="N",
+                     choices=range(1, 9), metavar="N",      # generic.MAX_ORDER (no torch here)
                      help="model orders 1-8 (default 1 2 3 4; above 4 the classical start "
                           "alone, no encoder)")
     gen.add_argument("--noise", type=FRACTION, nargs="+", default=[0.01, 0.05],

@@ -171,6 +171,7 @@ def _order(text: str):
     the classical start alone above)."""
     if text == "auto":
         return text
+    # 8 is generic.MAX_ORDER, written here: building the parser imports no torch
     if text.strip().isdigit() and 1 <= int(text) <= 8:
         return int(text)
     raise argparse.ArgumentTypeError(f"expected an order 1-8 or auto; got {text!r}")

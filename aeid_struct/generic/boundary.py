@@ -248,8 +248,8 @@ def checked(resolve, record, order, *, structure, refine, delay, max_delay, meth
     if order is None:
         # the orders the record can carry (twice their parameters), the smallest at least:
         # a short record is not refused for the highest order it was never asked to fit
-        fits = {n: i for n, i in identifiers.items() if shortest(n) <= data.steps}
-        identifiers = fits or {min(identifiers): identifiers[min(identifiers)]}
+        carried = {n: i for n, i in identifiers.items() if shortest(n) <= data.steps}
+        identifiers = carried or {min(identifiers): identifiers[min(identifiers)]}
     data.require_informative()
     max_delay = check_grid(data, identifiers, max_delay, default_max_delay)
     # levels far above the variation removed, amplitudes far from 1 rescaled by powers of two

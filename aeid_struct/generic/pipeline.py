@@ -163,7 +163,8 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
         ccf_n = CCF(n, feedthrough=feedthrough)
         if refine:
             better, _ = (refine_casadi(ccf_n, model, part, max_delay) if method == "casadi" else
-                         refine_starts(ccf_n, model, part, max_delay, classical=classical))
+                         refine_starts(ccf_n, model, part, max_delay, classical=classical,
+                                       origin=fit.start))
             model = better_of([model, better], part.y) if better is not None else model
         else:
             model = iterate(None, ccf_n, model, part, iterations, max_delay)[0]

@@ -239,7 +239,8 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     classical : bool
         Refine from the classical start too (else from ``m`` alone).
     origin : {"encoder", "classical"}
-        Where ``m`` came from (a classical candidate where no encoder proposed one).
+        Where ``m`` came from (a classical candidate where no encoder proposed one: then it is
+        the classical start, refined once).
 
     Returns
     -------
@@ -250,7 +251,10 @@ def refine_starts(structure: Structure, m: Model, data, max_delay: int, *,
     feedthrough = "d" in structure.element_names and "d" not in structure.fixed_values
     # both starts refined at their own delay, the delay searched from the better one only
     results = [refine_free(structure, m, data, max_delay, split=split, search=False)]
-    alt = classical_start(data, order, m.delay, max_delay, feedthrough) if classical else None
+    # a start that is itself the classical candidates' best (no encoder proposed one) is
+    # not refined twice
+    alt = (classical_start(data, order, m.delay, max_delay, feedthrough)
+           if classical and origin != "classical" else None)
     if alt is not None:
         results.append(refine_free(structure, alt, data, max_delay, split=split, search=False))
     chosen = better_of((r[0] for r in results), data.y)

@@ -119,7 +119,15 @@ def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0, intersample: str
     Phi : (..., n, n) array
     gamma1, gamma2 : (..., n) arrays
         ``gamma2`` zero for ``"zoh"``.
+
+    Raises
+    ------
+    ValueError
+        For another ``intersample``.
     """
+    if intersample not in ("foh", "zoh"):
+        # the one place the hold is read: a misspelt one must not pass for a held input
+        raise ValueError(f"intersample must be 'foh' or 'zoh'; got {intersample!r}")
     n = A.shape[-1]
     M = np.zeros(A.shape[:-2] + (n + 2, n + 2), dtype=np.result_type(A, b, np.float64))
     M[..., :n, :n] = A * dt
