@@ -27,7 +27,7 @@ FUNCTION_LINES = 80     # a function: from its first decorator to its last line,
 # ``load`` of every identifier kind) sits above the kinds it reads
 LAYERS = [
     "cli", "studies", "loading", "online", "evaluation", "baselines", "training", "generic",
-    "identification", "refinement", "estimates", "encoder", "simulation", "structures",
+    "multi", "identification", "refinement", "estimates", "encoder", "simulation", "structures",
     "records | metrics | lazy",
 ]
 

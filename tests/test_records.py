@@ -259,9 +259,9 @@ def test_detrend_works_per_channel():
 def test_identifiers_of_one_channel_refuse_several_by_name():
     y = np.random.default_rng(0).normal(size=(60, 2))
     rec = Record(y, y[:, 0], 0.1)
-    with pytest.raises(ValueError, match=r"^ae.identify identifies one output from one input; "
-                                         r"the record has 2 outputs and 1 inputs"):
-        ae.identify(rec, order=2)
+    with pytest.raises(ValueError, match=r"^ae.load\(...\).identify identifies one output from "
+                                         r"one input; the record has 2 outputs and 1 inputs"):
+        rec.require_siso("ae.load(...).identify")
     rec.channel(1).require_siso("x")
     with pytest.raises(ValueError, match=r"^y is constant \(output 1\)"):
         Record(np.stack([y[:, 0], np.ones(60)], 1), y[:, 1], 0.1).require_informative()

@@ -29,9 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from aeid_struct.simulation import check_dt
+from aeid_struct.simulation import check_dt, discrete_inputs
 
-__all__ = ["HOLDS", "Continuous", "NoRealLogarithm", "convert", "to_continuous"]
+__all__ = ["HOLDS", "Continuous", "NoRealLogarithm", "convert", "hold_matrices", "logm_real",
+           "to_continuous"]
 
 HOLDS = ("foh", "zoh")
 
@@ -58,19 +59,39 @@ class Continuous:
     d: float
 
 
-def _hold_matrices(A: np.ndarray, dt: float):
-    """``Phi, G1, G2`` with ``gamma1 = G1 b``, ``gamma2 = G2 b`` (module docstring)."""
-    n = A.shape[0]
-    M = np.zeros((3 * n, 3 * n))
-    M[:n, :n] = A * dt
-    M[:n, n : 2 * n] = np.eye(n) * dt
-    M[n : 2 * n, 2 * n :] = np.eye(n)
-    E = scipy.linalg.expm(M)
-    return E[:n, :n], E[:n, n : 2 * n], E[:n, 2 * n :]
+def hold_matrices(A: np.ndarray, dt: float):
+    """``Phi, G1, G2`` with ``gamma1 = G1 b``, ``gamma2 = G2 b`` (module docstring): Eq. 10
+    for every input direction (``simulation.discrete_inputs`` with ``B = I``).
+
+    Parameters
+    ----------
+    A : (n, n) array
+    dt : float, > 0
+
+    Returns
+    -------
+    Phi, G1, G2 : (n, n) arrays
+    """
+    return discrete_inputs(A, np.eye(A.shape[0]), dt)
 
 
-def _logm_real(Phi: np.ndarray, dt: float) -> np.ndarray:
-    """``logm(Phi) / dt``, real; raises NoRealLogarithm for a pole on the closed negative axis."""
+def logm_real(Phi: np.ndarray, dt: float) -> np.ndarray:
+    """``logm(Phi) / dt``, real: the continuous ``A`` of a discrete ``Phi``.
+
+    Parameters
+    ----------
+    Phi : (n, n) array
+    dt : float, > 0
+
+    Returns
+    -------
+    (n, n) array
+
+    Raises
+    ------
+    NoRealLogarithm
+        For a pole on the closed negative real axis, or a complex logarithm.
+    """
     poles = np.linalg.eigvals(Phi)
     # LAPACK returns real eigenvalues of a real matrix with an imaginary part of exactly 0.
     bad = (poles.imag == 0) & (poles.real <= 0)
@@ -118,8 +139,8 @@ def convert(Phi, B, C, D, dt: float, holds: tuple[str, ...], feedthrough: bool) 
     NoRealLogarithm
         When ``Phi`` has an eigenvalue on the closed negative real axis.
     """
-    A = _logm_real(Phi, dt)
-    Phi_c, G1, G2 = _hold_matrices(A, dt)
+    A = logm_real(Phi, dt)
+    Phi_c, G1, G2 = hold_matrices(A, dt)
     rows = [G1 if h == "zoh" else G1 - G2 + Phi_c @ G2 for h in holds]
     b = np.linalg.lstsq(np.vstack(rows), B.T.reshape(-1), rcond=None)[0]
     c = np.asarray(C, dtype=np.float64).reshape(-1)

@@ -34,12 +34,15 @@ from aeid_struct.baselines.checks import (
     estimate,
     initial_form,
     nan_model,
+    only_record,
     physical_source,
 )
 from aeid_struct.baselines.free_initial import least_squares_record
 from aeid_struct.baselines.models import bounds, check_structure, finish, free_indices, model_of
+from aeid_struct.baselines.several import least_squares_channels
 from aeid_struct.baselines.start import start_vector
 from aeid_struct.identification import Estimate
+from aeid_struct.multi import several
 from aeid_struct.simulation import check_dt, simulate_outputs
 
 __all__ = ["JACOBIANS", "SOLVERS", "Problem", "least_squares"]
@@ -215,6 +218,9 @@ def least_squares(y, u=None, dt: float | None = None, *, structure=None,
     ValueError
         For a bad argument, or a record shorter than the number of free elements.
     """
+    if several(y):
+        only_record("least_squares", u=u, dt=dt)
+        return least_squares_channels(y, order=check_int("order", order, 1))
     form, data = initial_form("least_squares", y, u, dt, initial)
     if form == "fitted":
         for name, value in (("structure", structure), ("start", start), ("inverse", inverse)):

@@ -48,12 +48,15 @@ from aeid_struct.baselines.checks import (
     in_structure,
     initial_form,
     nan_model,
+    only_record,
     physical_source,
 )
 from aeid_struct.baselines.continuous import NoRealLogarithm, convert
 from aeid_struct.baselines.free_initial import n4sid_record
+from aeid_struct.baselines.several import n4sid_channels
 from aeid_struct.baselines.subspace_step import nfoursid_model
 from aeid_struct.identification import Estimate
+from aeid_struct.records import Record
 from aeid_struct.simulation import check_dt
 
 __all__ = ["n4sid"]
@@ -118,6 +121,9 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
+    if isinstance(y, Record) and (y.outputs > 1 or y.inputs > 1):
+        only_record("n4sid", u=u, dt=dt)
+        return n4sid_channels(y, order=check_int("order", order, 1), block_rows=block_rows)
     form, data = initial_form("n4sid", y, u, dt, initial)
     if form == "fitted":
         for name, value in (("structure", structure), ("inverse", inverse),

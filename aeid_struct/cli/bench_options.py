@@ -122,6 +122,11 @@ def add_bench_generic(sub) -> None:
                      help="seed of the systems and records (default 20261123)")
     gen.add_argument("--json", default="out/bench_generic.json",
                      help="JSON file to write (default out/bench_generic.json)")
+    gen.add_argument("--channels", action="store_true",
+                     help="the rows of several inputs and outputs, several experiments, "
+                          "integrating and unstable plants instead (studies.channels_bench; "
+                          "--count records per row, default 20, 5 with --quick; JSON to "
+                          "out/bench_channels.json unless --json is given)")
     gen.add_argument("--quiet", action="store_true", help="no progress lines")
     gen.set_defaults(func=run_bench_generic)
 

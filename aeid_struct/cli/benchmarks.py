@@ -175,6 +175,8 @@ def run_bench_generic(args: argparse.Namespace) -> int:
     from aeid_struct import studies
     from aeid_struct.generic import shortest
 
+    if args.channels:
+        return _bench_channels(args)
     generic_bench = studies.generic_bench
     lengths = tuple(args.lengths or ((400, 1000) if args.quick else (400, 1000, 5000)))
     # the benchmark's records have input delays up to 5 samples (generic_bench)
@@ -194,6 +196,23 @@ def run_bench_generic(args: argparse.Namespace) -> int:
     print(generic_bench.format_tables(rows))
     out = generic_bench.write_json(rows, args.json)
     print(f"wrote {out}")
+    return 0
+
+
+def _bench_channels(args: argparse.Namespace) -> int:
+    """``bench-generic --channels``: the several-channel rows (``studies.channels_bench``)."""
+    from aeid_struct import studies
+
+    bench = studies.channels_bench
+    count = args.count or (5 if args.quick else 20)
+    print(f"Several channels and experiments: {count} record sets per row, noise 1-5 %, "
+          f"validation on a further run; threads: default", flush=True)
+    rows = bench.bench_channels(count=count, seed=args.seed,
+                                progress=None if args.quiet else print)
+    print()
+    print(bench.format_channels(rows))
+    path = args.json if args.json != "out/bench_generic.json" else "out/bench_channels.json"
+    print(f"wrote {bench.write_channels(rows, path)}")
     return 0
 
 

@@ -22,6 +22,9 @@ def state_spaces(est):
         n = A.shape[0]
         return control.ss(A, b.reshape(n, 1), c.reshape(1, n), np.reshape(d, (1, 1)))
 
+    if np.ndim(est.b) == np.ndim(est.A) or (est.records > 1 and np.ndim(est.A) == 2):
+        # one model of several channels, or of several experiments
+        return control.ss(est.A, est.B, est.C, est.D)
     if est.records > 1:   # a list per record (per batch row and record when batched)
         A, b, c, d = (np.asarray(x) for x in (est.A, est.b, est.c, est.d))
         rows = [(A, b, c, d)] if not est.batched else list(zip(A, b, c, d, strict=True))

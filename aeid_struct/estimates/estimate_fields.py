@@ -35,14 +35,20 @@ class EstimateFields:
         return self.provenance.inverse
 
     @property
-    def delay(self) -> int:
-        """Input delay in samples (``info["delay"]``)."""
-        return int(self.info.get("delay", 0))
+    def delay(self):
+        """Input delay in samples (``info["delay"]``): an int, or ``(m,)`` ints, one per input
+        of a model of several inputs."""
+        delay = self.info.get("delay", 0)
+        return int(delay) if np.ndim(delay) == 0 else np.asarray(delay, dtype=int)
 
     @property
-    def offset(self) -> float:
-        """Constant output offset (``info["y_offset"]``)."""
-        return float(self.info.get("y_offset", 0.0))
+    def offset(self):
+        """Constant output offset (``info["y_offset"]``): a float, ``(p,)`` for several
+        outputs, a tuple per record for several experiments."""
+        offset = self.info.get("y_offset", 0.0)
+        if isinstance(offset, tuple):
+            return offset
+        return float(offset) if np.ndim(offset) == 0 else np.asarray(offset)
 
     @property
     def intersample(self) -> str:
@@ -95,16 +101,23 @@ class EstimateFields:
 
     # -- the model in the shapes of several channels ---------------------------------------------
     @property
+    def _matrices(self) -> bool:
+        """Whether ``b, c, d`` already hold ``B, C, D`` (a model of several channels: ``b`` has
+        as many axes as ``A``)."""
+        return np.ndim(self.b) == np.ndim(self.A)
+
+    @property
     def B(self) -> np.ndarray:
         """``(..., n, m)`` input matrix (``m = 1``: ``b`` as a column)."""
-        return np.asarray(self.b)[..., :, None]
+        return np.asarray(self.b) if self._matrices else np.asarray(self.b)[..., :, None]
 
     @property
     def C(self) -> np.ndarray:
         """``(..., p, n)`` output matrix (``p = 1``: ``c`` as a row)."""
-        return np.asarray(self.c)[..., None, :]
+        return np.asarray(self.c) if self._matrices else np.asarray(self.c)[..., None, :]
 
     @property
     def D(self) -> np.ndarray:
         """``(..., p, m)`` feedthrough (``p = m = 1``: ``d``)."""
-        return np.asarray(self.d, dtype=np.float64)[..., None, None]
+        d = np.asarray(self.d, dtype=np.float64)
+        return d if self._matrices else d[..., None, None]

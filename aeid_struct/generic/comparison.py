@@ -18,7 +18,8 @@ import control
 import numpy as np
 
 from aeid_struct.generic.boundary import measured
-from aeid_struct.records import Units
+from aeid_struct.multi import compare_channels
+from aeid_struct.records import Record, Units
 from aeid_struct.simulation import fit_initial
 
 __all__ = ["Comparison", "compare"]
@@ -30,20 +31,21 @@ class Comparison:
 
     Attributes
     ----------
-    fit : float
-        NRMSE fit in % on the fitted samples (NaN for a constant record).
-    y_hat : (steps,) array
+    fit : float or (p,) array
+        NRMSE fit in % on the fitted samples (NaN for a constant record); per output for a
+        record of several (:attr:`overall`: their mean).
+    y_hat : (steps,) or (steps, p) array
         The model's output (NaN on the first ``delay`` samples).
     x0 : (n,) array
         The fitted state at sample ``delay``.
-    y_offset : float
-        The fitted output offset.
-    y : (steps,) array
+    y_offset : float or (p,) array
+        The fitted output offset(s).
+    y : (steps,) or (steps, p) array
         The measured output.
     t : (steps,) array
         Sample times ``t0 + k dt``.
-    delay : int
-        Input delay in samples.
+    delay : int or (m,) ints
+        Input delay in samples (per input for several).
     """
 
     fit: float
@@ -54,7 +56,16 @@ class Comparison:
     t: np.ndarray
     delay: int
 
+    @property
+    def overall(self) -> float:
+        """The mean of the outputs' fits (the fit itself for one output)."""
+        return float(np.mean(self.fit))
+
     def __repr__(self) -> str:
+        if np.ndim(self.fit):
+            return (f"Comparison(fit={np.round(self.fit, 2).tolist()} % (overall "
+                    f"{self.overall:.2f} %), steps={self.y.shape[0]}, "
+                    f"delay={np.ravel(self.delay).tolist()})")
         return (f"Comparison(fit={self.fit:.2f} %, steps={self.y.shape[0]}, delay={self.delay}, "
                 f"y_offset={self.y_offset:.4g})")
 
@@ -78,15 +89,19 @@ class Comparison:
         """
         from matplotlib.figure import Figure  # noqa: PLC0415 (matplotlib only for figures)
 
-        fig = Figure(figsize=(7.0, 3.2), layout="constrained")
-        ax = fig.subplots()
-        ax.plot(self.t, self.y, color="0.6", lw=1.0, label="measured")
-        ax.plot(self.t, self.y_hat, color="C0", lw=1.2, label=f"model (fit {self.fit:.2f} %)")
-        ax.set_xlabel(f"time [{time_unit}]")
-        ax.set_ylabel(y_label)
-        ax.legend(loc="best")
+        Y, Y_hat = self.y.reshape(len(self.t), -1), self.y_hat.reshape(len(self.t), -1)
+        p = Y.shape[1]
+        fig = Figure(figsize=(7.0, 3.2 if p == 1 else 2.2 * p), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(p, 1, sharex=True, squeeze=False)[:, 0])
+        for i, ax in enumerate(axes):
+            fit = float(np.ravel(self.fit)[i])
+            ax.plot(self.t, Y[:, i], color="0.6", lw=1.0, label="measured")
+            ax.plot(self.t, Y_hat[:, i], color="C0", lw=1.2, label=f"model (fit {fit:.2f} %)")
+            ax.set_ylabel(y_label if p == 1 else f"{y_label}[{i}]")
+            ax.legend(loc="best")
+        axes[-1].set_xlabel(f"time [{time_unit}]")
         if title:
-            ax.set_title(title)
+            axes[0].set_title(title)
         if path is not None:
             fig.savefig(path, format="png", dpi=120)
         return fig
@@ -129,6 +144,49 @@ def _model(model):
     return A, b, c, float(d[0]), delay, step
 
 
+def _channels(model, record) -> bool:
+    """Whether the comparison is of several outputs or inputs."""
+    if isinstance(record, Record) and (record.outputs > 1 or record.inputs > 1):
+        return True
+    if isinstance(model, control.LTI):
+        return model.ninputs > 1 or model.noutputs > 1
+    if hasattr(model, "B") and hasattr(model, "A") and hasattr(model, "b"):   # Estimate
+        return np.shape(model.B)[-1] > 1 or np.shape(model.C)[-2] > 1
+    return False
+
+
+def _compare_channels(model, record, delay) -> Comparison:
+    """:func:`compare` of several outputs or inputs (``multi.compare_channels``)."""
+    if not isinstance(record, Record):
+        raise ValueError(f"record must be an ae.Record for a model of several outputs or "
+                         f"inputs; got {type(record).__name__}")
+    if isinstance(model, control.LTI):
+        if control.isdtime(model, strict=True):
+            raise ValueError("estimate_or_model must be a continuous-time system")
+        model = control.ss(model)
+        delays, step = 0, None
+    elif all(hasattr(model, k) for k in ("A", "B", "C", "D")):
+        delays, step = getattr(model, "delay", 0), getattr(model, "dt", None)
+    else:
+        raise ValueError(f"estimate_or_model must be an Estimate or a continuous-time "
+                         f"control.StateSpace for several outputs or inputs; got "
+                         f"{type(model).__name__}")
+    if delay is not None:
+        delays = delay
+    elif record.delay is not None and np.all(np.asarray(delays) == 0):
+        delays = record.delay
+    else:
+        delays = np.array([_in_samples(int(k), step if np.ndim(step) == 0 else None,
+                                       record.dt) for k in np.ravel(delays)])
+    out = compare_channels(model.A, model.B, model.C, model.D, record, delays)
+    fit = out["fit"] if record.outputs > 1 else float(out["fit"][0])
+    y_hat = out["y_hat"] if record.outputs > 1 else out["y_hat"][:, 0]
+    offset = out["y_offset"] if record.outputs > 1 else float(out["y_offset"][0])
+    D = np.ravel(delays)
+    return Comparison(fit=fit, y_hat=y_hat, x0=out["x0"], y_offset=offset, y=record.y,
+                      t=record.t, delay=int(D[0]) if D.size == 1 else D.astype(int))
+
+
 def _in_samples(delay: int, step: float | None, dt: float) -> int:
     """An estimate's delay (samples of its own sample time ``step``) in samples of ``dt``,
     through seconds; a ValueError where it does not land on a sample."""
@@ -148,8 +206,9 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
     Parameters
     ----------
     estimate_or_model : Estimate, control.StateSpace, control.TransferFunction or (A, b, c, d)
-        A continuous-time SISO model in the record's time unit (a discrete-time one is
-        refused).
+        A continuous-time model in the record's time unit (a discrete-time one is refused);
+        one of several outputs or inputs is compared output by output (an Estimate or a
+        StateSpace, on a Record: ``Comparison.fit`` per output, ``overall`` their mean).
     record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
         As for :func:`~aeid_struct.generic.boundary.measured`; the model is simulated under
         the record's hold (``Record.intersample``).
@@ -167,6 +226,8 @@ def compare(estimate_or_model, record, *, delay=None) -> Comparison:
         For a bad model (a discrete-time one included), record or delay, or an estimate's
         delay that is not a whole number of the record's samples.
     """
+    if _channels(estimate_or_model, record):
+        return _compare_channels(estimate_or_model, record, delay)
     A, b, c, d, model_delay, step = _model(estimate_or_model)
     data = measured(record, delay, what="ae.compare")
     D = (data.delay if delay is not None or model_delay is None else

@@ -12,6 +12,8 @@ from __future__ import annotations
 import functools
 import os
 
+import numpy as np
+
 from aeid_struct.generic.classical import MAX_ORDER, NoEncoder
 from aeid_struct.generic.config import ORDERS
 from aeid_struct.generic.model import load_generic
@@ -26,7 +28,11 @@ from aeid_struct.generic.pipeline import (
     run,
 )
 from aeid_struct.generic.pipeline import measured as measured
+from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
+from aeid_struct.multi import identify as identify_multi
+from aeid_struct.multi import several
+from aeid_struct.records import Record as measured_record
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDERS", "ORDER_TOLERANCE",
            "identify", "measured"]
@@ -37,9 +43,15 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     """Identify a continuous-time model of a measured record in one call (see the module
     docstring): generic identifier, whole-record projection, input delay, refinement.
 
+    A record of several outputs or inputs, or a list of records (several experiments of one
+    system), is identified as one model ``A (n, n), B (n, m), C (p, n), D (p, m)`` with a
+    delay per input and each record's own initial state and offsets (``multi.identify``:
+    the observer form, variable projection; the generic encoders propose poles from every
+    output-input pair).
+
     Parameters
     ----------
-    record : Record, (y, u) or (y, u, dt) tuple, or (steps,) array
+    record : Record, list of Record, (y, u) or (y, u, dt) tuple, or (steps,) array
         See :func:`measured`; at least ``2 (3 order + 2)`` samples after the delay, twice the
         fitted parameters (``generic.boundary.shortest``): a record shorter than the
         identifier's window is read by it at a finer grid (``generic.windows.Windows``). Its
@@ -79,7 +91,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     Returns
     -------
     Estimate
-        ``A, b, c, d`` in physical time units, ``elements`` of the structure, ``delay``,
+        For several channels ``b, c, d`` are ``B, C, D`` (also as ``est.B, est.C, est.D``) in
+        the observer form of ``info["reference"]``'s output, ``info["fit"]`` per output (and
+        per record), ``delay`` per input. Otherwise ``A, b, c, d`` in physical time units,
+        ``elements`` of the structure, ``delay``,
         ``x0`` (the state at sample ``delay``), ``offset``, ``fit``, ``y_hat``, ``seconds``,
         ``refined`` (False for the one pass); ``info`` holds ``delay, x0, y_offset, fit, y_hat,
         cost, intersample, candidates, order_fits, start`` (``"encoder"`` or ``"classical"``:
@@ -92,9 +107,54 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         For a bad record, order, structure, delay, max_delay, method, iterations or classical,
         or a record too short for the model.
     """
+    if _tuple_of_channels(record):
+        record = measured_record(*record)
+    if several(record):
+        return _several(record, order, structure=structure, refine=refine, delay=delay,
+                        max_delay=max_delay, identifier=identifier, method=method,
+                        iterations=iterations, classical=classical)
     return run(functools.partial(_identifiers, identifier=identifier), record, order,
                structure=structure, refine=refine, delay=delay, max_delay=max_delay,
                method=method, iterations=iterations, classical=classical)
+
+
+def _tuple_of_channels(record) -> bool:
+    """Whether ``record`` is a ``(y, u[, dt])`` tuple of several outputs or inputs."""
+    return isinstance(record, tuple) and len(record) in (2, 3) and any(
+        np.ndim(v) == 2 and np.shape(v)[1] > 1 for v in record[:2] if v is not None)
+
+
+def _several(record, order, *, structure, refine, delay, max_delay, identifier, method,
+             iterations, classical) -> Estimate:
+    """``identify`` of several channels or experiments (``multi.identify``), the generic
+    encoders' candidates of every output-input pair passed in as its proposals."""
+    if structure not in (None, "ccf"):
+        raise ValueError(f"structure must be None for several channels or experiments (the "
+                         f"observer form with a free feedthrough: docs/architecture.md); got "
+                         f"{structure!r}")
+    if method not in ("auto", "separable"):
+        raise ValueError(f"method must be 'auto' or 'separable' for several channels or "
+                         f"experiments (variable projection); got {method!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0; got {iterations!r}")
+    for name, value in (("refine", refine), ("classical", classical)):
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be True or False; got {value!r}")
+    if order is not None and (isinstance(order, bool) or not isinstance(order, int)
+                              or not 1 <= order <= MAX_ORDER):
+        raise ValueError(f"order must be None (selected) or an integer in [1, {MAX_ORDER}]; "
+                         f"got {order!r}")
+
+    def proposals(n, y, u):
+        chosen = _identifiers(n, identifier=identifier)[n] if identifier is not None or \
+            n in ORDERS else None
+        if chosen is None or y.shape[0] < 2 * (3 * n + 2):
+            return np.zeros((0, n + 1))
+        return candidates(chosen, y, u)
+
+    return identify_multi(record, order, refine=refine, delay=delay, max_delay=max_delay,
+                          iterations=iterations, classical=classical, proposals=proposals,
+                          orders=range(1, MAX_ORDER + 1))
 
 
 @functools.cache

@@ -30,6 +30,7 @@ from aeid_struct.simulation.casadi_foh import casadi_simulate as casadi_simulate
 from aeid_struct.simulation.casadi_foh import expm as expm
 from aeid_struct.simulation.casadi_foh import squarings_for as squarings_for
 from aeid_struct.simulation.numpy_foh import discrete_foh as discrete_foh
+from aeid_struct.simulation.numpy_foh import discrete_inputs as discrete_inputs
 from aeid_struct.simulation.numpy_foh import free_basis as free_basis
 from aeid_struct.simulation.numpy_foh import initial_state_numpy as initial_state_numpy
 from aeid_struct.simulation.numpy_foh import outputs_and_basis as outputs_and_basis
@@ -111,6 +112,7 @@ __all__ = [
     "Discrete",
     "denormalise",
     "discrete_foh",
+    "discrete_inputs",
     "discretise",
     "initial_state",
     "loss",

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-__all__ = ["discrete_foh", "free_basis", "initial_state_numpy", "outputs_and_basis",
-           "simulate_numpy", "simulate_outputs"]
+__all__ = ["discrete_foh", "discrete_inputs", "free_basis", "initial_state_numpy",
+           "outputs_and_basis", "simulate_numpy", "simulate_outputs"]
 
 
 def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray, u: np.ndarray,
@@ -136,6 +136,41 @@ def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0, intersample: str
     X = scipy.linalg.expm(M)
     gamma2 = X[..., :n, n + 1] if intersample == "foh" else np.zeros_like(X[..., :n, n])
     return X[..., :n, :n], X[..., :n, n], gamma2
+
+
+def discrete_inputs(A: np.ndarray, B: np.ndarray, dt: float = 1.0, intersample: str = "foh"):
+    """Eq. 10 for several inputs: ``Phi (n, n), Gamma1 (n, m), Gamma2 (n, m)`` by one matrix
+    exponential of ``[[A dt, B dt, 0], [0, 0, I], [0, 0, 0]]`` (the block form of
+    :func:`discrete_foh`'s augmented matrix, one exponential for all ``m`` columns instead of
+    ``m``); ``Gamma2 = 0`` for a held input (``intersample="zoh"``).
+
+    Parameters
+    ----------
+    A : (n, n) array
+    B : (n, m) array
+    dt : float, > 0
+    intersample : {"foh", "zoh"}
+
+    Returns
+    -------
+    Phi : (n, n) array
+    Gamma1, Gamma2 : (n, m) arrays
+
+    Raises
+    ------
+    ValueError
+        For another ``intersample``.
+    """
+    if intersample not in ("foh", "zoh"):
+        raise ValueError(f"intersample must be 'foh' or 'zoh'; got {intersample!r}")
+    n, m = B.shape
+    M = np.zeros((n + 2 * m, n + 2 * m))
+    M[:n, :n] = A * dt
+    M[:n, n: n + m] = B * dt
+    M[n: n + m, n + m:] = np.eye(m)
+    X = scipy.linalg.expm(M)
+    gamma2 = X[:n, n + m:] if intersample == "foh" else np.zeros((n, m))
+    return X[:n, :n], X[:n, n: n + m], gamma2
 
 
 def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:

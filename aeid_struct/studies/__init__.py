@@ -4,13 +4,14 @@ imports this package.
 
 Each study is a namespace of its own (``studies.leg_paper``, ``studies.knowledge``,
 ``studies.wear``, ``studies.figures``, ``studies.bench``, ``studies.bench_online``,
-``studies.generic_bench``, ``studies.mechanism_bench``, ``studies.onepass_bench`` with its
-``studies.onepass_tables``):
+``studies.generic_bench`` (with ``studies.channels_bench``), ``studies.mechanism_bench``,
+``studies.onepass_bench`` with its ``studies.onepass_tables``):
 their names overlap (each study has its ``evaluate``), so they are not merged into one.
 """
 
 from aeid_struct.studies import bench as bench
 from aeid_struct.studies import bench_online as bench_online
+from aeid_struct.studies import channels_bench as channels_bench
 from aeid_struct.studies import figures as figures
 from aeid_struct.studies import generic_bench as generic_bench
 from aeid_struct.studies import knowledge as knowledge

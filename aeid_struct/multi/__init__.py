@@ -1,0 +1,29 @@
+"""One model of several inputs and outputs, or of several experiments of one system
+(issue 24): ``ae.identify`` hands such records here.
+
+Layer: above ``identification`` (its :func:`identify` returns an ``Estimate``) and
+``simulation``, below ``generic`` (whose ``ae.identify`` passes its encoders' candidates in).
+
+Modules: ``experiments`` (the records checked once, working units), ``realisation`` (the
+observer form with a reference output; ``B, D``, initial states and offsets by projection),
+``start`` (delays, candidate poles, the relaxed projection, the start), ``fit`` (variable
+projection to the output-error optimum; the model in the user's units), ``identify`` (the
+steps, order selection, the Estimate), ``comparison`` (a model's fit per output).
+"""
+
+
+from aeid_struct.multi.comparison import compare_channels as compare_channels
+from aeid_struct.multi.experiments import Experiments as Experiments
+from aeid_struct.multi.experiments import experiments_of as experiments_of
+from aeid_struct.multi.experiments import several as several
+from aeid_struct.multi.identify import fit_from_poles as fit_from_poles
+from aeid_struct.multi.identify import identify as identify
+from aeid_struct.multi.identify import packed as packed
+from aeid_struct.multi.identify import parameters as parameters
+from aeid_struct.multi.realisation import Layout as Layout
+from aeid_struct.multi.realisation import observer_form as observer_form
+from aeid_struct.multi.realisation import project as project
+
+__all__ = ["Experiments", "Layout", "compare_channels", "experiments_of", "fit_from_poles",
+           "identify",
+           "observer_form", "packed", "parameters", "project", "several"]

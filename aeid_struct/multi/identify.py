@@ -1,0 +1,345 @@
+r"""``ae.identify`` for several inputs and outputs, and for several experiments of one system
+(:func:`identify`): one model ``A (n, n), B (n, m), C (p, n), D (p, m)``, a delay per input,
+and per record its own initial state and output offsets.
+
+The steps (docs/architecture.md, "Several channels, several experiments"):
+
+1. the records are checked once and taken to working units (``multi.experiments``);
+2. the input delays by the common-denominator ARX unless known (``multi.start.arx_delays``);
+3. candidate poles: the classical ones (common-denominator ARX, Steiglitz-McBride) and the
+   caller's (``ae.identify``: the generic encoders on every output-input pair), ranked by the
+   relaxed projection (``multi.start.relaxed``);
+4. the start in the observer form from the best candidate (``multi.start.start_of``);
+5. output error over every record by variable projection (``multi.fit``): the one pass
+   (``refine=False``) runs a fixed number of residual evaluations from the best candidate; the
+   refinement runs to convergence from the two best, and keeps the better; then each input's
+   delay is re-scanned one sample either side by projection and, where one is better, the fit
+   runs again there.
+
+*Order selection* (``order=None``): as for one channel (``generic.pipeline``): every order the
+records have samples for, fitted on the first 70 % of each record and validated on the rest
+(initial state and offsets fitted); the smallest order within ``ORDER_TOLERANCE`` points of the
+best mean validation fit (over outputs and records).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.multi.experiments import Experiments, experiments_of
+from aeid_struct.multi.fit import Fitted, iterate, physical, rescan
+from aeid_struct.multi.realisation import project
+from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, start_of
+from aeid_struct.records import RecordBatch
+
+__all__ = ["ESTIMATION_SHARE", "ORDER_TOLERANCE", "fit_from_poles", "identify", "packed",
+           "parameters", "validation_fit"]
+
+#: Points of validation fit within which the smaller order is preferred (``order=None``).
+ORDER_TOLERANCE = 0.5
+#: The estimation part of each record when the order is selected.
+ESTIMATION_SHARE = 0.7
+#: Starts refined to convergence at most (the best candidates by the relaxed projection).
+STARTS = 2
+#: The second start is refined only where the first's optimum costs more than this times the
+#: best candidate's relaxed cost: the relaxed model holds the minimal one of the same poles, so
+#: an optimum near the relaxed cost leaves nothing for another start to find.
+SETTLED = 1.05
+
+
+def parameters(order: int, p: int, m: int, records: int) -> int:
+    """Parameters fitted: ``theta`` (n p), ``B`` (n m), ``D`` (p m), per record ``x0`` and
+    offsets (n + p).
+
+    Parameters
+    ----------
+    order, p, m, records : int
+
+    Returns
+    -------
+    int
+    """
+    return order * p + order * m + p * m + records * (order + p)
+
+
+def _room(ex: Experiments, order: int) -> int:
+    """The largest delay that leaves twice the parameters in the fitted samples."""
+    need = 2 * parameters(order, ex.outputs, ex.inputs, ex.count)
+    for top in range(min(ex.steps), -1, -1):
+        if sum(max(s - top, 0) for s in ex.steps) * ex.outputs >= need:
+            return top
+    return -1
+
+
+def _poles_of(dens) -> list[np.ndarray]:
+    """Per-sample poles of monic denominators (highest power first), finite ones only."""
+    out = []
+    for den in np.atleast_2d(dens):
+        if np.all(np.isfinite(den)) and den[0] != 0:
+            s = np.roots(den)
+            if len(s) == len(den) - 1 and np.all(np.isfinite(s)):
+                out.append(s)
+    return out
+
+
+def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int,
+         classical: bool, proposals, feedthrough: bool) -> tuple[Fitted, int]:
+    """Steps 2-5 of the module docstring for one order; the fit and the candidates scored."""
+    delays = ex.delay if ex.delay is not None else arx_delays(ex, order, top)
+    parts = ex.aligned(delays)
+    found = [(s, "classical") for s in classical_poles(parts, order)] if classical or \
+        proposals is None else []
+    if proposals is not None:
+        for Y, U in parts[:3]:
+            for i in range(Y.shape[1]):
+                for j in range(U.shape[1]):
+                    found += [(s, "encoder") for s in _poles_of(proposals(order, Y[:, i],
+                                                                          U[:, j]))]
+    if not found:
+        found = [(s, "classical") for s in classical_poles(parts, order)]
+    with np.errstate(all="ignore"):
+        ranked = sorted(((relaxed(s, parts, ex.holds, feedthrough)[0], k) for k, (s, _) in
+                         enumerate(found)), key=lambda t: t[0])
+    relaxed_cost = ranked[0][0]
+    ranked = [k for cost, k in ranked if np.isfinite(cost)]
+    if not ranked:
+        raise ValueError(f"no candidate model of order {order} could be fitted to the records "
+                         f"(every candidate's response overflows)")
+    best = None
+    for k in ranked[: STARTS if refine else 1]:
+        if best is not None and best.cost < SETTLED * relaxed_cost:
+            break
+        poles, origin = found[k]
+        layout, theta, h = start_of(poles, parts, ex.holds, feedthrough)
+        fitted = iterate(layout, theta, h, ex, delays, feedthrough,
+                         None if refine else iterations, origin)
+        if best is None or fitted.cost < best.cost:
+            best = fitted
+    if ex.delay is None and top > 0:
+        moved = rescan(best, ex, top, feedthrough)
+        if not np.array_equal(moved, best.delays):
+            again = iterate(best.layout, best.theta, best.h, ex, moved, feedthrough,
+                            None if refine else iterations, best.start)
+            if again.cost < best.cost:
+                best = again
+    return best, len(found)
+
+
+def fit_from_poles(record, order: int, poles=None, *, origin: str = "arx",
+                   info: dict | None = None) -> Estimate:
+    """The output-error fit to convergence from given poles (the several-channel least
+    squares baseline's: n4sid's), or from the common-denominator ARX's; known delays applied,
+    none estimated.
+
+    Parameters
+    ----------
+    record : Record or sequence of Record
+    order : int
+    poles : (order,) complex array, optional
+        Per sample (``s dt``).
+    origin : str
+        Where ``poles`` come from (``info["start"]``).
+    info : dict, optional
+        Kept in the estimate's ``info``.
+
+    Returns
+    -------
+    Estimate
+    """
+    began = time.perf_counter()
+    ex = experiments_of(record, what="least_squares")
+    delays = ex.delay if ex.delay is not None else np.zeros(ex.inputs, dtype=int)
+    parts = ex.aligned(delays)
+    if poles is None:
+        poles, origin = classical_poles(parts, order)[0], "arx"
+    layout, theta, h = start_of(np.asarray(poles), parts, ex.holds)
+    fitted = iterate(layout, theta, h, ex, delays, True, None, origin)
+    return _estimate(fitted, ex, False, dict(info or {}), time.perf_counter() - began)
+
+
+def validation_fit(fitted: Fitted, ex: Experiments, feedthrough: bool) -> np.ndarray:
+    """NRMSE fit in % per record and output of a fitted model on ``ex`` (its initial states
+    and offsets fitted, ``B, D`` kept): ``(R, p)``.
+
+    Parameters
+    ----------
+    fitted : Fitted
+    ex : Experiments
+    feedthrough : bool
+
+    Returns
+    -------
+    (R, p) array
+    """
+    A, C = fitted.layout.model(fitted.theta)
+    parts = ex.aligned(fitted.delays)
+    with np.errstate(all="ignore"):
+        proj = project(A, C, parts, fitted.h, ex.holds, feedthrough,
+                       B=fitted.projection.B, D=fitted.projection.D)
+    return np.array([_fits(Y, Yh) for (Y, _), Yh in zip(parts, proj.y_hat, strict=True)])
+
+
+def _fits(Y: np.ndarray, Y_hat: np.ndarray) -> np.ndarray:
+    """Per column: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``."""
+    with np.errstate(all="ignore"):
+        fit = 100.0 * (1.0 - np.linalg.norm(Y - Y_hat, axis=0)
+                       / np.linalg.norm(Y - Y.mean(axis=0), axis=0))
+    return np.where(np.isfinite(fit), fit, -np.inf)
+
+
+def identify(record, order=None, *, refine=True, delay=None, max_delay=None, iterations=3,
+             classical=True, proposals=None, orders=range(1, 9), feedthrough=True,
+             what="ae.identify") -> Estimate:
+    """Identify one model of records with several channels, or of several experiments (module
+    docstring); the body of ``ae.identify`` for them.
+
+    Parameters
+    ----------
+    record : Record or sequence of Record
+        ``multi.experiments.experiments_of``.
+    order : int or None
+        None: selected among ``orders``.
+    refine : bool
+    delay : int or sequence of m ints, optional
+        Known input delays (samples).
+    max_delay : int, optional
+        The largest delay considered (default 10, capped by what the records leave).
+    iterations : int, >= 0
+        Residual evaluations of the one pass.
+    classical : bool
+        The classical candidates beside ``proposals``' (always where there are none).
+    proposals : callable, optional
+        ``proposals(order, y, u) -> (K, order + 1)`` monic denominators per sample of one
+        output-input pair (``ae.identify``: the generic encoders' windows).
+    orders : iterable of int
+        Where ``order=None`` selects.
+    feedthrough : bool
+    what : str
+
+    Returns
+    -------
+    Estimate
+        For several channels ``b, c, d`` hold ``B (n, m), C (p, n), D (p, m)``; for several
+        experiments of one channel, ``b (n,), c (n,), d`` (module docstring of
+        ``estimates.estimate``). ``info``: ``delay`` (an int, or ``(m,)``), ``x0``,
+        ``y_offset``, ``fit`` (per output, and per record for several), ``y_hat`` (NaN before the
+        largest delay), ``cost``, ``candidates``, ``start``, ``reference`` (the output whose
+        row of ``C`` is ``e_1``), ``order_fits``, ``iterations``, ``converged``, ``form``.
+
+    Raises
+    ------
+    ValueError
+        For bad records, order, delay or max_delay, or records too short for the model.
+    """
+    began = time.perf_counter()
+    ex = experiments_of(record, delay, what=what)
+    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
+            max_delay, (int, np.integer)) or max_delay < 0):
+        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
+    wanted = [order] if order is not None else [n for n in orders if _room(ex, n) >= 0]
+    if not wanted:
+        wanted = [1]
+    for n in wanted:
+        room = _room(ex, n)
+        need = 2 * parameters(n, ex.outputs, ex.inputs, ex.count)
+        if room < 0 or (ex.delay is not None and int(ex.delay.max()) > room):
+            raise ValueError(f"the records ({', '.join(map(str, ex.steps))} samples, "
+                             f"{ex.outputs} output(s)) are too short for a model of order {n}: "
+                             f"it needs {need} output samples after the delay (twice its "
+                             f"{need // 2} fitted parameters)")
+    kw = {"refine": bool(refine), "iterations": int(iterations), "classical": bool(classical),
+          "proposals": proposals, "feedthrough": feedthrough}
+    order_fits = None
+    if order is None:
+        estimation, validation = ex.cut(ESTIMATION_SHARE)
+        order_fits = {}
+        for n in wanted:
+            room = _room(estimation, n)
+            if room < 0:
+                continue
+            fitted, _ = _fit(estimation, n, top=min(10 if max_delay is None else max_delay,
+                                                    room), **kw)
+            order_fits[n] = float(np.mean(validation_fit(fitted, validation, feedthrough)))
+        if order_fits:
+            best = max(order_fits.values())
+            order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
+        else:
+            order = wanted[0]
+    room = _room(ex, order)
+    top = min(10 if max_delay is None else int(max_delay), room)
+    if max_delay is not None and max_delay > room and ex.delay is None:
+        raise ValueError(f"max_delay must leave twice the parameters of an order-{order} model "
+                         f"after the delay: at most {room} for these records; got {max_delay}")
+    fitted, count = _fit(ex, order, top=top, **kw)
+    info = {"candidates": count, "order_fits": order_fits}
+    return _estimate(fitted, ex, refine, info, time.perf_counter() - began)
+
+
+def _estimate(fitted: Fitted, ex: Experiments, refine: bool, info: dict,
+              seconds: float) -> Estimate:
+    """The Estimate of a fit (``identify``'s Returns)."""
+    model = physical(fitted, ex)
+    info = {**info, "cost": fitted.cost, "start": fitted.start,
+            "reference": fitted.layout.reference, "iterations": fitted.iterations,
+            "converged": fitted.converged, "form": "observer"}
+    return packed(model, ex.records, fitted.delays, refine, info, seconds)
+
+
+def packed(model: dict, records, delays, refined: bool, info: dict,
+           seconds: float) -> Estimate:
+    """An Estimate of a model of several channels or experiments (``identify``'s Returns; the
+    several-channel baselines' too).
+
+    Parameters
+    ----------
+    model : dict
+        ``A, B, C, D`` in the user's units, per record ``x0, offset, y_hat`` (tuples of R).
+    records : tuple of R Record
+    delays : (m,) ints
+    refined : bool
+    info : dict
+        Kept, with the per-record fields added.
+    seconds : float
+
+    Returns
+    -------
+    Estimate
+    """
+    R = len(records)
+    p, m = records[0].outputs, records[0].inputs
+    delays = np.asarray(delays, dtype=int)
+    top = int(delays.max())
+    n = model["A"].shape[0]
+    fits = np.array([_fits(rec.Y[top:], np.reshape(Yh, rec.Y.shape)[top:])
+                     for rec, Yh in zip(records, model["y_hat"], strict=True)])   # (R, p)
+
+    def per_record(values, squeeze):
+        values = [squeeze(v) for v in values]
+        return values[0] if R == 1 else tuple(values)
+
+    if p == m == 1:
+        b, c, d = model["B"][:, 0], model["C"][0], float(model["D"][0, 0])
+        fit = float(fits[0, 0]) if R == 1 else fits[:, 0]
+    else:
+        b, c, d = model["B"], model["C"], model["D"]
+        fit = fits[0] if R == 1 else fits
+    a = np.real(np.poly(np.linalg.eigvals(model["A"])))[1:][::-1]
+    elements = {f"a{k}": float(v) for k, v in enumerate(a)}
+    elements |= {f"b{l}_{j}": float(model["B"][l, j]) for l in range(n) for j in range(m)}
+    elements |= {f"c{i}_{l}": float(model["C"][i, l]) for i in range(p) for l in range(n)}
+    elements |= {f"d{i}_{j}": float(model["D"][i, j]) for i in range(p) for j in range(m)}
+    holds = tuple(r.intersample for r in records)
+    info = {**info, "delay": int(delays[0]) if m == 1 else delays.copy(),
+            "x0": per_record(model["x0"], lambda x: x),
+            "y_offset": per_record(model["offset"], lambda o: float(o[0]) if p == 1 else o),
+            "fit": fit,
+            "y_hat": per_record(model["y_hat"], lambda y: y[:, 0] if p == 1 else y),
+            "intersample": holds[0] if len(set(holds)) == 1 else holds}
+    record = RecordBatch(tuple(r.y[None] for r in records), tuple(r.u[None] for r in records),
+                         tuple(r.dt for r in records), False, checked=True)
+    return Estimate(A=model["A"], b=b, c=c, d=d, elements=elements, record=record,
+                    provenance=Provenance(initial="fitted"), seconds=seconds,
+                    refined=bool(refined), info=info)

@@ -1,0 +1,320 @@
+r"""Where the several-channel fit starts: input delays, candidate poles, the candidates scored by
+a relaxed projection, and the start in the observer form.
+
+1. *Delays* (:func:`arx_delays`): per input, a scan of the common-denominator ARX's residual
+   over ``0 .. max_delay``, one input at a time with the others held (two sweeps).
+2. *Candidates* (:func:`classical_poles`): the common-denominator ARX of every output on every
+   input (``a(q) y_i = sum_j b_ij(q) u_j + c_i``, one ``a`` shared by all outputs: the poles are
+   common to every channel), and its Steiglitz-McBride refits (prefiltered by ``1 / a``, the
+   prefilter's unstable roots reflected into the unit circle) after five refits and at the
+   fixed point. The caller adds its own (``ae.identify``: the generic encoders' candidates of
+   every output-input pair).
+3. *Scoring* (:func:`relaxed`): with the poles fixed, every output gets its own numerators over
+   the common denominator (a non-minimal model: ``p`` times ``n`` states, linear in all its
+   parameters), so each candidate costs one least-squares solve; the lowest residual wins.
+   This relaxation ranks poles without the bilinear ``B, C`` coupling of the minimal model.
+4. *The start* (:func:`start_of`): the reference output is the one the relaxed fit explains
+   best; its numerators are ``B`` in the observer form (``C_ref = e_1``), and the other rows of
+   ``C`` come from the states this ``B`` drives (one least-squares solve per output). The
+   iterations of ``multi.fit`` take it from there.
+
+Poles are in per-sample units; each candidate is scored in its own time unit (``h``: the
+geometric mean of its pole magnitudes), where the coefficients of ``a`` are of order one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from aeid_struct.multi.realisation import Layout, observer_form, responses
+
+__all__ = ["EARLY", "arx_delays", "classical_poles", "relaxed", "scale_of", "start_of"]
+
+#: Steiglitz-McBride refits of the early candidate (the fixed point is the other).
+EARLY = 5
+#: Refits at most, and the relative change in ``a`` at which the fixed point is reached.
+MAX_REFITS, TOL = 50, 1e-10
+
+
+def _arx_columns(Y, U, n: int, extra: np.ndarray, records: int, r: int):
+    """Design and target of the common-denominator ARX of one record (module docstring):
+    columns ``a (n)``, per output ``b_i (m (n + 1))``, then per output and record the
+    ``extra`` columns (a constant; with a prefilter, its transients too)."""
+    L, p = Y.shape
+    m = U.shape[1]
+    e = extra.shape[1]
+    rows = L - n
+    per = m * (n + 1)
+    own = n + p * per
+    X = np.zeros((rows, p, own + p * records * e))
+    for i in range(p):
+        for lag in range(1, n + 1):
+            X[:, i, lag - 1] = -Y[n - lag: L - lag, i]
+        base = n + i * per
+        for j in range(m):
+            for lag in range(n + 1):
+                X[:, i, base + j * (n + 1) + lag] = U[n - lag: L - lag, j]
+        at = own + (i * records + r) * e
+        X[:, i, at: at + e] = extra[n:]
+    return X.reshape(rows * p, -1), Y[n:].reshape(-1)
+
+
+def _arx(parts, n: int, filt=None):
+    """The common denominator ``[1, a_1 .. a_n]`` (discrete, ``q^-1`` powers) and the mean
+    squared residual; ``filt``: the Steiglitz-McBride prefilter's denominator. Filtering from
+    zero initial conditions leaves a transient of ``1 / filt`` driven by the first ``n``
+    equation errors and by the constant: its ``n`` impulse responses and its step response
+    are each output's regressors, so the fixed point stays exact on noise-free data (as
+    ``generic.classical``'s for one channel)."""
+    Xs, ts = [], []
+    for r, (Y, U) in enumerate(parts):
+        L = Y.shape[0]
+        if filt is None:
+            extra = np.ones((L, 1))
+        else:
+            extra = np.zeros((L, n + 1))
+            extra[np.arange(n), np.arange(n)] = 1.0
+            extra[:, n] = 1.0
+            Y, U, extra = (scipy.signal.lfilter([1.0], filt, v, axis=0) for v in (Y, U, extra))
+        X, t = _arx_columns(Y, U, n, extra, len(parts), r)
+        Xs.append(X)
+        ts.append(t)
+    X, t = np.vstack(Xs), np.concatenate(ts)
+    scale = np.abs(X).max(axis=0)
+    scale[scale == 0] = 1.0
+    theta = scipy.linalg.lstsq(X / scale, t, lapack_driver="gelsy",
+                               check_finite=False)[0] / scale
+    return np.concatenate([[1.0], theta[:n]]), float(np.mean((t - X @ theta) ** 2))
+
+
+def arx_delays(experiments, order: int, top: int) -> np.ndarray:
+    """Input delays by the common-denominator ARX (module docstring, step 1).
+
+    Parameters
+    ----------
+    experiments : Experiments
+    order : int
+    top : int
+        The largest delay considered.
+
+    Returns
+    -------
+    (m,) int array
+    """
+    m = experiments.inputs
+    delays = np.zeros(m, dtype=int)
+    if top == 0:
+        return delays
+    for _ in range(2):
+        before = delays.copy()
+        for j in range(m):
+            costs = []
+            for D in range(top + 1):
+                trial = delays.copy()
+                trial[j] = D
+                costs.append(_arx(experiments.aligned(trial), order)[1])
+            delays[j] = int(np.argmin(costs))
+        if np.array_equal(before, delays):
+            break
+    return delays
+
+
+def _stable(den: np.ndarray) -> np.ndarray:
+    """``den`` with its roots outside the unit circle reflected inside (the prefilter)."""
+    z = np.roots(den)
+    outside = np.abs(z) > 1.0
+    if not outside.any():
+        return den
+    z[outside] = 1.0 / np.conj(z[outside])
+    return np.real(np.poly(z))
+
+
+def _continuous(den: np.ndarray) -> np.ndarray | None:
+    """Per-sample continuous poles of a discrete denominator (``log z``; a negative real root,
+    which no real continuous pole gives, by ``log |z|``); None for a root at zero."""
+    z = np.roots(den)
+    if np.any(np.abs(z) < 1e-12) or not np.all(np.isfinite(z)):
+        return None
+    s = np.log(z.astype(complex))
+    negative = (np.abs(z.imag) < 1e-12) & (z.real < 0)
+    s[negative] = np.log(np.abs(z[negative]))
+    return s
+
+
+def classical_poles(parts, order: int) -> list[np.ndarray]:
+    """The ARX and Steiglitz-McBride candidates (module docstring, step 2).
+
+    Parameters
+    ----------
+    parts : list of R (Y, U) pairs
+        Aligned records.
+    order : int
+
+    Returns
+    -------
+    list of (order,) complex arrays
+        Per-sample poles.
+    """
+    den, _ = _arx(parts, order)
+    found = [den]
+    den = _stable(den)
+    for k in range(1, MAX_REFITS + 1):
+        new, _ = _arx(parts, order, _stable(den))
+        if not np.all(np.isfinite(new)):
+            break
+        change = np.max(np.abs(new - den)) / max(1.0, np.max(np.abs(den)))
+        den = new
+        if k == EARLY:
+            found.append(den)
+        if change < TOL:
+            break
+    found.append(den)
+    poles = [_continuous(d) for d in found]
+    return [s for s in poles if s is not None]
+
+
+def scale_of(poles: np.ndarray) -> float:
+    """The time unit ``h`` (per sample) in which ``poles`` are of order one: the geometric mean
+    of their magnitudes (an integrator's zero raised to a thousandth of the largest)."""
+    mag = np.abs(poles)
+    top = float(mag.max())
+    if top == 0.0:
+        return 1.0
+    return float(np.exp(np.mean(np.log(np.maximum(mag, 1e-3 * top)))))
+
+
+def _coefficients(poles: np.ndarray, h: float) -> np.ndarray:
+    """``a_0 .. a_{n-1}`` of the poles in the time unit ``h``."""
+    return np.real(np.poly(poles / h))[1:][::-1].copy()
+
+
+def relaxed(poles: np.ndarray, parts, holds, feedthrough: bool = True):
+    """The relaxed projection of one candidate (module docstring, step 3).
+
+    Parameters
+    ----------
+    poles : (n,) complex array
+        Per sample.
+    parts : list of R (Y, U) pairs
+    holds : sequence of R str
+    feedthrough : bool
+
+    Returns
+    -------
+    cost : float
+        Mean squared residual over all outputs.
+    per_output : (p,) array
+        Each output's residual over its variation.
+    beta : (columns, p) array
+        Per output: ``B_i`` (n m), ``D_i`` (m), then per record ``x0`` (n) and offset (1).
+    h : float
+    """
+    h = scale_of(poles)
+    A = observer_form(_coefficients(poles, h))
+    n = A.shape[0]
+    m = parts[0][1].shape[1]
+    e1 = np.eye(n)[:1]
+    shared = n * m + (m if feedthrough else 0)
+    width = shared + len(parts) * (n + 1)
+    blocks = []
+    for r, ((_, U), hold) in enumerate(zip(parts, holds, strict=True)):
+        Rg, O = responses(A, e1, U, h, hold)
+        X = np.zeros((U.shape[0], width))
+        X[:, : n * m] = Rg[:, 0].reshape(U.shape[0], n * m)
+        if feedthrough:
+            X[:, n * m: shared] = U
+        base = shared + r * (n + 1)
+        X[:, base: base + n] = O[:, 0]
+        X[:, base + n] = 1.0
+        blocks.append(X)
+    X = np.vstack(blocks)
+    Y = np.vstack([Y for Y, _ in parts])
+    if not np.all(np.isfinite(X)):
+        return np.inf, np.full(Y.shape[1], np.inf), None, h
+    scale = np.sqrt(np.sum(X ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    beta = scipy.linalg.lstsq(X / scale, Y, lapack_driver="gelsy",
+                              check_finite=False)[0] / scale[:, None]
+    resid = Y - X @ beta
+    per = np.sum(resid ** 2, axis=0) / np.maximum(np.sum((Y - Y.mean(0)) ** 2, axis=0), 1e-300)
+    return float(np.mean(resid ** 2)), per, beta, h
+
+
+def _residue_start(poles: np.ndarray, beta: np.ndarray, h: float, n: int, m: int):
+    """``(C (p, n), reference)`` of the rank-one residues (module docstring, step 4), or None
+    where two poles (nearly) coincide."""
+    lam = poles / h
+    gaps = np.abs(lam[:, None] - lam[None, :]) + np.eye(n) * np.inf
+    if n > 1 and gaps.min() < 1e-6 * max(1.0, np.abs(lam).max()):
+        return None
+    A = observer_form(_coefficients(poles, h))
+    lam, V = np.linalg.eig(A)
+    W = np.linalg.inv(V)
+    p = beta.shape[1]
+    left = V[0]                                          # e_1^T v_k
+    Bs = beta[: n * m].T.reshape(p, n, m)               # each output's B_i
+    c = np.empty((n, p), dtype=complex)
+    for k in range(n):
+        R = left[k] * (W[k] @ Bs.transpose(1, 0, 2).reshape(n, p * m)).reshape(p, m)
+        u, sv, _ = np.linalg.svd(R)
+        c[k] = u[:, 0] * np.sqrt(sv[0])
+    strength = np.abs(c) / np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-300)
+    ref = int(np.argmax(strength.min(axis=0)))
+    # x_obs = T x_modal with T = O_obs^-1 O_modal (observability from the reference output)
+    O_modal = np.array([c[:, ref] * lam ** k for k in range(n)])
+    O_obs = np.array([np.linalg.matrix_power(A, k)[0] for k in range(n)])
+    T = np.linalg.solve(O_obs, O_modal)
+    C = np.real(c.T @ np.linalg.inv(T))
+    if not np.all(np.isfinite(C)):
+        return None
+    C[ref] = np.eye(n)[0]
+    return C, ref
+
+
+def start_of(poles: np.ndarray, parts, holds, feedthrough: bool = True):
+    """The start in the observer form (module docstring, step 4).
+
+    Parameters
+    ----------
+    poles : (n,) complex array
+    parts, holds, feedthrough
+        As :func:`relaxed`.
+
+    Returns
+    -------
+    layout : Layout
+    theta : (n p,) array
+    h : float
+    """
+    _, per, beta, h = relaxed(poles, parts, holds, feedthrough)
+    n, p, m = len(poles), parts[0][0].shape[1], parts[0][1].shape[1]
+    a = _coefficients(poles, h)
+    if p == 1:
+        return Layout(n, p, m, 0), a, h
+    with np.errstate(all="ignore"):
+        residues = _residue_start(poles, beta, h, n, m)
+    if residues is not None:
+        C, ref = residues
+        layout = Layout(n, p, m, ref)
+        return layout, layout.theta(a, C), h
+    ref = int(np.argmin(per))
+    layout = Layout(n, p, m, ref)
+    A = observer_form(a)
+    B = beta[: n * m, ref].reshape(n, m)
+    shared = n * m + (m if feedthrough else 0)
+    rows, targets = [], []
+    for r, ((Y, U), hold) in enumerate(zip(parts, holds, strict=True)):
+        Rx, Ox = responses(A, np.eye(n), U, h, hold)
+        x0 = beta[shared + r * (n + 1): shared + r * (n + 1) + n, ref]
+        x = np.einsum("kilj,lj->ki", Rx, B) + Ox @ x0
+        ones = np.zeros((U.shape[0], len(parts)))
+        ones[:, r] = 1.0
+        rows.append(np.hstack([x, U if feedthrough else U[:, :0], ones]))
+        targets.append(Y)
+    X, T = np.vstack(rows), np.vstack(targets)
+    coef = scipy.linalg.lstsq(X, T, lapack_driver="gelsy", check_finite=False)[0]
+    C = coef[:n].T.copy()
+    C[ref] = np.eye(n)[0]
+    return layout, layout.theta(a, C), h

@@ -1,0 +1,219 @@
+"""Several inputs and outputs, several experiments (aeid_struct.multi, ae.identify's route for
+them): the projection against scipy's ``lsim``, noise-free identification against the true
+transfer matrix (python-control), the baselines, ``ae.compare`` per output, bad input."""
+
+import control
+import numpy as np
+import pytest
+import scipy.signal
+
+import aeid_struct as ae
+from aeid_struct.baselines import least_squares, n4sid
+from aeid_struct.multi import Layout, observer_form, project
+from aeid_struct.simulation import discrete_foh, discrete_inputs
+
+DT = 0.05
+
+
+def _system(n, p, m, seed):
+    """A stable, lightly damped random system in a random basis."""
+    rng = np.random.default_rng(seed)
+    blocks, k = [], 0
+    while k < n:
+        if n - k >= 2:
+            w, z = rng.uniform(0.8, 4.0), rng.uniform(0.15, 0.6)
+            blocks.append(np.array([[-z * w, w * np.sqrt(1 - z * z)],
+                                    [-w * np.sqrt(1 - z * z), -z * w]]))
+            k += 2
+        else:
+            blocks.append(np.array([[-rng.uniform(0.5, 3.0)]]))
+            k += 1
+    A = np.zeros((n, n))
+    at = 0
+    for b in blocks:
+        A[at: at + len(b), at: at + len(b)] = b
+        at += len(b)
+    T = rng.normal(size=(n, n))
+    A = T @ A @ np.linalg.inv(T)
+    return A, rng.normal(size=(n, m)), rng.normal(size=(p, n)), 0.3 * rng.normal(size=(p, m))
+
+
+def _record(system, seed, steps=600, delays=None, offset=None, noise=0.0, hold="foh"):
+    A, B, C, D = system
+    rng = np.random.default_rng(seed)
+    m, p = B.shape[1], C.shape[0]
+    U = np.repeat(rng.choice([-1.0, 1.0], size=(steps // 4 + 1, m)), 4, axis=0)[:steps]
+    U = U + 0.3 * rng.normal(size=U.shape)
+    delays = [0] * m if delays is None else delays
+    Ud = np.stack([np.concatenate([np.zeros(d), U[: steps - d, j]])
+                   for j, d in enumerate(delays)], axis=1)
+    _, Y, _ = scipy.signal.lsim((A, B, C, D), Ud, np.arange(steps) * DT,
+                                X0=rng.normal(size=A.shape[0]), interp=hold == "foh")
+    Y = Y.reshape(steps, p) + (0.0 if offset is None else np.asarray(offset))
+    Y = Y + noise * Y.std(axis=0) * rng.normal(size=Y.shape)
+    return ae.Record(Y if p > 1 else Y[:, 0], U if m > 1 else U[:, 0], DT, intersample=hold)
+
+
+def _frequency_gap(est_or_sys, system):
+    """Largest relative gap of the transfer matrices over 0.1-10 rad/s."""
+    w = np.logspace(-1, 1, 25)
+    A, B, C, D = system
+    true = np.asarray(control.ss(A, B, C, D)(1j * w))
+    sys = est_or_sys.to_control() if hasattr(est_or_sys, "to_control") else est_or_sys
+    got = np.asarray(sys(1j * w))
+    return float(np.max(np.abs(got - true)) / np.max(np.abs(true)))
+
+
+@pytest.mark.parametrize("hold", ["foh", "zoh"])
+def test_discrete_inputs_matches_the_one_column_form_and_scipy(hold):
+    A, B, _, _ = _system(3, 1, 2, 0)
+    Phi, G1, G2 = discrete_inputs(A, B, DT, hold)
+    for j in range(2):
+        phi, g1, g2 = discrete_foh(A, B[:, j], DT, hold)
+        np.testing.assert_allclose(Phi, phi, atol=1e-14)
+        np.testing.assert_allclose(G1[:, j], g1, atol=1e-14)
+        np.testing.assert_allclose(G2[:, j], g2, atol=1e-14)
+    Ad, Bd, *_ = scipy.signal.cont2discrete((A, B, np.eye(3), np.zeros((3, 2))), DT,
+                                            method=hold)
+    np.testing.assert_allclose(Phi, Ad, atol=1e-13)
+    expected = G1 if hold == "zoh" else G1 - G2 + Phi @ G2
+    np.testing.assert_allclose(expected, Bd, atol=1e-13)
+
+
+@pytest.mark.parametrize("hold", ["foh", "zoh"])
+def test_projection_recovers_B_D_x0_offsets_exactly(hold):
+    rng = np.random.default_rng(1)
+    n, p, m = 3, 2, 2
+    A = observer_form(np.real(np.poly([-0.5, -0.2 + 1j, -0.2 - 1j]))[1:][::-1])
+    C = np.vstack([np.eye(n)[0], rng.normal(size=n)])
+    B, D, x0 = rng.normal(size=(n, m)), rng.normal(size=(p, m)), rng.normal(size=n)
+    U = rng.normal(size=(300, m)).cumsum(axis=0) * 0.1
+    _, Y, _ = scipy.signal.lsim((A, B, C, D), U, np.arange(300) * DT, X0=x0,
+                                interp=hold == "foh")
+    pr = project(A, C, [(Y + [0.3, -1.0], U)], DT, [hold])
+    np.testing.assert_allclose(pr.B, B, atol=1e-9)
+    np.testing.assert_allclose(pr.D, D, atol=1e-9)
+    np.testing.assert_allclose(pr.x0[0], x0, atol=1e-9)
+    np.testing.assert_allclose(pr.offset[0], [0.3, -1.0], atol=1e-9)
+    assert pr.cost < 1e-20
+    A2, C2 = Layout(n, p, m, 0).model(Layout(n, p, m, 0).theta(
+        np.real(np.poly([-0.5, -0.2 + 1j, -0.2 - 1j]))[1:][::-1], C))
+    np.testing.assert_array_equal(A2, A)
+    np.testing.assert_array_equal(C2, C)
+
+
+@pytest.mark.parametrize(("n", "p", "m"), [(3, 2, 2), (4, 2, 1), (3, 1, 3), (2, 3, 3)])
+def test_noise_free_identification_is_exact(n, p, m):
+    system = _system(n, p, m, 10 + n + p + m)
+    rec = _record(system, 0, offset=np.linspace(-1, 2, p))
+    est = ae.identify(rec, order=n)
+    assert _frequency_gap(est, system) < 1e-6
+    assert np.all(np.asarray(est.fit) > 99.999)
+    np.testing.assert_allclose(est.offset, np.linspace(-1, 2, p) if p > 1 else -1.0,
+                               atol=1e-6)
+    assert est.B.shape == (n, m) and est.C.shape == (p, n) and est.D.shape == (p, m)
+    # the observer form of the reference output: ones above the diagonal, C[ref] = e_1
+    ref = est.info["reference"]
+    np.testing.assert_allclose(np.diag(est.A, 1), 1.0)
+    np.testing.assert_allclose(est.C[ref], np.eye(n)[0], atol=1e-12)
+
+
+def test_a_delay_per_input_is_found():
+    system = _system(3, 2, 2, 3)
+    est = ae.identify(_record(system, 1, delays=[3, 0], noise=0.002), order=3)
+    np.testing.assert_array_equal(est.delay, [3, 0])
+    assert _frequency_gap(est, system) < 2e-2
+    known = ae.identify(_record(system, 1, delays=[3, 0]), order=3, delay=[3, 0])
+    assert _frequency_gap(known, system) < 1e-6
+
+
+def test_several_experiments_one_model_own_initial_states_and_offsets():
+    system = _system(3, 1, 1, 4)
+    recs = [_record(system, s, steps=300 + 100 * s, offset=float(s)) for s in range(3)]
+    est = ae.identify(recs, order=3)
+    assert _frequency_gap(est, system) < 1e-6
+    assert est.A.shape == (3, 3) and est.b.shape == (3,)
+    np.testing.assert_allclose(est.offset, [0.0, 1.0, 2.0], atol=1e-6)
+    assert len(est.x0) == 3 and np.all(est.fit > 99.999)
+    assert est.records == 3 and len(est.y_hat) == 3
+    assert isinstance(est.to_control(), control.StateSpace)
+
+
+def test_several_experiments_at_noise_beat_one_record():
+    system = _system(4, 2, 2, 5)
+    recs = [_record(system, s, steps=300, noise=0.05) for s in range(4)]
+    alone = ae.identify(recs[0], order=4)
+    joint = ae.identify(recs, order=4)
+    assert _frequency_gap(joint, system) < _frequency_gap(alone, system)
+
+
+def test_held_input_records_are_exact_under_their_hold():
+    system = _system(3, 2, 2, 6)
+    est = ae.identify(_record(system, 2, hold="zoh"), order=3)
+    assert est.intersample == "zoh"
+    assert _frequency_gap(est, system) < 1e-6
+
+
+def test_one_pass_at_noise_is_near_refined():
+    system = _system(4, 2, 2, 7)
+    rec = _record(system, 3, steps=1000, noise=0.02)
+    one = ae.identify(rec, order=4, refine=False)
+    refined = ae.identify(rec, order=4)
+    assert not one.refined and refined.refined
+    assert np.mean(one.fit) > np.mean(refined.fit) - 1.0
+    assert np.mean(refined.fit) > 97.0
+
+
+def test_order_is_selected():
+    system = _system(4, 2, 2, 8)
+    est = ae.identify(_record(system, 4, steps=800, noise=0.01), order=None)
+    assert est.A.shape == (4, 4)
+    assert set(est.info["order_fits"]) >= {1, 2, 3, 4}
+
+
+def test_baselines_for_several_channels():
+    system = _system(3, 2, 2, 9)
+    rec = _record(system, 5, steps=800, offset=[1.0, -1.0])
+    for method in (n4sid, least_squares):
+        est = method(rec, order=3)
+        assert not est.info["failed"]
+        assert _frequency_gap(est, system) < 1e-3, method.__name__
+        assert np.all(est.fit > 99.9)
+    joint = least_squares([rec, _record(system, 6, steps=400)], order=3)
+    assert _frequency_gap(joint, system) < 1e-6
+
+
+def test_compare_per_output_and_overall():
+    system = _system(3, 2, 2, 11)
+    est = ae.identify(_record(system, 7, noise=0.01), order=3)
+    other = _record(system, 8, offset=[2.0, 0.5])
+    cmp = ae.compare(est, other)
+    assert cmp.fit.shape == (2,) and cmp.y_hat.shape == (600, 2)
+    assert cmp.overall == pytest.approx(np.mean(cmp.fit))
+    assert np.all(cmp.fit > 97.0)
+    np.testing.assert_allclose(cmp.y_offset, [2.0, 0.5], atol=0.05)
+    by_control = ae.compare(est.to_control(), other)
+    np.testing.assert_allclose(by_control.fit, cmp.fit, atol=1e-9)
+    true = ae.compare(control.ss(*system), other)
+    np.testing.assert_allclose(true.fit, 100.0, atol=1e-6)
+
+
+def test_bad_input_is_refused_by_name():
+    system = _system(2, 2, 2, 12)
+    rec = _record(system, 9)
+    with pytest.raises(ValueError, match="channels of record"):
+        ae.identify([rec, rec.channel(0, 0)], order=2)
+    with pytest.raises(ValueError, match="sample time"):
+        ae.identify([rec, ae.Record(rec.y, rec.u, 0.1)], order=2)
+    with pytest.raises(ValueError, match="structure must be None"):
+        ae.identify(rec, order=2, structure="mcf")
+    with pytest.raises(ValueError, match="delay must be"):
+        ae.identify(rec, order=2, delay=[1, 2, 3])
+    with pytest.raises(ValueError, match="too short"):
+        ae.identify(ae.Record(rec.y[:12], rec.u[:12], DT), order=2)
+    with pytest.raises(ValueError, match="order must be"):
+        ae.identify(rec, order=9)
+    with pytest.raises(ValueError, match="constant"):
+        ae.identify(ae.Record(np.c_[rec.Y[:, 0], np.ones(600)], rec.u, DT), order=2)
+    with pytest.raises(ValueError, match="output"):
+        ae.compare(ae.identify(rec, order=2), ae.Record(rec.y, rec.U[:, :1], DT))
