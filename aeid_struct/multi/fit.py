@@ -21,11 +21,15 @@ import scipy.optimize
 
 from aeid_struct.multi.realisation import Layout, Projection, project
 
-__all__ = ["TOL", "Fitted", "iterate", "physical", "rescan"]
+__all__ = ["MAX_ITERATIONS", "TOL", "Fitted", "iterate", "physical", "rescan"]
 
 #: Relative tolerances of the iterations (cost, step, gradient): below them the fit moves by
 #: far less than the noise.
 TOL = 1e-9
+#: Iterations at most to convergence: an order above the system's has directions the data do
+#: not fix, along which MINPACK's default (``100 (k + 1)`` Jacobians for ``k`` parameters) crawled
+#: for minutes (order 8 of a 2x2 order-4 record while the order was selected).
+MAX_ITERATIONS = 100
 
 
 @dataclass(frozen=True)
@@ -92,7 +96,7 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
     feedthrough : bool
     max_nfev : int or None
         Iterations at most (the one pass's bounded cost: each a Jacobian by differences and a
-        step); None: to convergence (:data:`TOL`).
+        step); None: to convergence (:data:`TOL`), at most :data:`MAX_ITERATIONS`.
     start : str
 
     Returns
@@ -113,7 +117,7 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
         # residuals to the same optimum than the trust-region reflective method
         sol = scipy.optimize.least_squares(
             _residual(layout, parts, holds, h, feedthrough, big), theta, method="lm",
-            max_nfev=None if max_nfev is None else max_nfev * (len(theta) + 1),
+            max_nfev=(MAX_ITERATIONS if max_nfev is None else max_nfev) * (len(theta) + 1),
             ftol=TOL, xtol=TOL, gtol=TOL)
     with np.errstate(all="ignore"):
         proj = project(*layout.model(sol.x), parts, h, holds, feedthrough)
