@@ -78,6 +78,7 @@ from aeid_struct.generic.result import estimate_of, restore
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
+from aeid_struct.multi import ESTIMATION_SHARE, ORDER_TOLERANCE
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
@@ -85,10 +86,6 @@ from aeid_struct.structures import CCF
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE",
            "StableOnlyWarning", "run"]
 
-#: Points of validation fit within which the smaller order is preferred (``order=None``).
-ORDER_TOLERANCE = 0.5
-#: The estimation part of the record when the order is selected.
-ESTIMATION_SHARE = 0.7
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
 SHORTLIST = 2
 #: The largest delay considered by default (capped by what the record leaves after the window).

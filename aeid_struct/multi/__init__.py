@@ -16,6 +16,8 @@ from aeid_struct.multi.comparison import compare_channels as compare_channels
 from aeid_struct.multi.experiments import Experiments as Experiments
 from aeid_struct.multi.experiments import experiments_of as experiments_of
 from aeid_struct.multi.experiments import several as several
+from aeid_struct.multi.identify import ESTIMATION_SHARE as ESTIMATION_SHARE
+from aeid_struct.multi.identify import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.multi.identify import fit_from_poles as fit_from_poles
 from aeid_struct.multi.identify import identify as identify
 from aeid_struct.multi.identify import packed as packed
@@ -24,6 +26,6 @@ from aeid_struct.multi.realisation import Layout as Layout
 from aeid_struct.multi.realisation import observer_form as observer_form
 from aeid_struct.multi.realisation import project as project
 
-__all__ = ["Experiments", "Layout", "compare_channels", "experiments_of", "fit_from_poles",
-           "identify",
-           "observer_form", "packed", "parameters", "project", "several"]
+__all__ = ["ESTIMATION_SHARE", "Experiments", "Layout", "ORDER_TOLERANCE", "compare_channels",
+           "experiments_of", "fit_from_poles", "identify", "observer_form", "packed",
+           "parameters", "project", "several"]

@@ -38,7 +38,8 @@ from aeid_struct.records import RecordBatch
 __all__ = ["ESTIMATION_SHARE", "ORDER_TOLERANCE", "fit_from_poles", "identify", "packed",
            "parameters", "validation_fit"]
 
-#: Points of validation fit within which the smaller order is preferred (``order=None``).
+#: Points of validation fit within which the smaller order is preferred (``order=None``; the
+#: rule of one channel too: ``generic.pipeline`` reads it from here).
 ORDER_TOLERANCE = 0.5
 #: The estimation part of each record when the order is selected.
 ESTIMATION_SHARE = 0.7

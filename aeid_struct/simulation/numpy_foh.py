@@ -125,17 +125,8 @@ def discrete_foh(A: np.ndarray, b: np.ndarray, dt: float = 1.0, intersample: str
     ValueError
         For another ``intersample``.
     """
-    if intersample not in ("foh", "zoh"):
-        # the one place the hold is read: a misspelt one must not pass for a held input
-        raise ValueError(f"intersample must be 'foh' or 'zoh'; got {intersample!r}")
-    n = A.shape[-1]
-    M = np.zeros(A.shape[:-2] + (n + 2, n + 2), dtype=np.result_type(A, b, np.float64))
-    M[..., :n, :n] = A * dt
-    M[..., :n, n] = b * dt
-    M[..., n, n + 1] = 1.0
-    X = scipy.linalg.expm(M)
-    gamma2 = X[..., :n, n + 1] if intersample == "foh" else np.zeros_like(X[..., :n, n])
-    return X[..., :n, :n], X[..., :n, n], gamma2
+    Phi, G1, G2 = discrete_inputs(A, b[..., None], dt, intersample)
+    return Phi, G1[..., 0], G2[..., 0]
 
 
 def discrete_inputs(A: np.ndarray, B: np.ndarray, dt: float = 1.0, intersample: str = "foh"):
@@ -146,15 +137,16 @@ def discrete_inputs(A: np.ndarray, B: np.ndarray, dt: float = 1.0, intersample: 
 
     Parameters
     ----------
-    A : (n, n) array
-    B : (n, m) array
+    A : (..., n, n) array
+        One system or a batch, real or complex.
+    B : (..., n, m) array
     dt : float, > 0
     intersample : {"foh", "zoh"}
 
     Returns
     -------
-    Phi : (n, n) array
-    Gamma1, Gamma2 : (n, m) arrays
+    Phi : (..., n, n) array
+    Gamma1, Gamma2 : (..., n, m) arrays
 
     Raises
     ------
@@ -162,15 +154,18 @@ def discrete_inputs(A: np.ndarray, B: np.ndarray, dt: float = 1.0, intersample: 
         For another ``intersample``.
     """
     if intersample not in ("foh", "zoh"):
+        # the one place the hold is read: a misspelt one must not pass for a held input
         raise ValueError(f"intersample must be 'foh' or 'zoh'; got {intersample!r}")
-    n, m = B.shape
-    M = np.zeros((n + 2 * m, n + 2 * m))
-    M[:n, :n] = A * dt
-    M[:n, n: n + m] = B * dt
-    M[n: n + m, n + m:] = np.eye(m)
+    n, m = B.shape[-2:]
+    batch = np.broadcast_shapes(A.shape[:-2], B.shape[:-2])
+    M = np.zeros(batch + (n + 2 * m, n + 2 * m), dtype=np.result_type(A, B, np.float64))
+    M[..., :n, :n] = A * dt
+    M[..., :n, n: n + m] = B * dt
+    M[..., n: n + m, n + m:] = np.eye(m)
     X = scipy.linalg.expm(M)
-    gamma2 = X[:n, n + m:] if intersample == "foh" else np.zeros((n, m))
-    return X[:n, :n], X[:n, n: n + m], gamma2
+    G1 = X[..., :n, n: n + m]
+    gamma2 = X[..., :n, n + m:] if intersample == "foh" else np.zeros_like(G1)
+    return X[..., :n, :n], G1, gamma2
 
 
 def free_basis(Phi: np.ndarray, C: np.ndarray, steps: int) -> np.ndarray:
