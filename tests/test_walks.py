@@ -65,8 +65,11 @@ def test_any_record_walks_check_start_fit_result_once(any_record, refine, stages
     got = walk("aeid_struct.generic.pipeline",
                lambda: ae.identify(any_record, order=2, refine=refine))
     assert got == stages
+    # one_call asks multi whether the record has several channels or experiments (no), then
+    # runs the pipeline of one channel
     assert walk("aeid_struct.generic.one_call",
-                lambda: ae.identify(any_record, order=2, refine=refine)) == ["generic.pipeline"]
+                lambda: ae.identify(any_record, order=2, refine=refine)) == [
+        "multi.experiments", "generic.pipeline"]
 
 
 def test_a_leg_record_with_refine_walks_each_module_once():
