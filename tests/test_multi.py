@@ -217,3 +217,13 @@ def test_bad_input_is_refused_by_name():
         ae.identify(ae.Record(np.c_[rec.Y[:, 0], np.ones(600)], rec.u, DT), order=2)
     with pytest.raises(ValueError, match="output"):
         ae.compare(ae.identify(rec, order=2), ae.Record(rec.y, rec.U[:, :1], DT))
+    with pytest.raises(ValueError, match="^delay must be"):
+        ae.compare(ae.identify(rec, order=2), rec, delay=[-1, 0])
+    with pytest.raises(ValueError, match="^iterations must be"):
+        ae.identify(rec, order=2, refine=False, iterations=-1)
+    with pytest.raises(ValueError, match="^max_delay must"):
+        ae.identify(rec, order=2, max_delay=590)
+    with pytest.raises(ValueError, match="^y must be one Record"):
+        n4sid([rec, rec], order=2)
+    with pytest.raises(ValueError, match="identifier"):
+        ae.identify(rec, order=2, identifier="no-such-identifier")

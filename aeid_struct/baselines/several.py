@@ -49,7 +49,7 @@ def n4sid_channels(record, *, order: int, block_rows: int | None = None) -> Esti
     record : Record
     order : int, >= 1
     block_rows : int > order, optional
-        Default ``min(20, steps // (2 (m + 2)))``, at least ``order + 1``.
+        Default ``min(20, (steps + 1) // (2 (m + 3)))``, at least ``order + 1``.
 
     Returns
     -------
@@ -68,9 +68,12 @@ def n4sid_channels(record, *, order: int, block_rows: int | None = None) -> Esti
     m = ex.inputs
     delays = np.zeros(m, dtype=int) if ex.delay is None else ex.delay
     (Y, U), = ex.aligned(delays)
+    # m inputs and the constant channel: nfoursid's QR needs 2 block_rows (m + 3) - 1 samples,
+    # so the default takes the most block rows (up to 20) that the record holds
+    need_per_row = 2 * (m + 3)
     if block_rows is None:
-        block_rows = max(order + 1, min(20, Y.shape[0] // (2 * (m + 2))))
-    need = 2 * block_rows * (m + 3) - 1
+        block_rows = max(order + 1, min(20, (Y.shape[0] + 1) // need_per_row))
+    need = need_per_row * block_rows - 1
     if Y.shape[0] < need:
         raise ValueError(f"record must have at least {need} samples after the delay for "
                          f"order={order}, block_rows={block_rows}; got {Y.shape[0]}")

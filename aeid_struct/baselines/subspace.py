@@ -121,6 +121,10 @@ def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inv
     import pandas  # noqa: F401 -- imported before the clock starts: the first import takes ~0.5 s
     from nfoursid.nfoursid import NFourSID  # noqa: F401
 
+    if isinstance(y, (list, tuple)) and y and all(isinstance(r, Record) for r in y):
+        raise ValueError(f"y must be one Record: n4sid (nfoursid) reads one record, not "
+                         f"{len(y)} experiments; least_squares(records, order=n) or "
+                         f"ae.identify(records, order=n) fit one model to several")
     if isinstance(y, Record) and (y.outputs > 1 or y.inputs > 1):
         only_record("n4sid", u=u, dt=dt)
         return n4sid_channels(y, order=check_int("order", order, 1), block_rows=block_rows)

@@ -29,6 +29,8 @@ from types import SimpleNamespace
 import numpy as np
 import scipy.signal
 
+from aeid_struct.multi import continuous_poles, reflected
+
 __all__ = ["EARLY", "MAX_ITERATIONS", "MAX_ORDER", "TOL", "NoEncoder", "arx",
            "classical_candidates", "steiglitz_mcbride"]
 
@@ -76,16 +78,6 @@ def arx(y: np.ndarray, u: np.ndarray, n: int, extra: np.ndarray | None = None) -
     scale = np.where(scale > 0, scale, 1.0)
     z = np.linalg.lstsq(Z / scale, y[rows], rcond=None)[0] / scale
     return np.concatenate([[1.0], z[:n]])
-
-
-def _stable(a: np.ndarray) -> np.ndarray:
-    """``a`` with its roots outside the unit circle reflected inside (``z -> 1 / conj z``)."""
-    roots = np.roots(a)
-    outside = np.abs(roots) >= 1.0
-    if not outside.any():
-        return a
-    roots[outside] = 1.0 / np.conj(roots[outside])
-    return np.real(np.poly(roots))
 
 
 class NoEncoder:
@@ -192,7 +184,7 @@ def _iterates(y, u, order: int, delay: int, iterations: int, keep: tuple):
     yy, uu = y[delay:] - y[delay:].mean(), u[:N] - u[:N].mean()
     kept = []
     with np.errstate(all="ignore"):
-        a = _stable(arx(yy, uu, order))
+        a = reflected(arx(yy, uu, order))
         impulses = np.zeros((N, order + 1))
         impulses[np.arange(order), np.arange(order)] = 1.0
         impulses[:, order] = 1.0
@@ -202,7 +194,7 @@ def _iterates(y, u, order: int, delay: int, iterations: int, keep: tuple):
             # first n equation errors and by the constant: its n impulse responses and its step
             # response are regressors, so the fixed point stays exact on noise-free data.
             extra = scipy.signal.lfilter([1.0], a, impulses, axis=0)
-            a_next = _stable(arx(scipy.signal.lfilter([1.0], a, yy),
+            a_next = reflected(arx(scipy.signal.lfilter([1.0], a, yy),
                                   scipy.signal.lfilter([1.0], a, uu), order, extra))
             if not np.all(np.isfinite(a_next)):
                 break
@@ -220,10 +212,6 @@ def _iterates(y, u, order: int, delay: int, iterations: int, keep: tuple):
 
 def _continuous(a: np.ndarray) -> np.ndarray | None:
     """The continuous monic denominator (normalised time) of a discrete one ``a``: poles
-    ``s = log z`` (module docstring); None where not finite."""
-    z = np.roots(a)
-    z = np.where((np.abs(z.imag) < 1e-12) & (z.real < 0), np.abs(z), z)
-    z = np.where(np.abs(z) > 0, z, 1e-300)
-    s = np.log(z.astype(complex))
-    den = np.real(np.poly(s))
+    ``s = log z`` (``multi.continuous_poles``, module docstring); None where not finite."""
+    den = np.real(np.poly(continuous_poles(a)))
     return den if np.all(np.isfinite(den)) else None

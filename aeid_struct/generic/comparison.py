@@ -164,27 +164,28 @@ def _compare_channels(model, record, delay) -> Comparison:
         if control.isdtime(model, strict=True):
             raise ValueError("estimate_or_model must be a continuous-time system")
         model = control.ss(model)
-        delays, step = 0, None
+        model_delay = step = None
     elif all(hasattr(model, k) for k in ("A", "B", "C", "D")):
-        delays, step = getattr(model, "delay", 0), getattr(model, "dt", None)
+        model_delay, step = getattr(model, "delay", None), getattr(model, "dt", None)
+        step = step[0] if isinstance(step, tuple) else step    # experiments share one dt
     else:
         raise ValueError(f"estimate_or_model must be an Estimate or a continuous-time "
                          f"control.StateSpace for several outputs or inputs; got "
                          f"{type(model).__name__}")
+    # the delay as for one channel: the given one, else the model's, else the record's, else 0
     if delay is not None:
         delays = delay
-    elif record.delay is not None and np.all(np.asarray(delays) == 0):
-        delays = record.delay
+    elif model_delay is None:
+        delays = 0 if record.delay is None else record.delay
     else:
-        delays = np.array([_in_samples(int(k), step if np.ndim(step) == 0 else None,
-                                       record.dt) for k in np.ravel(delays)])
+        delays = [_in_samples(int(k), step, record.dt) for k in np.ravel(model_delay)]
     out = compare_channels(model.A, model.B, model.C, model.D, record, delays)
     fit = out["fit"] if record.outputs > 1 else float(out["fit"][0])
     y_hat = out["y_hat"] if record.outputs > 1 else out["y_hat"][:, 0]
     offset = out["y_offset"] if record.outputs > 1 else float(out["y_offset"][0])
-    D = np.ravel(delays)
+    D = out["delay"]
     return Comparison(fit=fit, y_hat=y_hat, x0=out["x0"], y_offset=offset, y=record.y,
-                      t=record.t, delay=int(D[0]) if D.size == 1 else D.astype(int))
+                      t=record.t, delay=int(D[0]) if D.size == 1 else D)
 
 
 def _in_samples(delay: int, step: float | None, dt: float) -> int:

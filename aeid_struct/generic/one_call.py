@@ -14,6 +14,7 @@ import os
 
 import numpy as np
 
+from aeid_struct.generic.boundary import shortest
 from aeid_struct.generic.classical import MAX_ORDER, NoEncoder
 from aeid_struct.generic.config import ORDERS
 from aeid_struct.generic.model import load_generic
@@ -135,22 +136,18 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
     if method not in ("auto", "separable"):
         raise ValueError(f"method must be 'auto' or 'separable' for several channels or "
                          f"experiments (variable projection); got {method!r}")
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
-        raise ValueError(f"iterations must be an integer >= 0; got {iterations!r}")
-    for name, value in (("refine", refine), ("classical", classical)):
-        if not isinstance(value, bool):
-            raise ValueError(f"{name} must be True or False; got {value!r}")
-    if order is not None and (isinstance(order, bool) or not isinstance(order, int)
-                              or not 1 <= order <= MAX_ORDER):
-        raise ValueError(f"order must be None (selected) or an integer in [1, {MAX_ORDER}]; "
-                         f"got {order!r}")
+    # the identifiers are resolved here, once (a bad one is refused before any numerics); the
+    # other arguments are checked by multi.identify, at its own boundary
+    if identifier is not None:
+        chosen = _identifiers(order, identifier=identifier)
+    else:       # the shipped encoders (1-4); above them the classical candidates alone
+        chosen = {n: _shipped(n) for n in ORDERS if order is None or order == n}
 
     def proposals(n, y, u):
-        chosen = _identifiers(n, identifier=identifier)[n] if identifier is not None or \
-            n in ORDERS else None
-        if chosen is None or y.shape[0] < 2 * (3 * n + 2):
+        ident = chosen.get(n)
+        if ident is None or isinstance(ident, NoEncoder) or y.shape[0] < shortest(n):
             return np.zeros((0, n + 1))
-        return candidates(chosen, y, u)
+        return candidates(ident, y, u)
 
     return identify_multi(record, order, refine=refine, delay=delay, max_delay=max_delay,
                           iterations=iterations, classical=classical, proposals=proposals,

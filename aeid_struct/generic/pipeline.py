@@ -78,7 +78,7 @@ from aeid_struct.generic.result import estimate_of, restore
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
-from aeid_struct.multi import ESTIMATION_SHARE, ORDER_TOLERANCE
+from aeid_struct.multi import ESTIMATION_SHARE, MAX_DELAY, ORDER_TOLERANCE
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
@@ -88,8 +88,6 @@ __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLE
 
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
 SHORTLIST = 2
-#: The largest delay considered by default (capped by what the record leaves after the window).
-MAX_DELAY = 10
 #: Levenberg-Marquardt iterations of the one pass (``refine=False``); chosen by
 #: ``aeid-struct bench-generic``: more bought next to nothing in validation fit per iteration.
 ITERATIONS = 3

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aeid_struct.multi.experiments import Experiments
+from aeid_struct.multi.experiments import Experiments, check_delays
 from aeid_struct.multi.realisation import project
 
 __all__ = ["compare_channels"]
@@ -28,18 +28,19 @@ def compare_channels(A, B, C, D, record, delays) -> dict:
     D : (p, m) array
     record : Record
         With ``p`` outputs and ``m`` inputs.
-    delays : (m,) ints
+    delays : int or (m,) ints
+        Input delays in samples, >= 0.
 
     Returns
     -------
     dict
         ``fit (p,)``, ``y_hat (steps, p)`` (NaN before the largest delay), ``x0 (n,)``,
-        ``y_offset (p,)``.
+        ``y_offset (p,)``, ``delay (m,)`` (the delays checked).
 
     Raises
     ------
     ValueError
-        Where the model's channels are not the record's.
+        Where the model's channels are not the record's, or for a bad delay.
     """
     A, B, C, D = (np.asarray(v, dtype=np.float64) for v in (A, B, C, D))
     n = A.shape[0]
@@ -52,7 +53,7 @@ def compare_channels(A, B, C, D, record, delays) -> dict:
         raise ValueError("the model (A, B, C, D) must be finite")
     ex = Experiments((record,), (record.Y,), (record.U,), (record.intersample,), record.dt,
                      np.zeros(p), np.ones(p), np.ones(m), None)
-    delays = np.broadcast_to(np.asarray(delays, dtype=int), (m,))
+    delays = check_delays(delays, m)
     top = int(delays.max())
     if not 0 <= top <= record.steps - 2:
         raise ValueError(f"delay must be in [0, {record.steps - 2}] for this record; got "
@@ -65,4 +66,5 @@ def compare_channels(A, B, C, D, record, delays) -> dict:
                        / np.linalg.norm(Y - Y.mean(axis=0), axis=0))
     y_hat = np.full(record.Y.shape, np.nan)
     y_hat[top:] = proj.y_hat[0]
-    return {"fit": fit, "y_hat": y_hat, "x0": proj.x0[0], "y_offset": proj.offset[0]}
+    return {"fit": fit, "y_hat": y_hat, "x0": proj.x0[0], "y_offset": proj.offset[0],
+            "delay": delays}

@@ -11,13 +11,14 @@ taken back to the user's units in ``multi.model.physical``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from aeid_struct.records import Record
 
-__all__ = ["Experiments", "experiments_of", "several"]
+__all__ = ["Experiments", "check_delays", "experiments_of", "several"]
 
 
 def several(record) -> bool:
@@ -127,17 +128,34 @@ class Experiments:
         -------
         (Experiments, Experiments)
         """
-        def part(sl):
-            return Experiments(self.records, tuple(y[sl(y)] for y in self.Y),
-                               tuple(u[sl(u)] for u in self.U), self.holds, self.dt,
-                               self.y_mean, self.y_scale, self.u_scale, self.delay)
-        def at(x):
-            return int(round(share * x.shape[0]))
-        return part(lambda x: slice(0, at(x))), part(lambda x: slice(at(x), None))
+        cuts = [int(round(share * y.shape[0])) for y in self.Y]
+
+        def part(first: bool) -> Experiments:
+            pick = [slice(0, c) if first else slice(c, None) for c in cuts]
+            return dataclasses.replace(self, Y=tuple(y[s] for y, s in zip(self.Y, pick,
+                                                                           strict=True)),
+                                       U=tuple(u[s] for u, s in zip(self.U, pick, strict=True)))
+        return part(True), part(False)
 
 
-def _delays(delay, m: int) -> np.ndarray | None:
-    """A known delay (an int for every input, or one per input) as ``(m,)`` ints, or None."""
+def check_delays(delay, m: int) -> np.ndarray | None:
+    """A known delay (an int for every input, or one per input) as ``(m,)`` ints, or None.
+
+    Parameters
+    ----------
+    delay : None, int or sequence of m ints
+    m : int
+        Inputs.
+
+    Returns
+    -------
+    (m,) int array or None
+
+    Raises
+    ------
+    ValueError
+        Naming ``delay``: not integers >= 0, or another count than 1 or ``m``.
+    """
     if delay is None:
         return None
     values = np.atleast_1d(np.asarray(delay, dtype=object))
@@ -191,7 +209,7 @@ def experiments_of(record, delay=None, *, what: str = "ae.identify") -> Experime
     if delay is None and len(known) > 1:
         raise ValueError(f"the records' delays must agree (one system); got "
                          f"{sorted(known, key=str)}")
-    delays = _delays(delay if delay is not None else first.delay, m)
+    delays = check_delays(delay if delay is not None else first.delay, m)
     Ys = [r.Y for r in given]
     Us = [r.U for r in given]
     for k, r in enumerate(given):

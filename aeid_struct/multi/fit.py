@@ -65,11 +65,6 @@ class Fitted:
         """Mean squared residual (working units)."""
         return self.projection.cost
 
-    def poles(self) -> np.ndarray:
-        """Per-sample poles."""
-        A, _ = self.layout.model(self.theta)
-        return np.linalg.eigvals(A) * self.h
-
 
 def _residual(layout: Layout, parts, holds, h: float, feedthrough: bool, big: np.ndarray):
     def residual(theta):
@@ -83,7 +78,7 @@ def _residual(layout: Layout, parts, holds, h: float, feedthrough: bool, big: np
 
 
 def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, feedthrough: bool,
-            max_nfev: int | None, start: str = "classical") -> Fitted:
+            iterations: int | None, start: str = "classical") -> Fitted:
     """Output-error iterations from ``theta`` (module docstring).
 
     Parameters
@@ -94,7 +89,7 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
     experiments : Experiments
     delays : (m,) ints
     feedthrough : bool
-    max_nfev : int or None
+    iterations : int or None
         Iterations at most (the one pass's bounded cost: each a Jacobian by differences and a
         step); None: to convergence (:data:`TOL`), at most :data:`MAX_ITERATIONS`.
     start : str
@@ -108,7 +103,7 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
     holds = experiments.holds
     first = project(*layout.model(theta), parts, h, holds, feedthrough)
     begin = Fitted(layout, theta, h, np.asarray(delays), first, 0, False, start)
-    if max_nfev == 0 or not np.isfinite(first.cost):
+    if iterations == 0 or not np.isfinite(first.cost):
         return begin
     big = np.full_like(first.residual, 1e3 * (1.0 + np.sqrt(first.cost)))
     with warnings.catch_warnings():
@@ -117,7 +112,8 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
         # residuals to the same optimum than the trust-region reflective method
         sol = scipy.optimize.least_squares(
             _residual(layout, parts, holds, h, feedthrough, big), theta, method="lm",
-            max_nfev=(MAX_ITERATIONS if max_nfev is None else max_nfev) * (len(theta) + 1),
+            # MINPACK counts the Jacobian's differences: one iteration is len(theta) + 1
+            max_nfev=(MAX_ITERATIONS if iterations is None else iterations) * (len(theta) + 1),
             ftol=TOL, xtol=TOL, gtol=TOL)
     with np.errstate(all="ignore"):
         proj = project(*layout.model(sol.x), parts, h, holds, feedthrough)

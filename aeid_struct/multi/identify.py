@@ -35,8 +35,8 @@ from aeid_struct.multi.realisation import project
 from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, start_of
 from aeid_struct.records import RecordBatch
 
-__all__ = ["ESTIMATION_SHARE", "ORDER_TOLERANCE", "fit_from_poles", "identify", "packed",
-           "parameters", "validation_fit"]
+__all__ = ["ESTIMATION_SHARE", "MAX_DELAY", "ORDER_TOLERANCE", "fit_from_poles", "identify",
+           "packed", "parameters", "validation_fit"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``; the
 #: rule of one channel too: ``generic.pipeline`` reads it from here).
@@ -48,6 +48,12 @@ ESTIMATION_SHARE = 0.7
 #: the iterations stop (order 6 of a 2x2 order-4 record: 100 iterations, 12 s, for a fit that
 #: moved by 0.01 points).
 SELECTION_ITERATIONS = 20
+#: The largest input delay considered by default (capped by what the records leave; the
+#: one-channel pipeline's default too: ``generic.pipeline`` reads it from here).
+MAX_DELAY = 10
+#: Records whose output-input pairs the encoders read for candidates (the first ones): each pair
+#: is one batched encoder call, and the candidates are ranked on every record anyway.
+PROPOSING_RECORDS = 3
 #: Starts refined to convergence at most (the best candidates by the relaxed projection).
 STARTS = 2
 #: The second start is refined only where the first's optimum costs more than this times the
@@ -102,7 +108,7 @@ def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int
     found = [(s, "classical") for s in classical_poles(parts, order)] if classical or \
         proposals is None else []
     if proposals is not None:
-        for Y, U in parts[:3]:
+        for Y, U in parts[:PROPOSING_RECORDS]:
             for i in range(Y.shape[1]):
                 for j in range(U.shape[1]):
                     found += [(s, "encoder") for s in _poles_of(proposals(order, Y[:, i],
@@ -110,19 +116,18 @@ def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int
     if not found:
         found = [(s, "classical") for s in classical_poles(parts, order)]
     with np.errstate(all="ignore"):
-        ranked = sorted(((relaxed(s, parts, ex.holds, feedthrough)[0], k) for k, (s, _) in
-                         enumerate(found)), key=lambda t: t[0])
-    relaxed_cost = ranked[0][0]
-    ranked = [k for cost, k in ranked if np.isfinite(cost)]
+        fits = [relaxed(s, parts, ex.holds, feedthrough) for s, _ in found]
+    ranked = sorted((k for k in range(len(found)) if np.isfinite(fits[k][0])),
+                    key=lambda k: fits[k][0])
     if not ranked:
         raise ValueError(f"no candidate model of order {order} could be fitted to the records "
                          f"(every candidate's response overflows)")
     best = None
     for k in ranked[: STARTS if refine else 1]:
-        if best is not None and best.cost < SETTLED * relaxed_cost:
+        if best is not None and best.cost < SETTLED * fits[ranked[0]][0]:
             break
         poles, origin = found[k]
-        layout, theta, h = start_of(poles, parts, ex.holds, feedthrough)
+        layout, theta, h = start_of(poles, parts, ex.holds, feedthrough, fits[k])
         fitted = iterate(layout, theta, h, ex, delays, feedthrough, budget, origin)
         if best is None or fitted.cost < best.cost:
             best = fitted
@@ -214,7 +219,8 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
     delay : int or sequence of m ints, optional
         Known input delays (samples).
     max_delay : int, optional
-        The largest delay considered (default 10, capped by what the records leave).
+        The largest delay considered (default :data:`MAX_DELAY`, capped by what the records
+        leave).
     iterations : int, >= 0
         Residual evaluations of the one pass.
     classical : bool
@@ -240,24 +246,25 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
     Raises
     ------
     ValueError
-        For bad records, order, delay or max_delay, or records too short for the model.
+        Naming the argument: bad records, order, refine, iterations, classical, delay or
+        max_delay, or records too short for the model.
     """
     began = time.perf_counter()
+    orders = [int(n) for n in orders]
+    _check(order, orders, refine, iterations, classical, max_delay)
     ex = experiments_of(record, delay, what=what)
-    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
-            max_delay, (int, np.integer)) or max_delay < 0):
-        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
     wanted = [order] if order is not None else [n for n in orders if _room(ex, n) >= 0]
-    if not wanted:
-        wanted = [1]
-    for n in wanted:
-        room = _room(ex, n)
-        need = 2 * parameters(n, ex.outputs, ex.inputs, ex.count)
-        if room < 0 or (ex.delay is not None and int(ex.delay.max()) > room):
-            raise ValueError(f"the records ({', '.join(map(str, ex.steps))} samples, "
-                             f"{ex.outputs} output(s)) are too short for a model of order {n}: "
-                             f"it needs {need} output samples after the delay (twice its "
-                             f"{need // 2} fitted parameters)")
+    least = wanted[0] if wanted else 1
+    room, need = _room(ex, least), 2 * parameters(least, ex.outputs, ex.inputs, ex.count)
+    if room < 0 or (ex.delay is not None and int(ex.delay.max()) > room):
+        raise ValueError(f"the records ({', '.join(map(str, ex.steps))} samples, "
+                         f"{ex.outputs} output(s)) are too short for a model of order {least}: "
+                         f"it needs {need} output samples after the delay (twice its "
+                         f"{need // 2} fitted parameters)")
+    if max_delay is not None and max_delay > room and ex.delay is None:
+        raise ValueError(f"max_delay must leave twice the parameters of an order-{least} model "
+                         f"after the delay: at most {room} for these records; got {max_delay}")
+    largest = MAX_DELAY if max_delay is None else int(max_delay)
     kw = {"refine": bool(refine), "iterations": int(iterations), "classical": bool(classical),
           "proposals": proposals, "feedthrough": feedthrough}
     order_fits = None
@@ -268,22 +275,36 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
             room = _room(estimation, n)
             if room < 0:
                 continue
-            fitted, _ = _fit(estimation, n, top=min(10 if max_delay is None else max_delay,
-                                                    room), most=SELECTION_ITERATIONS, **kw)
+            fitted, _ = _fit(estimation, n, top=min(largest, room), most=SELECTION_ITERATIONS,
+                             **kw)
             order_fits[n] = float(np.mean(validation_fit(fitted, validation, feedthrough)))
-        if order_fits:
-            best = max(order_fits.values())
-            order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
-        else:
-            order = wanted[0]
-    room = _room(ex, order)
-    top = min(10 if max_delay is None else int(max_delay), room)
-    if max_delay is not None and max_delay > room and ex.delay is None:
-        raise ValueError(f"max_delay must leave twice the parameters of an order-{order} model "
-                         f"after the delay: at most {room} for these records; got {max_delay}")
+        best = max(order_fits.values(), default=None)
+        order = least if best is None else min(
+            n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
+    # a higher order selected leaves fewer samples: the delays it may take are capped there
+    top = min(largest, _room(ex, order))
     fitted, count = _fit(ex, order, top=top, **kw)
     info = {"candidates": count, "order_fits": order_fits}
     return _estimate(fitted, ex, refine, info, time.perf_counter() - began)
+
+
+def _check(order, orders, refine, iterations, classical, max_delay) -> None:
+    """The arguments of :func:`identify` other than the records (``experiments_of``), each
+    refused by name."""
+    if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
+                              or not 1 <= order <= max(orders)):
+        raise ValueError(f"order must be None (selected) or an integer in [1, {max(orders)}]; "
+                         f"got {order!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or (
+            iterations < 0):
+        raise ValueError(f"iterations must be an integer >= 0 (iterations of the one pass); got "
+                         f"{iterations!r}")
+    for name, value in (("refine", refine), ("classical", classical)):
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{name} must be True or False; got {value!r}")
+    if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
+            max_delay, (int, np.integer)) or max_delay < 0):
+        raise ValueError(f"max_delay must be None or an integer >= 0; got {max_delay!r}")
 
 
 def _estimate(fitted: Fitted, ex: Experiments, refine: bool, info: dict,

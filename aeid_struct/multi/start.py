@@ -30,7 +30,8 @@ import scipy.signal
 
 from aeid_struct.multi.realisation import Layout, observer_form, responses
 
-__all__ = ["EARLY", "arx_delays", "classical_poles", "relaxed", "scale_of", "start_of"]
+__all__ = ["EARLY", "arx_delays", "classical_poles", "continuous_poles", "reflected", "relaxed",
+           "scale_of", "start_of"]
 
 #: Steiglitz-McBride refits of the early candidate (the fixed point is the other).
 EARLY = 5
@@ -121,30 +122,56 @@ def arx_delays(experiments, order: int, top: int) -> np.ndarray:
     return delays
 
 
-def _stable(den: np.ndarray) -> np.ndarray:
-    """``den`` with its roots outside the unit circle reflected inside (the prefilter)."""
-    z = np.roots(den)
-    outside = np.abs(z) > 1.0
+def reflected(a: np.ndarray) -> np.ndarray:
+    """``a`` with its roots outside (or on) the unit circle reflected inside
+    (``z -> 1 / conj z``): the Steiglitz-McBride prefilter of an unstable fit (one channel's,
+    ``generic.classical``, and this module's).
+
+    Parameters
+    ----------
+    a : (n + 1,) array
+        A discrete denominator, highest power first.
+
+    Returns
+    -------
+    (n + 1,) array
+    """
+    roots = np.roots(a)
+    outside = np.abs(roots) >= 1.0
     if not outside.any():
-        return den
-    z[outside] = 1.0 / np.conj(z[outside])
-    return np.real(np.poly(z))
+        return a
+    roots[outside] = 1.0 / np.conj(roots[outside])
+    return np.real(np.poly(roots))
 
 
-def _continuous(den: np.ndarray) -> np.ndarray | None:
-    """Per-sample continuous poles of a discrete denominator (``log z``; a negative real root,
-    which no real continuous pole gives, by ``log |z|``); None for a root at zero."""
-    z = np.roots(den)
-    if np.any(np.abs(z) < 1e-12) or not np.all(np.isfinite(z)):
-        return None
-    s = np.log(z.astype(complex))
-    negative = (np.abs(z.imag) < 1e-12) & (z.real < 0)
-    s[negative] = np.log(np.abs(z[negative]))
-    return s
+def continuous_poles(a: np.ndarray) -> np.ndarray:
+    """Per-sample continuous poles ``s = log z`` of a discrete denominator: a negative real
+    root (no real continuous pole gives one) by ``log |z|``, a root at zero by a very fast pole
+    (``log 1e-300``), so that the candidate is kept and scored like any other.
+
+    Parameters
+    ----------
+    a : (n + 1,) array
+        Highest power first.
+
+    Returns
+    -------
+    (n,) complex array
+    """
+    z = np.roots(a)
+    z = np.where((np.abs(z.imag) < 1e-12) & (z.real < 0), np.abs(z), z)
+    z = np.where(np.abs(z) > 0, z, 1e-300)
+    return np.log(z.astype(complex))
 
 
 def classical_poles(parts, order: int) -> list[np.ndarray]:
     """The ARX and Steiglitz-McBride candidates (module docstring, step 2).
+
+    One channel in one record keeps ``generic.classical``'s loop: the shipped generic
+    estimates are its arithmetic (means removed, one record, columns scaled to unit peak); this
+    one is its generalisation to a denominator shared by several outputs, inputs and records,
+    each record's constants as regressors. Both use :func:`reflected` and
+    :func:`continuous_poles`.
 
     Parameters
     ----------
@@ -159,9 +186,9 @@ def classical_poles(parts, order: int) -> list[np.ndarray]:
     """
     den, _ = _arx(parts, order)
     found = [den]
-    den = _stable(den)
+    den = reflected(den)
     for k in range(1, MAX_REFITS + 1):
-        new, _ = _arx(parts, order, _stable(den))
+        new, _ = _arx(parts, order, reflected(den))
         if not np.all(np.isfinite(new)):
             break
         change = np.max(np.abs(new - den)) / max(1.0, np.max(np.abs(den)))
@@ -171,8 +198,8 @@ def classical_poles(parts, order: int) -> list[np.ndarray]:
         if change < TOL:
             break
     found.append(den)
-    poles = [_continuous(d) for d in found]
-    return [s for s in poles if s is not None]
+    poles = [continuous_poles(d) for d in found]
+    return [s for s in poles if np.all(np.isfinite(s))]
 
 
 def scale_of(poles: np.ndarray) -> float:
@@ -242,38 +269,7 @@ def relaxed(poles: np.ndarray, parts, holds, feedthrough: bool = True):
     return float(np.mean(resid ** 2)), per, beta, h
 
 
-def _residue_start(poles: np.ndarray, beta: np.ndarray, h: float, n: int, m: int):
-    """``(C (p, n), reference)`` of the rank-one residues (module docstring, step 4), or None
-    where two poles (nearly) coincide."""
-    lam = poles / h
-    gaps = np.abs(lam[:, None] - lam[None, :]) + np.eye(n) * np.inf
-    if n > 1 and gaps.min() < 1e-6 * max(1.0, np.abs(lam).max()):
-        return None
-    A = observer_form(_coefficients(poles, h))
-    lam, V = np.linalg.eig(A)
-    W = np.linalg.inv(V)
-    p = beta.shape[1]
-    left = V[0]                                          # e_1^T v_k
-    Bs = beta[: n * m].T.reshape(p, n, m)               # each output's B_i
-    c = np.empty((n, p), dtype=complex)
-    for k in range(n):
-        R = left[k] * (W[k] @ Bs.transpose(1, 0, 2).reshape(n, p * m)).reshape(p, m)
-        u, sv, _ = np.linalg.svd(R)
-        c[k] = u[:, 0] * np.sqrt(sv[0])
-    strength = np.abs(c) / np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-300)
-    ref = int(np.argmax(strength.min(axis=0)))
-    # x_obs = T x_modal with T = O_obs^-1 O_modal (observability from the reference output)
-    O_modal = np.array([c[:, ref] * lam ** k for k in range(n)])
-    O_obs = np.array([np.linalg.matrix_power(A, k)[0] for k in range(n)])
-    T = np.linalg.solve(O_obs, O_modal)
-    C = np.real(c.T @ np.linalg.inv(T))
-    if not np.all(np.isfinite(C)):
-        return None
-    C[ref] = np.eye(n)[0]
-    return C, ref
-
-
-def start_of(poles: np.ndarray, parts, holds, feedthrough: bool = True):
+def start_of(poles: np.ndarray, parts, holds, feedthrough: bool = True, fit=None):
     """The start in the observer form (module docstring, step 4).
 
     Parameters
@@ -281,6 +277,8 @@ def start_of(poles: np.ndarray, parts, holds, feedthrough: bool = True):
     poles : (n,) complex array
     parts, holds, feedthrough
         As :func:`relaxed`.
+    fit : tuple, optional
+        ``relaxed(poles, parts, holds, feedthrough)`` where the caller has it (the ranking).
 
     Returns
     -------
@@ -288,17 +286,11 @@ def start_of(poles: np.ndarray, parts, holds, feedthrough: bool = True):
     theta : (n p,) array
     h : float
     """
-    _, per, beta, h = relaxed(poles, parts, holds, feedthrough)
+    _, per, beta, h = relaxed(poles, parts, holds, feedthrough) if fit is None else fit
     n, p, m = len(poles), parts[0][0].shape[1], parts[0][1].shape[1]
     a = _coefficients(poles, h)
     if p == 1:
         return Layout(n, p, m, 0), a, h
-    with np.errstate(all="ignore"):
-        residues = _residue_start(poles, beta, h, n, m)
-    if residues is not None:
-        C, ref = residues
-        layout = Layout(n, p, m, ref)
-        return layout, layout.theta(a, C), h
     ref = int(np.argmin(per))
     layout = Layout(n, p, m, ref)
     A = observer_form(a)

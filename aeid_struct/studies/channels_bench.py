@@ -122,6 +122,7 @@ def _run(system, delays, steps, noise, rng):
 
 def _score(model, validation, delays) -> float:
     try:
+        # one input: the one-channel compare, which takes an int delay
         out = compare(model, validation, delay=delays if len(delays) > 1 else int(delays[0]))
     except (ValueError, np.linalg.LinAlgError):
         return float("nan")
@@ -158,9 +159,8 @@ def _case(name, order, p, m, count, kind, steps, seed):
                 seconds = time.perf_counter() - began
                 fit = _score(est, validation, np.ravel(est.delay) if method in
                              ("one pass", "refined") else delays)
-            except (ValueError, np.linalg.LinAlgError) as err:
+            except (ValueError, np.linalg.LinAlgError):     # a failed method scores NaN
                 seconds, fit = time.perf_counter() - began, float("nan")
-                del err
             rows.append(ChannelRow(name, index, noise, method, fit, seconds))
         rows.append(ChannelRow(name, index, noise, "true",
                                _score(control.ss(*system), validation, delays), 0.0))
