@@ -235,7 +235,8 @@ def relaxed(poles: np.ndarray, parts, holds, feedthrough: bool = True):
     per_output : (p,) array
         Each output's residual over its variation.
     beta : (columns, p) array
-        Per output: ``B_i`` (n m), ``D_i`` (m), then per record ``x0`` (n) and offset (1).
+        Per output: ``B_i`` (n m), ``D_i`` (m, with a feedthrough), then per record ``x0``
+        (n) and offset (1).
     h : float
     """
     h = scale_of(poles)
