@@ -158,10 +158,53 @@ def test_deterministic_for_a_seed():
     ("preroll", (0.5, 3), "preroll must be a"),
     ("offset", -1.0, "offset must be a finite number >= 0"),
     ("offset", float("inf"), "offset must be a finite number >= 0"),
+    ("integrating", 1.5, "integrating must be a number in"),
+    ("unstable", -0.1, "unstable must be a number in"),
+    ("growth", (0.0, 0.01), "growth must have lo > 0"),
 ])
 def test_bad_fields_raise_naming_the_field(field, value, match):
     with pytest.raises(ValueError, match=match):
         GenericFamily(**({"order": 2} | {field: value}))
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 4])
+def test_integrating_and_unstable_shares(order):
+    family = GenericFamily(order=order, integrating=0.3, unstable=0.4, growth=(1e-3, 4e-3))
+    s = family.sample(3000, np.random.default_rng(order))
+    top = s.poles.real.max(axis=1)
+    integ, unst = top == 0.0, top > 0
+    assert abs(integ.mean() - 0.3) < 0.04 and abs(unst.mean() - 0.4) < 0.04
+    # the unstable real parts are in the growth range, every other pole is stable, one per
+    # system (a pair counts once)
+    assert np.all((top[unst] >= 1e-3) & (top[unst] <= 4e-3))
+    rest = np.sort(s.poles.real, axis=1)[:, : order - 2 if order > 1 else 0]
+    assert np.all(rest < 0)
+    if order >= 2:                                   # both a real and a growing oscillation
+        growing = s.poles[unst][np.arange(unst.sum()), np.argmax(s.poles[unst].real, axis=1)]
+        assert 0.4 < np.mean(growing.imag != 0) < 0.6
+    for i in range(0, 3000, 97):                     # the CCF has these poles
+        np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(s.A[i])),
+                                   np.sort_complex(s.poles[i]), atol=1e-9)
+    rec = family.records(40, 500, np.random.default_rng(9))
+    assert np.isfinite(rec.y).all()
+    np.testing.assert_allclose(rec.y_clean.std(axis=1), 1.0, rtol=1e-12)
+    for i in range(5):                               # still the FOH response from x0
+        truth = _lsim(rec.systems.A[i], rec.systems.b[i], rec.systems.c[i], rec.systems.d[i],
+                      rec.u_plant[i], rec.x0[i])
+        np.testing.assert_allclose(rec.y_clean[i], truth, rtol=0, atol=1e-7)
+
+
+def test_stable_family_draws_as_before_the_shares():
+    # the shares draw nothing unless asked: the shipped identifiers' held-out windows and the
+    # benchmark's systems are the same draws
+    rng = np.random.default_rng(5)
+    y = GenericFamily(order=3, unstable=0.0).records(3, 100, rng).y
+    assert y.sum() == pytest.approx(-491.05258273499425, rel=1e-12)   # before the shares
+
+
+def test_shares_must_sum_to_at_most_one():
+    with pytest.raises(ValueError, match="integrating \\+ unstable must be at most 1"):
+        GenericFamily(order=2, integrating=0.6, unstable=0.5)
 
 
 def test_bad_arguments_of_sample_and_records():

@@ -120,6 +120,11 @@ def add_bench_generic(sub) -> None:
                           "highest order's parameters after a 5-sample delay: 33 for order 4)")
     gen.add_argument("--seed", type=number(int, 0, strict=False), default=20_261_123,
                      help="seed of the systems and records (default 20261123)")
+    gen.add_argument("--plants", nargs="+", default=["stable"],
+                     choices=("stable", "integrating", "unstable"),   # generic_bench.PLANTS
+                     help="kinds of plant, each its own cells (default stable; integrating: a "
+                          "pole at 0; unstable: one in the right half plane, growing e^0.5 to "
+                          "e^4 over the run)")
     gen.add_argument("--json", default="out/bench_generic.json",
                      help="JSON file to write (default out/bench_generic.json)")
     gen.add_argument("--channels", action="store_true",

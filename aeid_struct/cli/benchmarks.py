@@ -186,12 +186,13 @@ def run_bench_generic(args: argparse.Namespace) -> int:
                          f"an order-{max(args.orders)} model after a delay of up to 5 samples); "
                          f"got {min(lengths)}")
     count = args.count or (3 if args.quick else 10)
-    print(f"Generic identifiers on unseen systems: orders {args.orders}, noise {args.noise}, "
-          f"lengths {list(lengths)}, {count} records per cell; validation on the record's "
-          f"second half", flush=True)
+    print(f"Generic identifiers on unseen systems: {', '.join(args.plants)} plants, orders "
+          f"{args.orders}, noise {args.noise}, lengths {list(lengths)}, {count} records per "
+          f"cell; validation on the record's second half", flush=True)
     rows = generic_bench.bench_generic(orders=tuple(args.orders), noises=tuple(args.noise),
                                        lengths=lengths, count=count, seed=args.seed,
-                                       progress=None if args.quiet else print)
+                                       progress=None if args.quiet else print,
+                                       plants=tuple(dict.fromkeys(args.plants)))
     print()
     print(generic_bench.format_tables(rows))
     out = generic_bench.write_json(rows, args.json)

@@ -36,6 +36,7 @@ estimation on the first half, validation on the second.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import statistics
 import time
@@ -48,11 +49,19 @@ from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import ccf_matrices
 
-__all__ = ["METHODS", "Row", "bench_generic", "format_tables", "measured_stand_ins", "write_json"]
+__all__ = ["METHODS", "PLANTS", "Row", "bench_generic", "format_tables", "measured_stand_ins",
+           "write_json"]
 
 #: Method names in table order.
 METHODS = ("encoder", "one pass", "refined", "refined, D given", "n4sid", "least squares",
            "true")
+#: The kinds of plant a cell can draw: the generic family's stable systems, or every system with
+#: a pole at 0, or with one in the right half plane (``GenericFamily``'s ``integrating`` and
+#: ``unstable`` shares at 1).
+PLANTS = ("stable", "integrating", "unstable")
+#: An unstable plant's growth over its whole simulated run (pre-roll, estimation and validation
+#: record): ``e^{0.5}`` to ``e^{4}``, a record of bounded length as an open-loop run must be.
+GROWTH = (0.5, 4.0)
 #: The methods that estimate the delay (the others are given the true one).
 _DELAY_ESTIMATED = ("encoder", "one pass", "refined")
 
@@ -83,6 +92,8 @@ class Row:
     start : str
         The identifiers' winning candidate or start (``info["start"]``: ``"encoder"`` or
         ``"classical"``); empty for the other methods.
+    plant : str
+        One of :data:`PLANTS`.
     """
 
     case: str
@@ -95,6 +106,7 @@ class Row:
     seconds: float
     delay: int
     start: str = ""
+    plant: str = "stable"
 
 
 def _score(A, b, c, d, delay: int, validation: Record, clean: np.ndarray) -> tuple[float, float]:
@@ -134,11 +146,16 @@ def _methods(order: int, identifiers=None):
             "least squares": classical(baselines.least_squares)}
 
 
-def _case_records(order: int, noise: float, steps: int, count: int, seed: int):
+def _case_records(order: int, noise: float, steps: int, count: int, seed: int,
+                  plant: str = "stable"):
     """``count`` (estimation, validation, clean validation output, true model) of one cell."""
     from aeid_struct.training import GenericFamily
 
     family = GenericFamily(order=order, max_delay=5, noise=(noise, noise), offset=0.5)
+    if plant != "stable":
+        run = 2 * steps + family.preroll[1]
+        family = dataclasses.replace(family, **{plant: 1.0},
+                                     growth=(GROWTH[0] / run, GROWTH[1] / run))
     rng = np.random.default_rng(seed)
     out = []
     while len(out) < count:
@@ -156,7 +173,8 @@ def _case_records(order: int, noise: float, steps: int, count: int, seed: int):
     return out
 
 
-def _run_record(methods, estimation, validation, clean, true, label, order, noise, steps):
+def _run_record(methods, estimation, validation, clean, true, label, order, noise, steps,
+                plant="stable"):
     rows = []
     for name, run in methods.items():
         # The baselines get the true delay; the identifiers estimate it (and once are given it).
@@ -170,22 +188,27 @@ def _run_record(methods, estimation, validation, clean, true, label, order, nois
             A, d, D, start = np.full((order, order), np.nan), np.nan, 0, ""
         seconds = time.perf_counter() - t0
         fit, fit_clean = _score(A, b, c, d, D, validation, clean)
-        rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D, start))
+        rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D, start,
+                        plant))
     fit, fit_clean = _score(*true, validation, clean)
-    rows.append(Row(label, order, noise, steps, "true", fit, fit_clean, 0.0, true[4]))
+    rows.append(Row(label, order, noise, steps, "true", fit, fit_clean, 0.0, true[4], "",
+                    plant))
     return rows
 
 
 def bench_generic(*, orders=(1, 2, 3, 4), noises=(0.01, 0.05), lengths=(400, 1000, 5000),
                   count: int = 10, seed: int = 20_261_123, identifiers=None,
-                  progress=print) -> list[Row]:
-    """Every method on ``count`` unseen records per (order, noise, length) cell.
+                  progress=print, plants=("stable",)) -> list[Row]:
+    """Every method on ``count`` unseen records per (plant, order, noise, length) cell.
 
     Parameters
     ----------
     orders, noises, lengths : sequences
         The cells: model order, noise std relative to the clean output's std, estimation
         record length in samples.
+    plants : sequence of str
+        Kinds of plant (:data:`PLANTS`); an unstable plant grows by ``e^{0.5}`` to ``e^4``
+        over its run (:data:`GROWTH`), the validation half included.
     count : int
         Records per cell.
     seed : int
@@ -199,18 +222,25 @@ def bench_generic(*, orders=(1, 2, 3, 4), noises=(0.01, 0.05), lengths=(400, 100
     -------
     list of Row
     """
+    unknown = [p for p in plants if p not in PLANTS]
+    if unknown or not plants:
+        raise ValueError(f"plants must be a non-empty sequence of {PLANTS}; got {plants!r}")
     rows: list[Row] = []
-    for order in orders:
-        methods = _methods(order, identifiers)
-        for noise in noises:
-            for steps in lengths:
-                cell = _case_records(order, noise, steps, count,
-                                     seed + 1000 * order + int(1e4 * noise) + steps)
-                for i, (est, val, clean, true) in enumerate(cell):
-                    rows += _run_record(methods, est, val, clean, true, f"{order}/{i}", order,
-                                        noise, steps)
-                if progress is not None:
-                    progress(f"order {order}, noise {noise:.0%}, {steps} samples: done")
+    for plant in plants:
+        for order in orders:
+            methods = _methods(order, identifiers)
+            for noise in noises:
+                for steps in lengths:
+                    # the stable cells keep the seeds they always had
+                    cell = _case_records(order, noise, steps, count,
+                                         seed + 1000 * order + int(1e4 * noise) + steps
+                                         + 100_000 * PLANTS.index(plant), plant)
+                    for i, (est, val, clean, true) in enumerate(cell):
+                        rows += _run_record(methods, est, val, clean, true, f"{order}/{i}",
+                                            order, noise, steps, plant)
+                    if progress is not None:
+                        progress(f"{plant}, order {order}, noise {noise:.0%}, {steps} "
+                                 f"samples: done")
     rows += measured_stand_ins(identifiers=identifiers)
     return rows
 
@@ -343,18 +373,25 @@ def format_tables(rows: list[Row]) -> str:
     str
     """
     lines = []
-    cells = sorted({(r.order, r.noise, r.steps) for r in rows if r.noise >= 0})
-    head = "order noise steps | " + " | ".join(f"{m:>16}" for m in METHODS)
+    kinds = [p for p in PLANTS if any(r.plant == p for r in rows if r.noise >= 0)]
+    cells = sorted({(PLANTS.index(r.plant), r.order, r.noise, r.steps) for r in rows
+                    if r.noise >= 0})
+    head = "plant        order noise steps | " + " | ".join(f"{m:>16}" for m in METHODS)
     lines += ["Validation fit % (median; measured output, x0 and offset fitted)", head]
-    for order, noise, steps in cells:
-        sel = [r for r in rows if (r.order, r.noise, r.steps) == (order, noise, steps)]
+    for kind, order, noise, steps in cells:
+        sel = [r for r in rows if (PLANTS.index(r.plant), r.order, r.noise, r.steps)
+               == (kind, order, noise, steps)]
         vals = [_median(r.fit for r in sel if r.method == m) for m in METHODS]
-        lines.append(f"{order:5d} {noise:5.0%} {steps:5d} | "
+        lines.append(f"{PLANTS[kind]:12s} {order:5d} {noise:5.0%} {steps:5d} | "
                      + " | ".join(f"{v:16.2f}" for v in vals))
     by_case = {}
     for r in rows:
-        by_case.setdefault((r.case, r.noise, r.steps), {})[r.method] = r.fit
+        by_case.setdefault((r.plant, r.case, r.noise, r.steps), {})[r.method] = r.fit
     lines += _gap_lines(rows, by_case)
+    for kind in kinds if len(kinds) > 1 else ():
+        lines += [f"  ({kind} plants only)"] + _gap_lines(
+            [r for r in rows if r.plant == kind],
+            {k: v for k, v in by_case.items() if k[0] == kind})[2:]
     lines += ["", "Per record: refined minus n4sid and least squares (points, worst and count > 1 "
               "below), refined minus true (median)"]
     for name in ("refined", "refined, D given"):

@@ -1,4 +1,5 @@
-"""Generic families in normalised time: stable SISO systems of order 1-8 that look like real ones
+"""Generic families in normalised time: SISO systems of order 1-8 (stable, or with the
+integrating and unstable shares asked for) that look like real ones
 (zeros, resonances to overdamped modes, gains of either sign, feedthrough, input delay) and their
 records (excitations people apply, a mid-motion start, offsets, noise), for training and
 benchmarking the generic identifiers. This module is the family: the random draw and the
@@ -27,7 +28,7 @@ from aeid_struct.structures import ccf_matrices
 from aeid_struct.training.checks import count as positive_int
 from aeid_struct.training.checks import generator, real, value_range
 from aeid_struct.training.excitation import GENERIC_EXCITATIONS, generic_excitation
-from aeid_struct.training.generic_polynomials import convolve, peak_gain, poly
+from aeid_struct.training.generic_polynomials import GRID, convolve, peak_gain, poly
 from aeid_struct.training.generic_systems import GenericRecords as GenericRecords
 from aeid_struct.training.generic_systems import GenericSystems as GenericSystems
 
@@ -70,19 +71,26 @@ def _whole(name: str, value, lower: int = 0) -> int:
 
 @dataclass(frozen=True, kw_only=True)
 class GenericFamily:
-    """Stable SISO systems of one order in normalised time (``dt = 1``) and their records.
+    """SISO systems of one order in normalised time (``dt = 1``), stable unless shares are
+    asked to integrate or grow, and their records.
 
     Poles: ``floor(n/2)`` second-order factors, natural frequency log-uniform in ``band`` and
     damping ratio log-uniform in ``damping`` (above 1: two real poles), or with probability
     ``real_fraction`` two real poles log-uniform in ``band``; and one real pole log-uniform in
-    ``band`` for odd ``n``. Every pole has a negative real part: integrators and unstable plants
-    are outside the family. Numerator: relative degree uniform in ``1..n`` (``n`` without
-    ``zeros``), its zeros of magnitude log-uniform in ``band`` (complex pairs with the damping
-    range, or real pairs, as the poles), each real zero or pair in the right half plane with
-    probability ``RHP_ZEROS``; high-frequency gain of either sign with probability 1/2, scaled
-    so that the largest ``|G(j w)|`` over ``w`` in ``[1e-4, pi]`` and at each ``|pole|`` is 1
-    (outputs of std O(1) for inputs of peak 1). With probability ``feedthrough`` ``d`` is
-    ``+-(0.2..1)``.
+    ``band`` for odd ``n``. Every pole has a negative real part unless ``integrating`` or
+    ``unstable`` ask otherwise: with probability ``integrating`` one real pole is at 0 (an odd
+    order's real pole; for an even order the first factor becomes ``0`` and a real pole
+    log-uniform in ``band``), with probability ``unstable`` the same slot holds a pole in the
+    right half plane, real part log-uniform in ``growth`` (a real pole, or for ``n >= 2`` with
+    probability 1/2 a growing oscillation ``sigma +- j w``, ``w`` log-uniform in ``band``): a
+    record of ``N`` samples grows by at most ``e^{growth_hi N}``, so records stay of bounded
+    length as a plant run open loop must. Numerator: relative degree uniform in ``1..n``
+    (``n`` without ``zeros``), its zeros of magnitude log-uniform in ``band`` (complex pairs
+    with the damping range, or real pairs, as the poles), each real zero or pair in the right
+    half plane with probability ``RHP_ZEROS``; high-frequency gain of either sign with
+    probability 1/2, scaled so that the largest ``|G(j w)|`` over ``w`` in ``[1e-4, pi]`` and
+    at each ``|pole|`` (``1e-4`` for a pole at 0) is 1 (outputs of std O(1) for inputs of peak
+    1). With probability ``feedthrough`` ``d`` is ``+-(0.2..1)``.
 
     Attributes
     ----------
@@ -108,6 +116,13 @@ class GenericFamily:
         Samples simulated from rest before the record starts, uniform integers; ``lo >= 0``.
     offset : float
         Std of the normal constant input and output offsets added (0: none), >= 0.
+    integrating : float
+        Share of systems with a pole at 0 (a rigid-body mode, a tank's level), in [0, 1].
+    unstable : float
+        Share of systems with a pole in the right half plane, in [0, 1];
+        ``integrating + unstable <= 1``.
+    growth : (lo, hi)
+        Real parts (rad/sample) of the unstable poles, log-uniform; ``lo > 0``.
 
     Raises
     ------
@@ -126,6 +141,9 @@ class GenericFamily:
     excitations: tuple = GENERIC_EXCITATIONS
     preroll: tuple = (0, 400)
     offset: float = 0.0
+    integrating: float = 0.0
+    unstable: float = 0.0
+    growth: tuple = (0.0005, 0.005)
 
     def __post_init__(self) -> None:
         order = self.order
@@ -156,6 +174,12 @@ class GenericFamily:
         setattr_(self, "preroll", (int(lo), int(hi)))
         setattr_(self, "offset", real("offset", self.offset, "a finite number >= 0",
                                       lambda v: v >= 0))
+        setattr_(self, "integrating", _share("integrating", self.integrating))
+        setattr_(self, "unstable", _share("unstable", self.unstable))
+        if self.integrating + self.unstable > 1.0:
+            raise ValueError(f"integrating + unstable must be at most 1 (shares of the "
+                             f"systems); got {self.integrating} + {self.unstable}")
+        setattr_(self, "growth", _pair_range("growth", self.growth, 0.0, strict=True))
 
     def _numerator(self, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Ascending numerator coefficients before scaling ``(count, n)``, and relative degrees."""
@@ -212,10 +236,13 @@ class GenericFamily:
         if n % 2:
             poles = np.concatenate([poles, -_log_uniform(rng, *self.band, (count, 1))], axis=1)
         poles = poles.astype(complex)
+        if self.integrating or self.unstable:      # no extra draws for a stable family
+            poles = _growing(self, poles, rng)
         a = poly(poles).real[:, :n]                  # a_0..a_{n-1}; the monic term dropped
         c, _ = self._numerator(count, rng)
         sign = np.where(rng.random(count) < 0.5, -1.0, 1.0)
-        peak = peak_gain(a, c, np.abs(poles))
+        # a pole at 0 has an infinite gain there: its magnitude is the grid's lowest frequency
+        peak = peak_gain(a, c, np.maximum(np.abs(poles), GRID[0]))
         c = c * (sign / peak)[:, None]
         d = np.where(rng.random(count) < self.feedthrough,
                      rng.choice([-1.0, 1.0], count) * rng.uniform(0.2, 1.0, count), 0.0)
@@ -263,7 +290,7 @@ class GenericFamily:
         pre = rng.integers(self.preroll[0], self.preroll[1] + 1, size=count)
         first = int(pre.max())
         total = first + steps
-        u = self._inputs(count, total, first, rng)
+        u = _inputs(self, count, total, first, rng)
         k = np.arange(total)[None, :]
         u = np.where(k >= (first - pre)[:, None], u, 0.0)      # at rest before its pre-roll
         lagged = k - systems.delay[:, None]
@@ -290,13 +317,39 @@ class GenericFamily:
                               u_plant=plant[:, first:], x0=X[:, first].copy(), noise=level,
                               offsets=offsets, systems=systems)
 
-    def _inputs(self, count: int, total: int, first: int, rng: np.random.Generator):
-        """Excitations of ``total`` samples, a kind drawn per record from ``excitations``."""
-        band = (min(self.band[0], 3.0), min(self.band[1], 3.0))
-        pick = rng.integers(0, len(self.excitations), size=count)
-        u = np.empty((count, total))
-        for j, kind in enumerate(self.excitations):
-            idx = np.flatnonzero(pick == j)
-            if idx.size:
-                u[idx] = generic_excitation(kind, idx.size, total, rng, first=first, band=band)
-        return u
+
+def _growing(family: GenericFamily, poles: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``poles`` (count, n) with ``family``'s integrating and unstable shares' slot replaced
+    (``GenericFamily``'s docstring): an odd order's real pole, or an even order's first
+    factor."""
+    count, n = poles.shape
+    poles = poles.copy()
+    kind = rng.random(count)
+    integ = kind < family.integrating
+    unst = (kind >= family.integrating) & (kind < family.integrating + family.unstable)
+    sigma = _log_uniform(rng, *family.growth, count)
+    pair = (rng.random(count) < 0.5) & unst & (n >= 2)
+    w = _log_uniform(rng, *family.band, count)
+    other = -_log_uniform(rng, *family.band, count)
+    root = np.where(integ, 0.0, sigma)
+    single = integ | (unst & ~pair)
+    if n % 2:
+        poles[single, -1] = root[single]
+    else:
+        poles[single, 0], poles[single, 1] = root[single], other[single]
+    if n >= 2:
+        poles[pair, 0], poles[pair, 1] = sigma[pair] + 1j * w[pair], sigma[pair] - 1j * w[pair]
+    return poles
+
+
+def _inputs(family: GenericFamily, count: int, total: int, first: int,
+            rng: np.random.Generator) -> np.ndarray:
+    """``family``'s excitations of ``total`` samples, a kind drawn per record."""
+    band = (min(family.band[0], 3.0), min(family.band[1], 3.0))
+    pick = rng.integers(0, len(family.excitations), size=count)
+    u = np.empty((count, total))
+    for j, kind in enumerate(family.excitations):
+        idx = np.flatnonzero(pick == j)
+        if idx.size:
+            u[idx] = generic_excitation(kind, idx.size, total, rng, first=first, band=band)
+    return u

@@ -1,4 +1,4 @@
-"""The batches a generic family gives, in normalised time: ``GenericSystems`` (stable SISO
+"""The batches a generic family gives, in normalised time: ``GenericSystems`` (SISO
 systems in the bottom-row CCF of paper Eq. 5, with an input delay) and ``GenericRecords`` (their
 simulated records). A module apart from the family (``training.generic_family``) because these
 are data that the benchmarks and tests hand around and read at any sample time, which needs
@@ -23,7 +23,8 @@ __all__ = ["GenericRecords", "GenericSystems"]
 
 @dataclass(frozen=True)
 class GenericSystems:
-    """A batch of stable SISO systems in the bottom-row CCF (paper Eq. 5) with an input delay.
+    """A batch of SISO systems (stable unless drawn otherwise) in the bottom-row CCF (paper
+    Eq. 5) with an input delay.
 
     Attributes
     ----------
