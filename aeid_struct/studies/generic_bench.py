@@ -18,7 +18,8 @@ record:
 * ``refined, D given``: the same with the true input delay given (``record.delay``),
 * ``n4sid``: ``baselines.n4sid(record, order=n)`` (no zero padding, free initial state),
 * ``least squares``: ``baselines.least_squares(record, order=n)`` (CCF, variable projection),
-* ``true``: the system that generated the record.
+* ``true``: the system that generated the record (scored on the input it saw: the measured one
+  less its offset, which matters for an integrating plant only),
 
 The classical baselines are given the TRUE input delay (they have no delay estimate of their own),
 which favours them; the identifiers estimate it (``refined``) or are given it too (``refined, D
@@ -168,7 +169,10 @@ def _case_records(order: int, noise: float, steps: int, count: int, seed: int,
         whole = Record(recs.y[0], recs.u[0], dt)     # delay unknown to the identifiers
         estimation, validation = whole.split(at=steps)
         clean = recs.y_clean[0, steps:]
-        true = (sy.A[0], sy.b[0], sy.c[0], float(sy.d[0]), D)
+        # the true model is scored on the input the plant saw (the measured one less its
+        # offset): an integrator turns a constant input offset into a ramp that no initial
+        # state absorbs, so the measured input would score the generating system far off
+        true = (sy.A[0], sy.b[0], sy.c[0], float(sy.d[0]), D, float(recs.offsets[0, 0]))
         out.append((estimation, validation, clean, true))
     return out
 
@@ -190,7 +194,11 @@ def _run_record(methods, estimation, validation, clean, true, label, order, nois
         fit, fit_clean = _score(A, b, c, d, D, validation, clean)
         rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D, start,
                         plant))
-    fit, fit_clean = _score(*true, validation, clean)
+    plant_input = validation
+    if len(true) > 5:
+        plant_input = Record(validation.y, validation.u - true[5], validation.dt,
+                             intersample=validation.intersample)
+    fit, fit_clean = _score(*true[:5], plant_input, clean)
     rows.append(Row(label, order, noise, steps, "true", fit, fit_clean, 0.0, true[4], "",
                     plant))
     return rows
