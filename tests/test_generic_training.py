@@ -211,3 +211,77 @@ def test_the_command_trains_writes_and_resumes(tmp_path, capsys):
     assert main([*argv[:4], "2", *argv[5:], "--resume"]) == 0
     history = load_generic(out).meta["history"]["holdout_loss"]
     assert len(history) == 2 and history[0] == run["meta"]["history"]["holdout_loss"][0]
+
+
+# -- fine-tuning and the growth family -----------------------------------------------------------
+
+def test_init_starts_from_the_given_weights_and_pins_the_checkpoint(tmp_path):
+    torch.manual_seed(5)
+    start = GenericIdentifier(CONFIG)
+    # a learning rate too small to move the weights: the run ends where it started
+    still = train_generic(CONFIG, settings(epochs=1, lr=1e-12), family=TinyFamily(), init=start)
+    fresh = train_generic(CONFIG, settings(epochs=1, lr=1e-12), family=TinyFamily())
+    for (k, v), (_, w) in zip(start.encoder.state_dict().items(),
+                              still.encoder.state_dict().items(), strict=True):
+        torch.testing.assert_close(w, v, rtol=0, atol=1e-9, msg=k)
+    assert any(not torch.allclose(v, f) for v, f in zip(
+        start.encoder.state_dict().values(), fresh.encoder.state_dict().values(), strict=True))
+    assert len(still.meta["train"]["init"]) == 64 and fresh.meta["train"]["init"] is None
+    # a checkpoint resumes only from the weights it started from
+    path = tmp_path / "i.ckpt"
+    train_generic(CONFIG, settings(epochs=1, checkpoint=str(path)), family=TinyFamily(),
+                  init=start)
+    torch.manual_seed(6)
+    with pytest.raises(ValueError, match="cannot be resumed: it was written for a different"):
+        train_generic(CONFIG, settings(epochs=2, checkpoint=str(path)), family=TinyFamily(),
+                      init=GenericIdentifier(CONFIG))
+    other = GenericConfig(order=2, window=64, band=(0.01, 1.0), width=5, dense=(16,))
+    with pytest.raises(ValueError, match="init must be a GenericIdentifier of the configuration"):
+        train_generic(CONFIG, settings(epochs=1), family=TinyFamily(),
+                      init=GenericIdentifier(other))
+
+
+def test_growth_family_reads_each_record_under_a_weight_that_leaves_it_stable():
+    from aeid_struct.generic.windows import weighted
+    from aeid_struct.training import GenericFamily, GrowthFamily
+
+    base = GenericFamily(order=3, integrating=0.3, unstable=0.4, growth=(2e-3, 3e-2))
+    fam = GrowthFamily(base=base)
+    got = fam.records(300, 256, np.random.default_rng(2))
+    rec = base.records(300, 256, np.random.default_rng(2))      # the same draws come first
+    top = rec.systems.poles.real.max(axis=1)
+    options = np.array([0.0, 2.0, 4.0]) / 256
+    assert set(np.round(got.sigma * 256, 9)) <= {0.0, 2.0, 4.0}
+    # stable where a weight allows it; the strongest weight where none does
+    ok = options.max() > top
+    assert np.all(got.sigma[ok] > top[ok]) and np.all(got.sigma[~ok] == options.max())
+    assert (~ok).any() and (top > 0).any() and (got.sigma == 0).any()
+    # each record is the base record under its weight (generic.windows.weighted)
+    for i in range(0, 300, 13):
+        if got.sigma[i] == 0:
+            np.testing.assert_array_equal(got.y[i], rec.y[i])
+            continue
+        y, u, _ = weighted(rec.y[i: i + 1], rec.u[i: i + 1], (got.sigma[i] * 256,))
+        np.testing.assert_allclose(got.y[i], y[1], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(got.u[i], u[1], rtol=1e-12, atol=1e-15)
+    assert fam.order == 3
+    with pytest.raises(ValueError, match="base must be a GenericFamily"):
+        GrowthFamily(base=TinyFamily())
+    with pytest.raises(ValueError, match="growth must be a non-empty tuple of positive"):
+        GrowthFamily(base=base, growth=(0.0,))
+
+
+def test_the_command_fine_tunes_on_integrating_and_unstable_plants(tmp_path):
+    import json
+
+    from aeid_struct.cli.main import main
+
+    out = tmp_path / "g2.aeid"
+    assert main(["train-generic", "--order", "2", "--init", "generic-2", "--integrating", "0.2",
+                 "--unstable", "0.2", "--growth-weights", "--epochs", "1", "--count", "64",
+                 "--holdout", "32", "--batch", "32", "--threads", "1", "--quiet", "--out",
+                 str(out)]) == 0
+    info = json.loads(out.with_suffix(".json").read_text())["meta"]["train"]
+    assert info["family"]["type"] == "GrowthFamily"
+    assert info["family"]["base"]["integrating"] == 0.2 and len(info["init"]) == 64
+    assert info["family"]["base"]["growth"] == [0.5 / 256, 3.0 / 256]

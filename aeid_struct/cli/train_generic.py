@@ -42,11 +42,26 @@ def run_train_generic(args: argparse.Namespace) -> int:
     if ckpt.exists() and not args.resume:
         raise InputError(f"train-generic: checkpoint {str(ckpt)!r} exists; pass --resume to "
                          "continue that run, or delete it to start over")
-    from aeid_struct.generic import GenericConfig
-    from aeid_struct.training import GenericTrainConfig, process_rank, train_generic
+    from aeid_struct.generic import GenericConfig, load_generic
+    from aeid_struct.training import (
+        GenericFamily,
+        GenericTrainConfig,
+        GrowthFamily,
+        process_rank,
+        train_generic,
+    )
 
     try:
         config = GenericConfig(order=args.order, window=args.window)
+        # an unstable plant grows by e^0.5 to e^3 over one window (GrowthFamily reads it
+        # under a weight of up to e^-4 over the window, which leaves it stable)
+        family = GenericFamily(order=config.order, band=config.band,
+                               integrating=args.integrating, unstable=args.unstable,
+                               **({"growth": (0.5 / config.window, 3.0 / config.window)}
+                                  if args.unstable else {}))
+        if args.growth_weights:
+            family = GrowthFamily(base=family)
+        init = None if args.init is None else load_generic(args.init)
         train = GenericTrainConfig(
             epochs=args.epochs, seconds=None if args.minutes is None else 60.0 * args.minutes,
             count=args.count, holdout=args.holdout, batch=args.batch, lr=args.lr,
@@ -56,7 +71,7 @@ def run_train_generic(args: argparse.Namespace) -> int:
         raise InputError(f"train-generic: {err}") from None
     meta = {"name": out.stem, "command": "aeid-struct " + " ".join(args.argv)}
     try:
-        ident = train_generic(config, train, meta=meta)
+        ident = train_generic(config, train, meta=meta, family=family, init=init)
     except ValueError as err:
         raise InputError(f"train-generic: {err}") from None
     if process_rank() != 0:

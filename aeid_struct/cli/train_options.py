@@ -8,7 +8,7 @@ whole command from them. Adding the options imports neither torch nor CasADi.
 
 from __future__ import annotations
 
-from aeid_struct.cli.arguments import POSITIVE, POSITIVE_INT, number
+from aeid_struct.cli.arguments import FRACTION, POSITIVE, POSITIVE_INT, number
 from aeid_struct.cli.train import run_train
 from aeid_struct.cli.train_generic import run_train_generic
 
@@ -116,6 +116,18 @@ def add_train_generic(sub) -> None:
                     help="where the encoder and the projection run: cpu (default), cuda, or auto "
                          "(a GPU when torch finds one). Launched by torchrun, the run is "
                          "data-parallel (--batch is the global batch) and rank 0 writes --out")
+    tg.add_argument("--init", default=None, metavar="NAME_OR_FILE",
+                    help="start from this generic identifier's weights (a shipped name such as "
+                         "generic-2, or an .aeid file of the same order and shape): fine-tuning")
+    tg.add_argument("--integrating", type=FRACTION, default=0.0,
+                    help="share of the family's plants with a pole at 0 (default 0)")
+    tg.add_argument("--unstable", type=FRACTION, default=0.0,
+                    help="share of the family's plants with a pole in the right half plane, "
+                         "growing e^0.5 to e^3 over a window (default 0)")
+    tg.add_argument("--growth-weights", action="store_true",
+                    help="read each training window as identification does: unweighted or "
+                         "under a growth weight that leaves its shifted system stable "
+                         "(training.GrowthFamily)")
     tg.add_argument("--out", default=None,
                     help="identifier file to write (default generic-N.aeid); the run's JSON "
                          "goes next to it (.json)")

@@ -40,13 +40,17 @@ from aeid_struct.generic.poles import poles_of as poles_of
 from aeid_struct.generic.poles import raw_of as raw_of
 from aeid_struct.generic.scoring import scores as scores
 from aeid_struct.generic.scoring import solution as solution
+from aeid_struct.generic.windows import GROWTH as GROWTH
 from aeid_struct.generic.windows import Windows as Windows
 from aeid_struct.generic.windows import candidates as candidates
+from aeid_struct.generic.windows import unshift as unshift
+from aeid_struct.generic.windows import weighted as weighted
 
 __all__ = [
     "Comparison",
     "FORMAT",
     "GENERIC",
+    "GROWTH",
     "GenericConfig",
     "GenericIdentifier",
     "MAX_ORDER",
@@ -74,4 +78,6 @@ __all__ = [
     "shortest",
     "solution",
     "spectra",
+    "unshift",
+    "weighted",
 ]

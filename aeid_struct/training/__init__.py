@@ -1,10 +1,11 @@
 """Training: system families, excitations, simulated records and the unsupervised training loop
 (paper Eq. 14-15).
 
-Modules: ``families`` (the true systems), ``generic_family`` (stable systems of order 1-8 and
-their records in normalised time, for the generic identifiers; their types in
-``generic_systems``, the polynomial algebra in ``generic_polynomials``), ``excitation`` (the
-inputs),
+Modules: ``families`` (the true systems), ``generic_family`` (systems of order 1-8, stable or
+integrating or unstable on request, and their records in normalised time, for the generic
+identifiers; their types in ``generic_systems``, the polynomial algebra in
+``generic_polynomials``, the windows read under the growth weights in ``generic_growth``),
+``excitation`` (the inputs),
 ``parameter_family`` (the systems of a physical structure, its parameters drawn in a box),
 ``datasets`` (simulated records and the per-record time grid), ``config`` (``TrainConfig``),
 ``objective`` (Eq. 14 on Eq. 15-normalised records), ``tensors`` (the run's records as
@@ -34,6 +35,7 @@ from aeid_struct.training.generic import train_generic as train_generic
 from aeid_struct.training.generic_family import GenericFamily as GenericFamily
 from aeid_struct.training.generic_family import GenericRecords as GenericRecords
 from aeid_struct.training.generic_family import GenericSystems as GenericSystems
+from aeid_struct.training.generic_growth import GrowthFamily as GrowthFamily
 from aeid_struct.training.loop import train as train
 from aeid_struct.training.parameter_family import ParameterFamily as ParameterFamily
 from aeid_struct.training.progress import UndertrainedWarning as UndertrainedWarning
@@ -43,6 +45,7 @@ __all__ = [
     "EXCITATIONS",
     "GENERIC_EXCITATIONS",
     "GenericFamily",
+    "GrowthFamily",
     "GenericRecords",
     "GenericSystems",
     "GenericTrainConfig",

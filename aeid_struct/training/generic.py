@@ -21,6 +21,7 @@ gathered, so the loss and the median fit are the single process's. Rank 0 alone 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import sys
@@ -95,7 +96,8 @@ class _Run:
 
 def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=None,
                   on_epoch: Callable[[int, dict], None] | None = None,
-                  meta: dict | None = None) -> GenericIdentifier:
+                  meta: dict | None = None,
+                  init: GenericIdentifier | None = None) -> GenericIdentifier:
     """Train a generic identifier of ``config.order`` on records of ``family``.
 
     Parameters
@@ -113,6 +115,10 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
         run resumes from the checkpoint).
     meta : dict, optional
         Provenance stored with the identifier (JSON-ready); its ``name`` labels the progress.
+    init : GenericIdentifier, optional
+        Start from its weights instead of fresh ones (fine-tuning); its configuration must be
+        ``config``. The checkpoint's fingerprint holds a hash of them, so a run resumes only
+        from the weights it started from.
 
     Returns
     -------
@@ -155,12 +161,15 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
         raise ValueError(f"family must have records(count, steps, rng) and order "
                          f"{config.order}; got {type(family).__name__} of order "
                          f"{getattr(family, 'order', None)!r}")
+    if init is not None and (not isinstance(init, GenericIdentifier) or init.config != config):
+        raise ValueError(f"init must be a GenericIdentifier of the configuration trained "
+                         f"({config!r}); got {getattr(init, 'config', type(init).__name__)!r}")
     threads = torch.get_num_threads()
     if train.threads is not None:
         torch.set_num_threads(train.threads)
     ctx = distributed.setup(train.device)
     try:
-        return _train(config, train, family, on_epoch, dict(meta or {}), ctx)
+        return _train(config, train, family, on_epoch, dict(meta or {}), ctx, init)
     except Exception as err:
         if ctx.distributed and distributed.collective_error(err):
             raise distributed.failure(err, ctx, train.checkpoint) from err
@@ -169,11 +178,24 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
         torch.set_num_threads(threads)     # the setting is the run's, not the process's
 
 
-def _setup(config, train, family, meta, ctx: distributed.Context) -> _Run:
-    """The identifier (on the run's device), Adam, the held-out windows (the same on every
-    process) and the state, resumed where there is a checkpoint (every process reads it)."""
+def _weights_hash(ident: GenericIdentifier) -> str:
+    """SHA-256 of an identifier's encoder weights (names, shapes and values)."""
+    h = hashlib.sha256()
+    for name, value in ident.encoder.state_dict().items():
+        h.update(name.encode())
+        h.update(str(tuple(value.shape)).encode())
+        h.update(value.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _setup(config, train, family, meta, ctx: distributed.Context, init=None) -> _Run:
+    """The identifier (on the run's device; ``init``'s weights where given), Adam, the held-out
+    windows (the same on every process) and the state, resumed where there is a checkpoint
+    (every process reads it)."""
     torch.manual_seed(train.seed)
     ident = GenericIdentifier(config, meta=meta)
+    if init is not None:
+        ident.encoder.load_state_dict(init.encoder.state_dict())
     ident.encoder.to(ctx.device)             # in place: the parameters stay the same objects
     opt = torch.optim.Adam(list(ident.encoder.parameters()), lr=train.lr)
     generators = {"generator": torch.Generator().manual_seed(train.seed + 2)}
@@ -182,7 +204,9 @@ def _setup(config, train, family, meta, ctx: distributed.Context) -> _Run:
               if k not in ("epochs", "seconds", "min_epochs", "target_loss", "checkpoint",
                            "progress", "threads", "device")}
     fingerprint = json.dumps({"config": config.to_dict(), "train": recipe,
-                              "family": _family_dict(family)}, sort_keys=True)
+                              "family": _family_dict(family),
+                              **({"init": _weights_hash(init)} if init is not None else {})},
+                             sort_keys=True)
     state = {"epoch": 0, "elapsed": 0.0, "best": math.inf, "best_state": None,
              "history": {key: [] for key in (*checkpoints.HISTORY, "holdout_fit")}}
     ckpt = Path(train.checkpoint) if train.checkpoint else None
@@ -199,9 +223,9 @@ def _setup(config, train, family, meta, ctx: distributed.Context) -> _Run:
                 model=ctx.wrap(ident.encoder))
 
 
-def _train(config, train, family, on_epoch, meta, ctx) -> GenericIdentifier:
+def _train(config, train, family, on_epoch, meta, ctx, init=None) -> GenericIdentifier:
     _check_shares(train, ctx.world_size)
-    run = _setup(config, train, family, meta, ctx)
+    run = _setup(config, train, family, meta, ctx, init)
     tty = sys.stderr.isatty()
     start = time.perf_counter() - run.state["elapsed"]
     while run.state["epoch"] < train.epochs:
@@ -345,5 +369,6 @@ def _finish(run: _Run) -> GenericIdentifier:
         "holdout_fit_median": hist["holdout_fit"][best] if hist["holdout_fit"] else math.nan,
         "windows_per_epoch": train.count, "warnings": notes,
         "world_size": ctx.world_size, "backend": ctx.backend, "device": str(ctx.device),
+        "init": json.loads(run.fingerprint).get("init"),
     }
     return ident
