@@ -185,9 +185,11 @@ def test_weighted_window_is_the_shifted_systems_record():
 
 
 def test_growth_weights_find_an_integrating_plants_poles():
-    """The shipped encoder never saw a pole at 0; under the growth weights it sees it at
-    ``-sigma``, inside its family: on integrating order-3 plants at 2 % noise the encoder's
-    pass alone comes within a few points of the refined model, and closer than unweighted."""
+    """The encoder's output map gives stable poles only; under the growth weights a pole at 0 is
+    seen at ``-sigma``, inside it: on integrating order-3 plants at 2 % noise the encoder's
+    pass alone (the shipped encoder, fine-tuned on such windows) comes within a point of the
+    refined model at the median, and closer than from the unweighted windows alone (median and
+    10th percentile)."""
     from functools import partial
 
     from aeid_struct.generic import pipeline
@@ -206,8 +208,8 @@ def test_growth_weights_find_an_integrating_plants_poles():
             g.append(enc.fit - ae.identify(r, order=3).fit)
         gaps[growth] = (np.median(g), np.percentile(g, 10))
     weighted_, plain = gaps[(2.0, 4.0)], gaps[()]
-    assert weighted_[0] > -2.0 and weighted_[0] > plain[0] + 2.0, gaps
-    assert weighted_[1] > plain[1] + 5.0, gaps
+    assert weighted_[0] > -1.0 and weighted_[0] > plain[0] + 0.5, gaps
+    assert weighted_[1] > plain[1] + 2.0, gaps
 
 
 def test_scores_equal_project_costs():
