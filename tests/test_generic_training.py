@@ -159,6 +159,12 @@ def test_the_nmse_loss_is_one_minus_r_squared():
     (["--order", "x"], "argument --order: expected an integer > 0; got 'x'"),
     (["--order", "2", "--minutes", "-1"], "argument --minutes: expected a finite number > 0"),
     (["--order", "2", "--loss", "l1"], r"train-generic: loss must be one of \('log', 'nmse'\)"),
+    (["--order", "2", "--init", "generic-9"],
+     "train-generic: --init 'generic-9': name_or_path must be one of"),
+    (["--order", "2", "--init", "generic-3"],
+     "train-generic: --init 'generic-3' is an identifier of order 3, window 256; --order 2"),
+    (["--order", "2", "--integrating", "0.7", "--unstable", "0.6"],
+     r"train-generic: integrating \+ unstable must be at most 1"),
 ])
 def test_the_command_refuses_bad_values_in_one_line(tmp_path, argv, message):
     from aeid_struct.cli.errors import UsageExit

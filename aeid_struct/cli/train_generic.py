@@ -61,7 +61,19 @@ def run_train_generic(args: argparse.Namespace) -> int:
                                   if args.unstable else {}))
         if args.growth_weights:
             family = GrowthFamily(base=family)
-        init = None if args.init is None else load_generic(args.init)
+    except ValueError as err:
+        raise InputError(f"train-generic: {err}") from None
+    init = None
+    if args.init is not None:
+        try:
+            init = load_generic(args.init)
+        except ValueError as err:
+            raise InputError(f"train-generic: --init {args.init!r}: {err}") from None
+        if init.config != config:
+            raise InputError(f"train-generic: --init {args.init!r} is an identifier of order "
+                             f"{init.config.order}, window {init.config.window}; --order "
+                             f"{config.order} --window {config.window} needs one of that shape")
+    try:
         train = GenericTrainConfig(
             epochs=args.epochs, seconds=None if args.minutes is None else 60.0 * args.minutes,
             count=args.count, holdout=args.holdout, batch=args.batch, lr=args.lr,
