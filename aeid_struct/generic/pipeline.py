@@ -11,7 +11,8 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
 1. the record is validated once (a :class:`~aeid_struct.records.Record` or arrays); it is not
    detrended (the offset is a parameter of the model);
 2. the input delay by an ARX scan (:func:`~aeid_struct.generic.delay.arx_delay`) unless known;
-3. candidate denominators from windows at several time scales, one batched identifier call
+3. candidate denominators from windows at several time scales, each read unweighted and under
+   the growth weights, one batched identifier call
    (:func:`~aeid_struct.generic.windows.candidates`);
 4. the best candidate and delay by whole-record projection: every candidate at the ARX delay,
    the :data:`SHORTLIST` best of them also at ``D_arx - 1`` and ``D_arx + 1``

@@ -108,6 +108,9 @@ class GrowthFamily:
         # every option, none included); where none is, the strongest weight
         allowed = options[None, :] > top[:, None]
         allowed[~allowed.any(axis=1), -1] = True
+        # one draw per record, in record order: the shipped fine-tuned generic-1..3 were trained
+        # on this stream (a vectorised draw would give other windows); it costs ~5 us a record
+        # beside the ~70 us of its simulation (4,096 records, one thread)
         pick = np.array([rng.choice(np.flatnonzero(row)) for row in allowed])
         Y, U, sigma = np.empty_like(rec.y), np.empty_like(rec.u), options[pick]
         for j in range(options.size):
