@@ -24,6 +24,7 @@ _compat.install()      # old module paths (aeid_struct.decoder, .refine, ...) ke
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.encoder import EncoderConfig as EncoderConfig
+    from aeid_struct.generic import FeedbackWarning as FeedbackWarning
     from aeid_struct.generic import StableOnlyWarning as StableOnlyWarning
     from aeid_struct.generic import compare as compare
     from aeid_struct.generic import identify as identify
@@ -79,6 +80,7 @@ _SOURCES = {
     "TrainConfig": "training",
     "UndertrainedWarning": "training",
     "StableOnlyWarning": "generic",
+    "FeedbackWarning": "generic",
     "train": "training",
 }
 
@@ -87,6 +89,7 @@ __all__ = [
     "MCF",
     "EncoderConfig",
     "Estimate",
+    "FeedbackWarning",
     "Head",
     "Identifier",
     "Identifies",

@@ -106,3 +106,26 @@ def modal_system(
     c = rng.normal(size=n)
     d = float(rng.normal()) if feedthrough else 0.0
     return A, b, c, d
+
+
+def pi_loop(noise: float, seed: int, steps: int = 1000, dt: float = 0.05):
+    """``1 / (s^2 + 0.8 s + 1)`` under ``u = 1.5 e + 0.8 int e``, ``e = r - y`` with the
+    measured (noisy) ``y``, reference steps every 100 samples; the input held between
+    samples. A :class:`aeid_struct.Record` with ``intersample="zoh"``."""
+    import control
+
+    import aeid_struct as ae
+
+    rng = np.random.default_rng(seed)
+    plant = control.tf2ss(control.c2d(control.tf([1.0], [1.0, 0.8, 1.0]), dt, "zoh"))
+    A, B, C = (np.asarray(m) for m in (plant.A, plant.B, plant.C))
+    r = np.repeat(rng.choice([-1.0, 1.0], steps // 100), 100)
+    v = noise * rng.standard_normal(steps)
+    x, integral = np.zeros(A.shape[0]), 0.0
+    y, u = np.zeros(steps), np.zeros(steps)
+    for k in range(steps):
+        y[k] = (C @ x).item() + v[k]
+        integral += (r[k] - y[k]) * dt
+        u[k] = 1.5 * (r[k] - y[k]) + 0.8 * integral
+        x = A @ x + B[:, 0] * u[k]
+    return ae.Record(y, u, dt, intersample="zoh")

@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pytest
 import scipy.signal
+from problems import pi_loop
 
 import aeid_struct as ae
 from aeid_struct.cli import generic_names, main, shipped_names
@@ -255,3 +256,26 @@ def test_identify_a_held_record_with_intersample_zoh(tmp_path, capsys):
     assert abs(json.loads(js.read_text())["numerator"][2]) > 1.0
     assert "--intersample applies to the generic identifiers" in _refused(
         ["identify", "leg-stable", "--y", csv, "--intersample", "zoh"], capsys)
+
+
+def test_identify_a_closed_loop_record_says_so(tmp_path, capsys):
+    """A PI loop's record (tests/test_feedback.py): the JSON carries the feedback test, the
+    printout and a warning say the record looks closed-loop and the model has no feedthrough;
+    an open-loop record's test is in the JSON too, not detected."""
+    record = pi_loop(0.1, 0)
+    csv = _write_csv(tmp_path / "loop.csv", "t,u,y",
+                     [record.dt * np.arange(record.steps), record.u, record.y])
+    js = tmp_path / "loop.json"
+    with pytest.warns(ae.FeedbackWarning):
+        assert main(["identify", csv, "--order", "2", "--intersample", "zoh", "--json",
+                     str(js)]) == 0
+    assert "closed loop: the residuals are correlated with later inputs" in (
+        capsys.readouterr().out)
+    out = json.loads(js.read_text())
+    assert out["feedback"]["detected"] is True and out["feedback"]["refit"] == "no feedthrough"
+    assert out["d"] == 0.0
+    t, u, y = _record()
+    csv = _write_csv(tmp_path / "lab.csv", "t [s],u [V],y [K]", [t, u, y])
+    assert main(["identify", csv, "--order", "2", "--json", str(js)]) == 0
+    assert "closed loop" not in capsys.readouterr().out
+    assert json.loads(js.read_text())["feedback"]["detected"] is False

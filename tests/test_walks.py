@@ -55,8 +55,9 @@ def any_record():
 
 
 @pytest.mark.parametrize(("refine", "stages"), [
+    # the refined model's residuals are tested for feedback before the result
     (True, ["generic.boundary", "generic.delay", "generic.windows", "generic.scoring",
-            "generic.polish", "generic.result"]),
+            "generic.polish", "generic.feedback", "generic.result"]),
     (False, ["generic.boundary", "generic.delay", "generic.windows", "generic.classical",
              "generic.scoring", "generic.polish", "generic.result"]),
 ])

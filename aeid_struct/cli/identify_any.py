@@ -176,6 +176,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
         "x0": est.x0, "offset": est.offset, "fit_percent": float(est.fit),
         "refined": bool(est.refined), "refine": not args.no_refine,
         "seconds": float(est.seconds), "figure": figure,
+        "feedback": est.info.get("feedback"),
     }
 
 
@@ -201,6 +202,11 @@ def _print(s: dict, est) -> None:
     print("refined over the whole record (output error)" if s["refined"] else
           "not refined (--no-refine)" if not s["refine"] else
           "not refined: the refinement did not lower the residual")
+    found = s["feedback"]
+    if found is not None and found["detected"]:
+        print(f"closed loop: the residuals are correlated with later inputs (z = "
+              f"{found['statistic']:.1f} at lag {found['lag']} > {found['bound']:.2f})"
+              + ("; identified without a feedthrough" if "refit" in found else ""))
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: fit {s['figure']['fit_percent']:.2f} %)")

@@ -9,7 +9,8 @@ Modules: ``poles`` (raw network outputs -> stable factors -> denominator), ``mod
 (the ``.aeid`` file: the one container, kind ``"generic"``), ``windows`` (candidates from
 windows at several time scales, the whole-record choice), ``delay`` (the input delay: ARX scan,
 projection re-scan), ``one_call`` (:func:`identify`; its steps in ``pipeline``),
-``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted).
+``comparison`` (:func:`compare`, MATLAB's ``compare`` with the initial state fitted),
+``feedback`` (is the record closed-loop? residuals against later inputs).
 """
 
 from aeid_struct.generic.boundary import shortest as shortest
@@ -20,6 +21,8 @@ from aeid_struct.generic.comparison import Comparison as Comparison
 from aeid_struct.generic.comparison import compare as compare
 from aeid_struct.generic.delay import arx_delay as arx_delay
 from aeid_struct.generic.delay import rescan as rescan
+from aeid_struct.generic.feedback import FeedbackWarning as FeedbackWarning
+from aeid_struct.generic.feedback import feedback_test as feedback_test
 from aeid_struct.generic.files import FORMAT as FORMAT
 from aeid_struct.generic.model import GENERIC as GENERIC
 from aeid_struct.generic.model import ORDERS as ORDERS
@@ -49,6 +52,7 @@ from aeid_struct.generic.windows import weighted as weighted
 __all__ = [
     "Comparison",
     "FORMAT",
+    "FeedbackWarning",
     "GENERIC",
     "GROWTH",
     "GenericConfig",
@@ -65,6 +69,7 @@ __all__ = [
     "compare",
     "denominator",
     "factors",
+    "feedback_test",
     "identify",
     "load_generic",
     "measured",

@@ -100,7 +100,13 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         ``refined`` (False for the one pass); ``info`` holds ``delay, x0, y_offset, fit, y_hat,
         cost, intersample, candidates, order_fits, start`` (``"encoder"`` or ``"classical"``:
         the candidate or start that won) and, where they ran, the iterations' ``iterations,
-        converged`` (and the one pass's ``delay_moved``: its re-scan moved the delay).
+        converged`` (and the one pass's ``delay_moved``: its re-scan moved the delay), and
+        ``feedback``: the closed-loop test of ``generic.feedback`` on the refined model's
+        residuals (None for the one pass and where the record is too short for it). Where it
+        finds the input correlated with earlier residuals it warns
+        (:class:`~aeid_struct.generic.feedback.FeedbackWarning`) and, for the default
+        structure, identifies the record again without a feedthrough (``feedback["refit"]``;
+        a free ``d`` takes up the noise a controller feeds back in the same sample).
 
     Raises
     ------

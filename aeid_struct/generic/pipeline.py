@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -66,6 +66,7 @@ from aeid_struct.generic.boundary import checked, shortest
 from aeid_struct.generic.boundary import measured as measured
 from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.delay import arx_delay
+from aeid_struct.generic.feedback import FeedbackWarning, feedback_test
 from aeid_struct.generic.normalised import Model, structure_of
 from aeid_struct.generic.polish import (
     better_of,
@@ -200,33 +201,69 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     call = checked(resolve, record, order, structure=structure, refine=refine, delay=delay,
                    max_delay=max_delay, method=method, iterations=iterations,
                    classical=classical, what=what, default_max_delay=MAX_DELAY)
-    order, identifiers, max_delay = call.order, call.identifiers, call.max_delay
-    units, work, data, feedthrough = call.units, call.work, call.data, call.feedthrough
-    order_fits = None
+    order, order_fits = call.order, None
+    fitting = (refine, method, int(iterations), bool(classical))
     if order is None:
-        order_fits = _select_order(identifiers, work, max_delay, feedthrough, refine,
-                                   method, int(iterations), bool(classical))
+        order_fits = _select_order(call.identifiers, call.work, call.max_delay,
+                                   call.feedthrough, *fitting)
         best = max(f for f in order_fits.values() if np.isfinite(f))
         order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
-    fit = _encoder_fit(identifiers[order], work.y, work.u, order, work.delay, max_delay,
-                       feedthrough, bool(classical) and not refine, work.intersample,
-                       bool(classical))
+    model, chosen, refined, info = _fit(call, order, structure, *fitting)
+    # refined models only: the one pass's residual carries model error that the test reads as
+    # feedback (measured: 2 false alarms in 59 open-loop records at 0-2 % noise, none refined)
+    found = feedback_test(call.work.y, model.y_hat, call.work.u) if refine else None
+    if found is not None and found["detected"]:
+        strict = structure is None and call.feedthrough
+        if strict:
+            # a free d takes up the noise a controller acting on the sample it measures feeds
+            # back through u_k: measured on a PI loop (white noise, 10 % of the output), the
+            # poles' mean error 0.043 with d and 0.002 without
+            model, chosen, refined, info = _fit(replace(call, feedthrough=False), order,
+                                                CCF(order, feedthrough=False), *fitting)
+            found = found | {"refit": "no feedthrough"}
+        _warn_feedback(found, strict)
+    info |= {"order_fits": order_fits, "feedback": found}
+    est = estimate_of(model, chosen, call.work, time.perf_counter() - start, refined, info)
+    return restore(call.units, est, call.data)
+
+
+def _fit(call, order: int, structure, refine: bool, method: str, iterations: int,
+         classical: bool):
+    """Steps 2-5 of the module docstring at one order: ``(model, structure, refined, info)``
+    in normalised time."""
+    work, max_delay, feedthrough = call.work, call.max_delay, call.feedthrough
+    fit = _encoder_fit(call.identifiers[order], work.y, work.u, order, work.delay, max_delay,
+                       feedthrough, classical and not refine, work.intersample, classical)
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, structure_of(structure, order, fit.den)
     refined = False
-    info = {"candidates": fit.candidates, "order_fits": order_fits, "start": fit.start,
-            "max_delay": max_delay}
+    info = {"candidates": fit.candidates, "start": fit.start, "max_delay": max_delay}
     if not refine:
         model, structure, about = one_pass(spec, structure, model, work, order, feedthrough,
-                                           int(iterations), max_delay)
+                                           iterations, max_delay)
     else:
         model, structure, refined, about = refine_model(spec, structure, model, work, order,
                                                         feedthrough, max_delay, method,
-                                                        bool(classical), fit.start)
+                                                        classical, fit.start)
     info |= about
     info |= _stable_only(info.pop("unstable", None), model, work.dt)
-    est = estimate_of(model, structure, work, time.perf_counter() - start, refined, info)
-    return restore(units, est, data)
+    return model, structure, refined, info
+
+
+def _warn_feedback(found: dict, strict: bool) -> None:
+    """The :class:`~aeid_struct.generic.feedback.FeedbackWarning` of a record that looks
+    closed-loop (``strict``: the estimate was refit without its feedthrough)."""
+    what = ("the estimate has no direct feedthrough (d = 0): a free d takes up the noise a "
+            "controller feeds back in the same sample; pass structure=CCF(order, "
+            "feedthrough=True) to keep one" if strict else
+            "a model with a direct feedthrough takes up the noise a controller feeds back in "
+            "the same sample")
+    warnings.warn(f"the record looks closed-loop: its residuals are correlated with later "
+                  f"inputs (z = {found['statistic']:.1f} at lag {found['lag']}, bound "
+                  f"{found['bound']:.2f}); {what}. The output-error fit from u to y is "
+                  f"consistent under feedback only for white output noise: coloured noise "
+                  f"(drift, disturbances the plant filters) biases it: identify such a "
+                  f"plant from an open-loop experiment", FeedbackWarning, stacklevel=4)
 
 
 class StableOnlyWarning(UserWarning):
@@ -249,5 +286,4 @@ def _stable_only(unstable: dict | None, model: Model, dt: float) -> dict:
                   f"construction and returns the best stable model, not the system; identify "
                   f"it with structure='ccf' (the default)", StableOnlyWarning, stacklevel=4)
     return {"unstable": {"poles": poles, "fit": float(fit)}}
-
 
