@@ -28,7 +28,7 @@ FUNCTION_LINES = 80     # a function: from its first decorator to its last line,
 LAYERS = [
     "cli", "studies", "loading", "online", "evaluation", "baselines", "training", "generic",
     "multi", "identification", "refinement", "estimates", "encoder", "simulation", "structures",
-    "records | metrics | lazy",
+    "records | metrics | lazy | threads",
 ]
 
 

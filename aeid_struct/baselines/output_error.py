@@ -44,6 +44,7 @@ from aeid_struct.baselines.start import start_vector
 from aeid_struct.identification import Estimate
 from aeid_struct.multi import several
 from aeid_struct.simulation import check_dt, simulate_outputs
+from aeid_struct.threads import one_thread
 
 __all__ = ["JACOBIANS", "SOLVERS", "Problem", "least_squares"]
 
@@ -158,6 +159,7 @@ class Problem:
         return self._J
 
 
+@one_thread
 def least_squares(y, u=None, dt: float | None = None, *, structure=None,
                   start: dict | None = None, inverse=None, jac: str = "exact",
                   solver: str = "auto", xtol: float = 1e-12, ftol: float = 1e-12,

@@ -58,10 +58,12 @@ from aeid_struct.baselines.subspace_step import nfoursid_model
 from aeid_struct.identification import Estimate
 from aeid_struct.records import Record
 from aeid_struct.simulation import check_dt
+from aeid_struct.threads import one_thread
 
 __all__ = ["n4sid"]
 
 
+@one_thread
 def n4sid(y, u=None, dt: float | None = None, *, order: int, structure=None, inverse=None,
           feedthrough: bool = False, pre_zeros: int | None = None,
           block_rows: int | None = None, offset: str = "channel",

@@ -77,9 +77,9 @@ def run_bench(args: argparse.Namespace) -> int:
     InputError
         ``--decoder-only`` with ``--onepass-only``, or ``--timed`` above ``--records``.
     """
-    import torch
 
     from aeid_struct import studies
+    from aeid_struct.threads import settings
 
     bench = studies.bench
     if args.decoder_only and args.onepass_only:
@@ -92,8 +92,7 @@ def run_bench(args: argparse.Namespace) -> int:
         count = args.count or (20 if args.quick else 500)
         print(f"Identification of the robot-leg subsystems: {count} systems per subsystem and "
               f"noise level, one call per record, all methods on the same records "
-              f"(noise-free truth as reference), {torch.get_num_threads()} torch thread(s):",
-              flush=True)
+              f"(noise-free truth as reference); {settings()}:", flush=True)
         ident = bench.bench_identification(count=count, noises=tuple(args.noise or
                                                                      (0.0, 0.01, 0.05)),
                                            progress=not args.quiet)

@@ -21,6 +21,7 @@ from aeid_struct.generic.boundary import measured
 from aeid_struct.multi import compare_channels
 from aeid_struct.records import Record, Units
 from aeid_struct.simulation import fit_initial
+from aeid_struct.threads import one_thread
 
 __all__ = ["Comparison", "compare"]
 
@@ -201,6 +202,7 @@ def _in_samples(delay: int, step: float | None, dt: float) -> int:
     return int(round(samples))
 
 
+@one_thread
 def compare(estimate_or_model, record, *, delay=None) -> Comparison:
     """NRMSE fit of a model on a record with ``x_0`` and the output offset fitted.
 

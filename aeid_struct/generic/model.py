@@ -34,6 +34,7 @@ from aeid_struct.generic.pipeline import run
 from aeid_struct.generic.poles import denominator, factors, poles_of
 from aeid_struct.identification import PRETRAINED, Estimate
 from aeid_struct.structures import CCF
+from aeid_struct.threads import one_thread
 
 __all__ = ["GENERIC", "ORDERS", "GenericConfig", "GenericIdentifier", "load_generic",
            "normalise_windows", "read_generic", "save_generic", "spectra"]
@@ -119,6 +120,7 @@ class GenericIdentifier:
                 + (f", name={name!r}" if name else "") + ")")
 
     # -- the identifier protocol -----------------------------------------------------------------
+    @one_thread
     def identify(self, record, **options) -> Estimate:
         """Identify a measured record with this identifier: ``ae.identify(record,
         order=self.config.order, identifier=self, **options)``.

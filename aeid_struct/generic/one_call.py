@@ -34,10 +34,12 @@ from aeid_struct.identification import Estimate
 from aeid_struct.multi import identify as identify_multi
 from aeid_struct.multi import several
 from aeid_struct.records import Record as measured_record
+from aeid_struct.threads import one_thread
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDERS", "ORDER_TOLERANCE",
            "identify", "measured"]
 
+@one_thread
 def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=None,
              identifier=None, method="auto", iterations=ITERATIONS,
              classical=True) -> Estimate:

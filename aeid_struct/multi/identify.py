@@ -34,6 +34,7 @@ from aeid_struct.multi.fit import Fitted, iterate, physical, rescan
 from aeid_struct.multi.realisation import project
 from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, start_of
 from aeid_struct.records import RecordBatch
+from aeid_struct.threads import one_thread
 
 __all__ = ["ESTIMATION_SHARE", "MAX_DELAY", "ORDER_TOLERANCE", "fit_from_poles", "identify",
            "packed", "parameters", "validation_fit"]
@@ -203,6 +204,7 @@ def _fits(Y: np.ndarray, Y_hat: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(fit), fit, -np.inf)
 
 
+@one_thread
 def identify(record, order=None, *, refine=True, delay=None, max_delay=None, iterations=3,
              classical=True, proposals=None, orders=range(1, 9), feedthrough=True,
              what="ae.identify") -> Estimate:
