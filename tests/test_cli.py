@@ -355,7 +355,8 @@ IDENTIFY_ERRORS = [
     (["--y", "{short.csv}"], r"holds a record of 250 samples; this identifier reads records of "
                              r"300 samples at dt = 0.01 s$"),
     (["--y", "{names.csv}"], r"has the header 'time,position'; expected columns named t, u, y "
-                             r"\(each once\), e.g. 't,u,y'; 'position' is not one of them"),
+                             r"\(each once, or u1, u2, ... and y1, y2, ... for several\), "
+                             r"e.g. 't,u,y'; 'position' is not one of them"),
     (["--y", "{no_y.csv}"], r"has the columns 't,u' but no y column"),
     (["--y", "{y_twice.csv}"], r"y named twice"),
     (["--y", "{zeros.csv}"], r"identify .*zeros.csv with leg-stable: y must not be all zero"),

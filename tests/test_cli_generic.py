@@ -279,3 +279,61 @@ def test_identify_a_closed_loop_record_says_so(tmp_path, capsys):
     assert main(["identify", csv, "--order", "2", "--json", str(js)]) == 0
     assert "closed loop" not in capsys.readouterr().out
     assert json.loads(js.read_text())["feedback"]["detected"] is False
+
+
+def _two_by_two(seed=0, steps=800, dt=0.05):
+    """``(t, U (steps, 2), Y (steps, 2), A)`` of a 2x2 order-2 system with 1 % noise, the
+    second input one sample late (scipy-expm FOH simulation through ``ae.simulate``)."""
+    rng = np.random.default_rng(seed)
+    U = np.repeat(rng.choice([-1.0, 1.0], (steps // 10, 2)), 10, axis=0)
+    A = np.array([[0.0, 1.0], [-4.0, -0.8]])
+    B, C = np.array([[0.0, 1.0], [1.0, 0.5]]), np.array([[1.0, 0.0], [0.5, 1.0]])
+    late = np.concatenate([[0.0], U[:-1, 1]])
+    Y = np.column_stack([ae.simulate(A, B[:, 0], C[i], 0.0, U[:, 0], dt)
+                         + ae.simulate(A, B[:, 1], C[i], 0.0, late, dt) for i in range(2)])
+    Y = Y + 0.01 * Y.std(axis=0) * rng.standard_normal(Y.shape) + np.array([0.3, -1.0])
+    return dt * np.arange(steps), U, Y, A
+
+
+def test_identify_a_record_of_two_inputs_and_two_outputs(tmp_path, capsys):
+    """Numbered columns: one model A (2, 2), B (2, 2), C (2, 2), D (2, 2) with a delay per
+    input and an offset per output, the library's call on the same arrays."""
+    t, U, Y, A = _two_by_two()
+    csv = _write_csv(tmp_path / "plant.csv", "t [s],u1 [V],u2 [V],y1,y2",
+                     [t, U[:, 0], U[:, 1], Y[:, 0], Y[:, 1]])
+    js, png = tmp_path / "plant.json", tmp_path / "plant.png"
+    assert main(["identify", csv, "--order", "2", "--json", str(js), "--figure",
+                 str(png)]) == 0
+    out = capsys.readouterr().out
+    result = json.loads(js.read_text())
+    assert (result["outputs"], result["inputs"], result["order"]) == (2, 2, 2)
+    assert np.shape(result["B"]) == (2, 2) and np.shape(result["D"]) == (2, 2)
+    assert result["delay_samples"] == [0, 1]
+    np.testing.assert_allclose(result["offset"], [0.3, -1.0], atol=0.02)
+    assert min(result["fit_percent"]) > 97.0
+    poles = np.sort_complex(np.linalg.eigvals(np.array(result["A"])))
+    np.testing.assert_allclose(poles, np.sort_complex(np.linalg.eigvals(A)), rtol=0.02)
+    direct = ae.identify(ae.Record(Y, U, 0.05), order=2)
+    np.testing.assert_allclose(result["fit_percent"], direct.fit, rtol=1e-9)
+    for line in ("2 outputs, 2 inputs", "observer form of y", "B =", "D =",
+                 "delay per input: u1: 0 samples", "u2: 1 samples = 0.05 s",
+                 "output offsets = y1:", "fit: y1:", "wrote"):
+        assert line in out, line
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_numbered_columns_refused_where_they_do_not_fit(tmp_path, capsys):
+    t, U, Y, _ = _two_by_two(steps=300)
+    gap = _write_csv(tmp_path / "gap.csv", "t,u1,u3,y", [t, U[:, 0], U[:, 1], Y[:, 0]])
+    assert "the u columns are numbered [1, 3]" in _refused(
+        ["identify", gap, "--order", "2"], capsys)
+    mixed = _write_csv(tmp_path / "mixed.csv", "t,u,u1,y", [t, U[:, 0], U[:, 1], Y[:, 0]])
+    assert "expected one unnumbered u column" in _refused(
+        ["identify", mixed, "--order", "2"], capsys)
+    two = _write_csv(tmp_path / "two.csv", "t,u1,u2,y1,y2",
+                     [t, U[:, 0], U[:, 1], Y[:, 0], Y[:, 1]])
+    u = _write_csv(tmp_path / "u.csv", "u", [U[:, 0]])
+    assert "give the inputs as its numbered columns" in _refused(
+        ["identify", two, "--order", "2", "--u", u], capsys)
+    assert "identify it with --order N" in _refused(
+        ["identify", "leg-stable-any", "--y", two], capsys)

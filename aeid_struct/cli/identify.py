@@ -162,6 +162,11 @@ def run_identify(args: argparse.Namespace) -> int:
     ys = [read_record(f, "--y", "y") for f in args.y]
     us = [read_record(f, "--u", "u") for f in args.u] if args.u else [None] * R
     for r in range(R):
+        for rec, option in ((ys[r], "--y"), (us[r], "--u")):
+            if rec is not None and rec.several:
+                raise InputError(f"{option} file {rec.path!r} holds several outputs or inputs "
+                                 f"(numbered columns); {args.model} reads one of each: "
+                                 f"identify it with --order N (the generic identifiers)")
         on_grid(ys[r], "--y", steps[r], dts[r])
         if us[r] is not None:
             if ys[r].u is not None:

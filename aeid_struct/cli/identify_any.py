@@ -1,6 +1,6 @@
-"""``aeid-struct identify RECORD --order N``: any SISO system's record through the generic
+"""``aeid-struct identify RECORD --order N``: any system's record through the generic
 identifiers (``aeid_struct.identify``), the model printed and written as JSON, the compare
-figure written as PNG.
+figure written as PNG (a record of several inputs and outputs: ``cli.identify_channels``).
 
 The model of the record (docs/architecture.md, "Any system, any record"): the continuous-time
 ``(A, b, c, d)`` in the record's time unit, the input delay ``D`` in samples, the state ``x0``
@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from aeid_struct.cli.errors import InputError
+from aeid_struct.cli.identify_channels import print_channels, summary_channels
 from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import read_record
 
@@ -56,13 +57,17 @@ def _record(args: argparse.Namespace):
     from aeid_struct import Record
 
     rec = read_record(args.model, "RECORD", "y")
-    if rec.values.ndim != 1:
+    if rec.values.ndim != 1 and not rec.several:
         raise InputError(f"RECORD file {args.model!r} holds {rec.values.shape[0]} rows of "
-                         f"{rec.values.shape[1]} values; expected one record (several outputs "
-                         "are not supported yet): name its columns in a header row (e.g. "
-                         "'t,u,y'), or give y alone (one number per line, or a (steps,) .npy) "
-                         "and its input by --u")
-    u, source = rec.u, "the u column"
+                         f"{rec.values.shape[1]} values; expected one record: name its "
+                         "columns in a header row (e.g. 't,u,y', or 't,u1,u2,y1,y2' for "
+                         "several inputs and outputs), or give y alone (one number per line, "
+                         "or a (steps,) .npy) and its input by --u")
+    u = rec.u
+    source = "the u column" if u is None or u.ndim == 1 else f"the u1..u{u.shape[1]} columns"
+    if args.u is not None and rec.several:
+        raise InputError(f"--u and RECORD {args.model!r} of several outputs or inputs: give "
+                         "the inputs as its numbered columns u1, u2, ...")
     if args.u is not None:
         if len(args.u) != 1:
             raise InputError(f"--u: give one input file for RECORD; got {len(args.u)} files")
@@ -150,8 +155,12 @@ def run_identify_any(args: argparse.Namespace) -> int:
             raise InputError(f"--figure {args.figure!r}: cannot write "
                              f"({err.strerror or err})") from None
         figure = {"path": args.figure, "fit_percent": cmp.fit}
-    summary = _summary(est, record, args, source, est.info["max_delay"], figure)
-    _print(summary, est)
+    if record.outputs > 1 or record.inputs > 1:
+        summary = summary_channels(est, record, args, source, figure)
+        print_channels(summary, est)
+    else:
+        summary = _summary(est, record, args, source, est.info["max_delay"], figure)
+        _print(summary, est)
     if args.json:
         write_json(args.json, plain(summary))
         print(f"wrote {args.json}")

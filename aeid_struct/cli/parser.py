@@ -180,23 +180,25 @@ def _order(text: str):
 def _add_identify(sub, names: str, generic: str) -> None:
     generic = generic or "none in this installation (aeid-struct train-generic trains them)"
     idp = sub.add_parser(
-        "identify", help="identify a system from a record file: any SISO system with --order "
+        "identify", help="identify a system from a record file: any system with --order "
                          "(the generic identifiers), or with a trained identifier and its "
                          "self-check (fit, excess, inside or outside its training range)",
         usage="aeid-struct identify RECORD --order {1-8,auto} [--dt DT] [options]\n"
               "       aeid-struct identify MODEL --y FILE [FILE ...] [options]",
-        description="Two uses. (1) Any SISO system, any sample time and record length: "
+        description="Two uses. (1) Any system, any sample time and record length: "
                     "'aeid-struct identify RECORD --order N' identifies a continuous-time model "
                     "of order N (or --order auto: the order selected by validation fit) with the "
                     f"shipped generic identifiers ({generic}) and refines it over the whole "
                     "record (output error with the initial state, an output offset and the input "
                     "delay), like aeid_struct.identify(record, order=N); it prints the model "
                     "(A, b, c, d and the transfer function), the delay, the initial state, the "
-                    "offset, the fit and the time. (2) With a trained identifier MODEL (a file, "
-                    f"or a shipped leg identifier: {names}) and --y: print the model, its "
-                    "physical parameters and the self-check: each record's fit (NRMSE %), its "
-                    "excess beyond the training range, and the verdict (inside or OUTSIDE the "
-                    "training range).",
+                    "offset, the fit and the time; a record of several inputs and outputs "
+                    "(columns u1, u2, ..., y1, y2, ...) gives A, B, C, D with a delay per "
+                    "input and an offset and fit per output. (2) With a trained identifier "
+                    f"MODEL (a file, or a shipped leg identifier: {names}) and --y: print the "
+                    "model, its physical parameters and the self-check: each record's fit "
+                    "(NRMSE %), its excess beyond the training range, and the verdict (inside "
+                    "or OUTSIDE the training range).",
         epilog=RECORD_LAYOUTS + " With --order, RECORD is one record: a CSV with named columns "
         "(t,u,y: dt from t; without t give --dt), or a (steps,) .npy or one-column CSV of y "
         "with --u for its input (default a unit step) and --dt.\n\n"

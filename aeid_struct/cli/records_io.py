@@ -18,9 +18,11 @@ RECORD_LAYOUTS = (
     "Record files: .npy (a (steps,) array, or (batch, steps) for a batch of records) or CSV "
     "(comma-separated numbers): one number per line (one record), one record per line (a "
     "batch), or named columns under a header row, e.g. 't,y' or 't,u,y' (names t/time, "
-    "u/input, y/output, units after the name allowed: 't [s]'). A --y file needs a y column and "
-    "may carry u (the input) and t (its sample time is checked against the identifier's). A "
-    "header over a single column is skipped. Lines starting with # are comments."
+    "u/input, y/output, units after the name allowed: 't [s]'; several inputs or outputs "
+    "numbered from 1: 't,u1,u2,y1,y2', for the generic identifiers). A --y file needs a y "
+    "column and may carry u (the input) and t (its sample time is checked against the "
+    "identifier's). A header over a single column is skipped. Lines starting with # are "
+    "comments."
 )
 
 #: CSV header names -> the channel they name.
@@ -35,16 +37,20 @@ class RecordFile:
     ----------
     path : str
         The file as given on the command line.
-    values : (steps,) or (batch, steps) array
-        The record(s) of the channel asked for.
-    u : (steps,) array or None
-        The input, from a named u column of a --y file (one record per file).
+    values : (steps,) or (batch, steps) array, or (steps, p) for numbered columns
+        The record(s) of the channel asked for; numbered columns (``y1, y2, ...``): one record
+        of ``p`` channels (:attr:`several`).
+    u : (steps,) or (steps, m) array, or None
+        The input, from named u columns of a --y file (one record per file).
     dt : float or None
         The sample time of a named t column [s].
     columns : bool
         Whether the file was read from named columns (one record per file).
     t0 : float or None
         The time of the first sample, from a named t column [s].
+    several : bool
+        Whether numbered columns gave several outputs or inputs (``values`` then one record of
+        shape (steps, p), ``u`` (steps, m)).
     """
 
     path: str
@@ -53,6 +59,7 @@ class RecordFile:
     dt: float | None = None
     columns: bool = False
     t0: float | None = None
+    several: bool = False
 
 
 def _read_npy(path: Path, option: str) -> np.ndarray:
@@ -77,10 +84,17 @@ def _read_npy(path: Path, option: str) -> np.ndarray:
     return arr.astype(np.float64)
 
 
-def _column_name(cell: str) -> str | None:
-    """A header cell's channel (t, u, y), reading ``'y [m]'`` as y; None when unknown."""
-    word = re.match(r"[a-z_]+", cell.strip().lower())
-    return _COLUMN_NAMES.get(word.group(0)) if word else None
+def _column_name(cell: str) -> tuple[str, int] | None:
+    """A header cell's channel and its number: ``'y [m]'`` is ``("y", 0)``, ``'u2'`` and
+    ``'u_2 [V]'`` are ``("u", 2)`` (numbers from 1; 0 for an unnumbered column); None when
+    unknown."""
+    word = re.match(r"([a-z]+)(?:_?([0-9]+))?(?![a-z0-9_])", cell.strip().lower())
+    if not word or word.group(1) not in _COLUMN_NAMES:
+        return None
+    number = int(word.group(2)) if word.group(2) else 0
+    if word.group(2) and (number < 1 or _COLUMN_NAMES[word.group(1)] == "t"):
+        return None
+    return _COLUMN_NAMES[word.group(1)], number
 
 
 def _read_csv(path: Path, option: str) -> tuple[np.ndarray, list[str] | None]:
@@ -162,24 +176,45 @@ def read_record(file: str, option: str, channel: str) -> RecordFile:
         return RecordFile(file, values)
     names = [_column_name(c) for c in header]
     if len(header) == 1:
-        if names[0] not in (None, channel):
+        if names[0] is not None and names[0][0] != channel:
             raise InputError(f"{option} file {file!r} holds one column named {header[0]!r}; "
                              f"expected {channel} (or an unnamed column)")
         return RecordFile(file, table[:, 0])
     unknown = [h for h, n in zip(header, names, strict=True) if n is None]
-    twice = sorted({n for n in names if n is not None and names.count(n) > 1})
+    twice = sorted({f"{n[0]}{n[1] or ''}" for n in names if n is not None
+                    and names.count(n) > 1})
     if unknown or twice:
         raise InputError(f"{option} file {file!r} has the header {','.join(header)!r}; "
-                         f"expected columns named t, u, y (each once), e.g. 't,u,y'"
+                         f"expected columns named t, u, y (each once, or u1, u2, ... and y1, "
+                         f"y2, ... for several), e.g. 't,u,y'"
                          + (f"; {', '.join(map(repr, unknown))} is not one of them"
                              if unknown else f"; {', '.join(twice)} named twice"))
-    if channel not in names:
+    column = {kind: _channels(table, names, kind, file, option) for kind in ("t", "u", "y")}
+    if column[channel] is None:
         raise InputError(f"{option} file {file!r} has the columns {','.join(header)!r} but no "
                          f"{channel} column")
-    column = {n: table[:, k] for k, n in enumerate(names)}
-    return RecordFile(file, column[channel], u=column.get("u") if channel == "y" else None,
-                   dt=_sample_time(column["t"], file, option) if "t" in column else None,
-                   columns=True, t0=float(column["t"][0]) if "t" in column else None)
+    t = column["t"]
+    several = any(v is not None and v.ndim == 2 for v in column.values())
+    return RecordFile(file, column[channel], u=column["u"] if channel == "y" else None,
+                      dt=_sample_time(t, file, option) if t is not None else None,
+                      columns=True, t0=float(t[0]) if t is not None else None,
+                      several=several)
+
+
+def _channels(table: np.ndarray, names: list, kind: str, file: str,
+              option: str) -> np.ndarray | None:
+    """The columns of one channel kind: None, one (steps,) column, or (steps, k) for numbered
+    columns ``1..k`` (each number once, none missing, not mixed with an unnumbered one)."""
+    found = {n[1]: j for j, n in enumerate(names) if n is not None and n[0] == kind}
+    if not found:
+        return None
+    if set(found) == {0}:
+        return table[:, found[0]]
+    if 0 in found or sorted(found) != list(range(1, len(found) + 1)):
+        raise InputError(f"{option} file {file!r}: the {kind} columns are numbered "
+                         f"{sorted(found)}; expected one unnumbered {kind} column, or {kind}1.."
+                         f"{kind}k numbered from 1 without gaps")
+    return table[:, [found[k] for k in range(1, len(found) + 1)]]
 
 
 def _sample_time(t: np.ndarray, file: str, option: str) -> float | None:

@@ -1,0 +1,88 @@
+"""``aeid-struct identify RECORD --order N`` for a record of several outputs or inputs
+(numbered columns ``u1, u2, ..., y1, y2, ...``): the model ``A, B, C, D`` of
+``aeid_struct.identify`` (``multi.identify``: the observer form, a delay per input, an offset
+per output), printed and carried by the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+__all__ = ["print_channels", "summary_channels"]
+
+
+def summary_channels(est, record, args: argparse.Namespace, source: str, figure) -> dict:
+    """The estimate of several channels as the JSON and the printout carry it.
+
+    Parameters
+    ----------
+    est : Estimate
+        Of ``aeid_struct.identify`` on ``record``.
+    record : Record
+        ``y (steps, p)``, ``u (steps, m)``.
+    args : argparse.Namespace
+    source : str
+        Where the inputs came from.
+    figure : dict or None
+        The compare figure's path and fit.
+
+    Returns
+    -------
+    dict
+    """
+    fit = np.atleast_1d(np.asarray(est.fit, dtype=np.float64))
+    fits = est.info.get("order_fits")
+    return {
+        "record": args.model, "steps": record.steps, "dt": record.dt, "input": source,
+        "intersample": record.intersample, "outputs": record.outputs, "inputs": record.inputs,
+        "order": int(est.A.shape[0]),
+        "order_fits": None if fits is None else {str(n): f for n, f in sorted(fits.items())},
+        # info["reference"]: the output (from 0) whose row of C is (1, 0, ..., 0)
+        "structure": f"observer form of y{int(est.info['reference']) + 1}",
+        "A": est.A, "B": est.B, "C": est.C, "D": est.D,
+        "delay_samples": np.atleast_1d(est.delay).astype(int).tolist(),
+        "delay_seconds": (np.atleast_1d(est.delay) * record.dt).tolist(),
+        "delay_estimated": args.delay is None,
+        "x0": est.x0, "offset": np.atleast_1d(est.offset).tolist(),
+        "fit_percent": fit.tolist(), "fit_overall_percent": float(np.mean(fit)),
+        "refined": bool(est.refined), "refine": not args.no_refine,
+        "seconds": float(est.seconds), "figure": figure,
+    }
+
+
+def print_channels(s: dict, est) -> None:
+    """Print :func:`summary_channels`' summary.
+
+    Parameters
+    ----------
+    s : dict
+    est : Estimate
+    """
+    np.set_printoptions(precision=6, suppress=False)
+    chosen = "" if s["order_fits"] is None else " selected by validation fit (" + ", ".join(
+        f"order {n}: {f:.2f} %" for n, f in s["order_fits"].items()) + ")"
+    held = " (held between samples)" if s["intersample"] == "zoh" else ""
+    print(f"{s['record']}: {s['steps']} samples at dt = {s['dt']:g} s, {s['outputs']} outputs, "
+          f"{s['inputs']} inputs; inputs: {s['input']}{held}")
+    print(f"order {s['order']}{chosen}, {s['structure']}")
+    for name in ("A", "B", "C", "D"):
+        print(f"{name} =\n", np.asarray(getattr(est, name)))
+    print("delay per input: " + ", ".join(
+        f"u{j + 1}: {d} samples = {t:g} s" for j, (d, t) in enumerate(
+            zip(s["delay_samples"], s["delay_seconds"], strict=True)))
+        + (" (estimated)" if s["delay_estimated"] else " (given)"))
+    print("initial state x0 =", est.x0)
+    print("output offsets = " + ", ".join(f"y{i + 1}: {o:.6g}"
+                                          for i, o in enumerate(s["offset"])))
+    print("fit: " + ", ".join(f"y{i + 1}: {f:.2f} %" for i, f in enumerate(s["fit_percent"]))
+          + f"; mean {s['fit_overall_percent']:.2f} % (NRMSE, initial state and offsets "
+          f"fitted)")
+    print("refined over the whole record (output error)" if s["refined"] else
+          "not refined (--no-refine)" if not s["refine"] else
+          "not refined: the refinement did not lower the residual")
+    print(f"time: {1e3 * s['seconds']:.1f} ms")
+    if s["figure"] is not None:
+        print(f"wrote {s['figure']['path']} (compare: mean fit "
+              f"{float(np.mean(s['figure']['fit_percent'])):.2f} %)")
