@@ -482,11 +482,12 @@ def _cli_any() -> list[Case]:
              check=lambda r: r in (None, 0)),
         Case(area, "y of 1e200 identified", lambda x: run(x, yy=y * 1e200), raises=None,
              check=lambda r: r in (None, 0)),
+        # several outputs come as numbered CSV columns; a (steps, 2) .npy is not one record
         Case(area, "several outputs in the .npy", lambda x: cli(
             "identify", x.npy("y2col.npy", np.stack([y, y], 1)), "--u", x.npy("u21.npy", u),
             "--dt", "0.05", "--order", "2"), raises=UsageExit,
-             match=r"RECORD file .*y2col.npy' holds 600 rows of 2 values; expected one record "
-                   r"\(several outputs are not supported yet\)"),
+             match=r"RECORD file .*y2col.npy' holds 600 rows of 2 values; expected one record: "
+                   r"name its columns .* 't,u1,u2,y1,y2' for several inputs and outputs"),
         Case(area, "--dt 1e-300", lambda x: run(x, dt="1e-300"), raises=UsageExit,
              match=r"dt must give an order-2 model that float64 can hold"),
         Case(area, "train-generic --window 10**8", lambda x: cli(
