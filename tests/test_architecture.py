@@ -26,8 +26,9 @@ FUNCTION_LINES = 80     # a function: from its first decorator to its last line,
 # The order of rule 1 (highest first), as the layers contract must state it; ``loading`` (the one
 # ``load`` of every identifier kind) sits above the kinds it reads
 LAYERS = [
-    "cli", "studies", "loading", "online", "evaluation", "baselines", "training", "generic",
-    "multi", "identification", "refinement", "estimates", "encoder", "simulation", "structures",
+    "cli", "studies", "fleet", "loading", "online", "evaluation", "baselines", "training",
+    "generic", "multi", "identification", "refinement", "estimates", "encoder", "simulation",
+    "structures",
     "records | metrics | lazy | threads",
 ]
 

@@ -22,6 +22,7 @@ from aeid_struct.cli.commands import run_leg, run_track
 from aeid_struct.cli.demo import run_demo
 from aeid_struct.cli.errors import EXIT_INPUT, EXIT_OUTSIDE
 from aeid_struct.cli.identify import generic_names, run_identify, shipped_names
+from aeid_struct.cli.identify_many import add_identify_many
 from aeid_struct.cli.records_io import RECORD_LAYOUTS
 from aeid_struct.cli.train_options import add_train, add_train_generic
 
@@ -53,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_train_generic(sub)
     _add_track(sub, names)
     _add_identify(sub, names, ", ".join(generic_names()))
+    add_identify_many(sub)
     add_bench(sub)
     add_bench_online(sub)
     add_bench_generic(sub)

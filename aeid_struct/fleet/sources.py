@@ -1,0 +1,146 @@
+"""Where a fleet's records come from: a directory of record files, cut into chunks of at most
+``chunk`` records that a worker reads and identifies alone.
+
+Files (read as data only: ``allow_pickle=False``, Parquet's own columns):
+
+- ``.npy``: ``y``, a ``(steps,)`` array (one record) or ``(batch, steps)``; read by memory map,
+  so a chunk reads its own rows only;
+- ``.npz``: arrays ``y`` and, optionally, ``u`` of the same shape;
+- ``.parquet``: a table of records, a row each: a list column ``y``, optionally ``u``.
+
+Records are named ``FILE#INDEX`` (``INDEX`` the row within the file, from 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["FORMATS", "Chunk", "chunks", "read_chunk"]
+
+#: File suffixes read as records.
+FORMATS = (".npy", ".npz", ".parquet")
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Records ``start .. stop - 1`` of one file.
+
+    Attributes
+    ----------
+    path : str
+        The file.
+    start : int
+    stop : int or None
+        None: a file that could not be sized, read whole by the worker, which reports why it
+        cannot.
+    key : str
+        ``RELPATH@START``: the chunk's name, and its part's.
+    """
+
+    path: str
+    start: int
+    stop: int | None
+    key: str
+
+    @property
+    def name(self) -> str:
+        return Path(self.path).name
+
+
+def _count(path: Path) -> int:
+    """Records in a file, from its header or metadata alone where the format allows."""
+    if path.suffix == ".npy":
+        shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        return 1 if len(shape) == 1 else shape[0]
+    if path.suffix == ".npz":
+        with np.load(path, allow_pickle=False) as archive:
+            shape = archive["y"].shape
+        return 1 if len(shape) == 1 else shape[0]
+    import pyarrow.parquet as pq
+
+    return pq.ParquetFile(path).metadata.num_rows
+
+
+def chunks(source, chunk: int = 10_000) -> list[Chunk]:
+    """The chunks of every record file under ``source`` (a directory, searched recursively, or
+    one file), in a stable order: files by path, records in order.
+
+    Parameters
+    ----------
+    source : str or PathLike
+    chunk : int, >= 1
+        Records per chunk at most.
+
+    Returns
+    -------
+    list of Chunk
+        A file that cannot be sized (unreadable, no ``y``) is one chunk of unknown length: its
+        worker reports the reason as the file's one row.
+
+    Raises
+    ------
+    ValueError
+        ``source`` is neither a directory nor a record file, or holds none; ``chunk`` < 1.
+    """
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk must be an integer >= 1 (records per task); got {chunk!r}")
+    root = Path(source)
+    if root.is_file():
+        files = [root]
+    elif root.is_dir():
+        files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix in FORMATS)
+    else:
+        raise ValueError(f"source {str(source)!r} is neither a directory nor a file")
+    if not files:
+        raise ValueError(f"source {str(source)!r} holds no record files ({', '.join(FORMATS)})")
+    out = []
+    for path in files:
+        rel = str(path.relative_to(root)) if root.is_dir() else path.name
+        try:
+            count = _count(path)
+        except Exception:           # any unreadable file: its worker says why
+            out.append(Chunk(str(path), 0, None, f"{rel}@0"))
+            continue
+        out += [Chunk(str(path), s, min(s + chunk, count), f"{rel}@{s}")
+                for s in range(0, count, chunk)]
+    return out
+
+
+def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
+    """The records of a chunk: ``y (records, steps)`` and ``u`` alike or None.
+
+    Raises
+    ------
+    ValueError
+        The file cannot be read as records (named in the message).
+    """
+    path = Path(c.path)
+    stop = c.stop
+    try:
+        if path.suffix == ".npy":
+            y = np.load(path, mmap_mode="r", allow_pickle=False)
+            y, u = np.atleast_2d(y)[c.start:stop], None
+        elif path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as archive:
+                y = np.atleast_2d(archive["y"])[c.start:stop]
+                u = np.atleast_2d(archive["u"])[c.start:stop] if "u" in archive else None
+        else:
+            import pyarrow.parquet as pq
+
+            table = pq.read_table(path, columns=None)
+            rows = table.slice(c.start, None if stop is None else stop - c.start)
+            y = np.array(rows.column("y").to_pylist(), dtype=np.float64)
+            u = (np.array(rows.column("u").to_pylist(), dtype=np.float64)
+                 if "u" in rows.column_names else None)
+    except Exception as err:        # the reason becomes the file's row
+        raise ValueError(f"{path.name} cannot be read as records ({type(err).__name__}: "
+                         f"{err})") from None
+    y = np.asarray(y, dtype=np.float64)
+    if y.ndim != 2 or (u is not None and np.shape(u) != y.shape):
+        raise ValueError(f"{path.name} holds y of shape {y.shape}"
+                         + ("" if u is None else f" and u of shape {np.shape(u)}")
+                         + "; expected y (records, steps) and u alike")
+    return y, None if u is None else np.asarray(u, dtype=np.float64)

@@ -1,0 +1,138 @@
+"""fleet: a directory of records identified on Dask, one Parquet row per record. Oracles: the
+same identifier's plain batched call on the same records (numpy), pyarrow's reading of the
+table; a worker killed mid-run (a local cluster's nanny restarts it) and a resumed run."""
+
+import os
+import shutil
+import signal
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dask.distributed")
+pa = pytest.importorskip("pyarrow")
+pd = pytest.importorskip("pandas")
+import pyarrow.parquet as pq  # noqa: E402
+
+import aeid_struct as ae  # noqa: E402
+from aeid_struct.cli import main  # noqa: E402
+from aeid_struct.fleet import SCHEMA, chunks, identify_many  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """A source of 1,300 leg-stable step responses in three formats, one record not finite,
+    one file that is no array; and the plain batched estimates of the good files."""
+    src = tmp_path_factory.mktemp("fleet")
+    ident = ae.load("leg-stable")
+    rec = ae.data.records(ae.LegFamily(subsystem="stable"), 1300, steps=ident.steps,
+                          dt=ident.dt, seed=4, noise=0.01)
+    np.save(src / "a.npy", rec.y[:900])
+    y = rec.y[900:1200].copy()
+    y[3, 7] = np.nan
+    (src / "more").mkdir()
+    np.savez(src / "more" / "b.npz", y=y)
+    pq.write_table(pa.table({"y": [list(r) for r in rec.y[1200:]]}), src / "c.parquet")
+    (src / "bad.npy").write_bytes(b"not an array")
+    plain = ident.identify(rec.y, errors="collect")
+    return src, plain
+
+
+def _table(out) -> pd.DataFrame:
+    return pd.read_parquet(out).set_index("record").sort_index()
+
+
+def _check(table: pd.DataFrame, plain) -> None:
+    assert len(table) == 1301
+    assert table.loc["bad.npy#0", "status"] == "refused"
+    assert "bad.npy cannot be read as records" in table.loc["bad.npy#0", "reason"]
+    assert table.loc["more/b.npz#3", "status"] == "refused"
+    assert "must be finite" in table.loc["more/b.npz#3", "reason"]
+    assert (table.status == "ok").sum() == 1299
+    for name, k in [("a.npy#0", 0), ("a.npy#899", 899), ("more/b.npz#4", 904),
+                    ("c.parquet#99", 1299)]:
+        row = table.loc[name]
+        assert (row.n, row.m, row.p) == (2, 1, 1)
+        np.testing.assert_allclose(np.reshape(row.A, (2, 2)), plain.A[k], rtol=1e-12)
+        np.testing.assert_allclose(row.C, plain.c[k], rtol=1e-12)
+        assert row.fit == pytest.approx(plain.fit[k], rel=1e-12)
+        assert bool(row.outside) == bool(plain.outside[k])
+
+
+def test_chunks_cover_every_record_in_a_stable_order(fleet):
+    src, _ = fleet
+    cs = chunks(src, chunk=400)
+    assert [c.key for c in cs] == ["a.npy@0", "a.npy@400", "a.npy@800", "bad.npy@0",
+                                   "c.parquet@0", "more/b.npz@0"]
+    assert [(c.start, c.stop) for c in cs] == [(0, 400), (400, 800), (800, 900), (0, None),
+                                               (0, 100), (0, 300)]
+    with pytest.raises(ValueError, match="chunk must be an integer >= 1"):
+        chunks(src, chunk=0)
+    empty = src.parent / "empty"
+    empty.mkdir(exist_ok=True)
+    with pytest.raises(ValueError, match="holds no record files"):
+        chunks(empty, chunk=10)
+
+
+def test_identify_many_is_the_plain_loop_and_resumes(fleet, tmp_path):
+    src, plain = fleet
+    out = tmp_path / "results.parquet"
+    run = identify_many(src, "leg-stable", out, workers=2, chunk=400, progress=None)
+    assert (run.chunks, run.skipped, run.records, run.ok) == (6, 0, 1301, 1299)
+    table = _table(out)
+    _check(table, plain)
+    meta = pq.read_schema(next(out.glob("part-a.npy@0*"))).metadata[b"aeid"]
+    assert f'"schema": {SCHEMA}'.encode() in meta and b'"a0"' in meta
+    # resumed: a lost part is the only work of the next run, and the table is the same
+    os.remove(next(out.glob("part-a.npy@400*")))
+    again = identify_many(src, "leg-stable", out, workers=1, chunk=400, progress=None)
+    assert (again.skipped, again.records) == (5, 400)
+    pd.testing.assert_frame_equal(_table(out), table)
+
+
+def test_a_worker_killed_mid_run_loses_nothing(fleet, tmp_path):
+    """A local cluster of two nannied workers; when the first chunk is done one worker's
+    process is killed (SIGKILL): its tasks run again elsewhere and every record gets its row."""
+    from dask.distributed import Client, LocalCluster
+
+    src, plain = fleet
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        killed = []
+
+        pids = client.run(os.getpid)
+
+        def kill_one(line):
+            if not killed:
+                victim = sorted(pids)[0]
+                killed.append(victim)
+                os.kill(pids[victim], signal.SIGKILL)
+
+        run = identify_many(src, "leg-stable", tmp_path / "out",
+                            scheduler=cluster.scheduler_address, chunk=100, progress=kill_one)
+    assert killed and run.records == 1301
+    _check(_table(tmp_path / "out"), plain)
+
+
+def test_identify_many_refuses_what_it_cannot_run(fleet, tmp_path):
+    src, _ = fleet
+    with pytest.raises(ValueError, match="a generic identifier"):
+        identify_many(src, "generic-2", tmp_path / "o", progress=None)
+    with pytest.raises(ValueError, match="neither a directory nor a file"):
+        identify_many(tmp_path / "none", "leg-stable", tmp_path / "o", progress=None)
+    with pytest.raises(ValueError, match="workers must be an integer"):
+        identify_many(src, "leg-stable", tmp_path / "o", workers=0, progress=None)
+
+
+def test_cli_identify_many(fleet, tmp_path, capsys):
+    src, plain = fleet
+    out = tmp_path / "cli.parquet"
+    assert main(["identify-many", str(src), "--identifier", "leg-stable", "--out", str(out),
+                 "--workers", "2", "--chunk", "500", "--quiet"]) == 0
+    assert "1301 records identified (1299 with a model, 2 refused" in capsys.readouterr().out
+    _check(_table(out), plain)
+    with pytest.raises(SystemExit):
+        main(["identify-many", str(src), "--identifier", "generic-2", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "identify-many: identifier 'generic-2'" in err[0]
+    shutil.rmtree(out)
