@@ -16,7 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from aeid_struct.cli.errors import InputError
-from aeid_struct.cli.identify_channels import print_channels, summary_channels
+from aeid_struct.cli.identify_channels import (
+    order_and_hold,
+    print_channels,
+    refinement_line,
+    summary_channels,
+)
 from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import read_record
 
@@ -191,9 +196,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
 
 def _print(s: dict, est) -> None:
     np.set_printoptions(precision=6, suppress=False)
-    chosen = "" if s["order_fits"] is None else " selected by validation fit (" + ", ".join(
-        f"order {n}: {f:.2f} %" for n, f in s["order_fits"].items()) + ")"
-    held = " (held between samples)" if s["intersample"] == "zoh" else ""
+    chosen, held = order_and_hold(s)
     print(f"{s['record']}: {s['steps']} samples at dt = {s['dt']:g} s; input: "
           f"{s['input']}{held}")
     print(f"{s['identifier']}: order {s['order']}{chosen}, structure {s['structure']}")
@@ -208,9 +211,7 @@ def _print(s: dict, est) -> None:
     print(f"output offset = {s['offset']:.6g}")
     print(f"fit: {s['fit_percent']:.2f} % (NRMSE on samples {s['delay_samples']}.."
           f"{s['steps'] - 1}, initial state and offset fitted)")
-    print("refined over the whole record (output error)" if s["refined"] else
-          "not refined (--no-refine)" if not s["refine"] else
-          "not refined: the refinement did not lower the residual")
+    print(refinement_line(s))
     found = s["feedback"]
     if found is not None and found["detected"]:
         print(f"closed loop: the residuals are correlated with later inputs (z = "

@@ -10,7 +10,41 @@ import argparse
 
 import numpy as np
 
-__all__ = ["print_channels", "summary_channels"]
+__all__ = ["order_and_hold", "print_channels", "refinement_line", "summary_channels"]
+
+
+def order_and_hold(s: dict) -> tuple[str, str]:
+    """The printout's words on how the order was chosen and the input's hold, for a summary
+    of either printout (one channel or several).
+
+    Parameters
+    ----------
+    s : dict
+        A summary with ``order_fits`` and ``intersample``.
+
+    Returns
+    -------
+    chosen, held : str
+    """
+    chosen = "" if s["order_fits"] is None else " selected by validation fit (" + ", ".join(
+        f"order {n}: {f:.2f} %" for n, f in s["order_fits"].items()) + ")"
+    return chosen, " (held between samples)" if s["intersample"] == "zoh" else ""
+
+
+def refinement_line(s: dict) -> str:
+    """The printout's line on the refinement (``refined``, ``refine`` of a summary).
+
+    Parameters
+    ----------
+    s : dict
+
+    Returns
+    -------
+    str
+    """
+    return ("refined over the whole record (output error)" if s["refined"] else
+            "not refined (--no-refine)" if not s["refine"] else
+            "not refined: the refinement did not lower the residual")
 
 
 def summary_channels(est, record, args: argparse.Namespace, source: str, figure) -> dict:
@@ -61,9 +95,7 @@ def print_channels(s: dict, est) -> None:
     est : Estimate
     """
     np.set_printoptions(precision=6, suppress=False)
-    chosen = "" if s["order_fits"] is None else " selected by validation fit (" + ", ".join(
-        f"order {n}: {f:.2f} %" for n, f in s["order_fits"].items()) + ")"
-    held = " (held between samples)" if s["intersample"] == "zoh" else ""
+    chosen, held = order_and_hold(s)
     print(f"{s['record']}: {s['steps']} samples at dt = {s['dt']:g} s, {s['outputs']} outputs, "
           f"{s['inputs']} inputs; inputs: {s['input']}{held}")
     print(f"order {s['order']}{chosen}, {s['structure']}")
@@ -79,9 +111,7 @@ def print_channels(s: dict, est) -> None:
     print("fit: " + ", ".join(f"y{i + 1}: {f:.2f} %" for i, f in enumerate(s["fit_percent"]))
           + f"; mean {s['fit_overall_percent']:.2f} % (NRMSE, initial state and offsets "
           f"fitted)")
-    print("refined over the whole record (output error)" if s["refined"] else
-          "not refined (--no-refine)" if not s["refine"] else
-          "not refined: the refinement did not lower the residual")
+    print(refinement_line(s))
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: mean fit "

@@ -23,7 +23,10 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
    offset projected) at the chosen delay; then ``D - 1`` and ``D + 1`` are re-checked by
    projection with the refined poles and refined again only where one is better. An MCF whose
    separable optimum is not stable, and every other structure (fixed elements, physical):
-   CasADi (``refinement.refine_record``) with delays ``D - 1, D, D + 1``.
+   CasADi (``refinement.refine_record``) with delays ``D - 1, D, D + 1``;
+6. for a refined model, the closed-loop test of its residuals (``generic.feedback``): where it
+   finds the input correlated with earlier residuals, a warning, and the default structure
+   identified again without its feedthrough ``d`` (steps 2-5 once more).
 
 *The one pass* (``refine=False``): steps 2-4 with classical candidates beside the encoder's,
 the Steiglitz-McBride estimate at the ARX delay after five refits and at its fixed point
