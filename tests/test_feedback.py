@@ -91,3 +91,11 @@ def test_nothing_to_test():
 def test_the_one_pass_is_not_tested():
     est = ae.identify(pi_loop(0.05, 0), order=2, refine=False)
     assert est.info["feedback"] is None
+
+
+def test_warnings_name_the_callers_line():
+    """The warnings of ae.identify point at the caller, however deep in the library they are
+    raised (the thread limit's wrapper, the pipeline, the fit stage)."""
+    with pytest.warns(FeedbackWarning) as caught:
+        ae.identify(pi_loop(0.05, 0), order=2)
+    assert caught[0].filename == __file__

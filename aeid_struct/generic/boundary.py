@@ -7,6 +7,8 @@ estimate is taken back to the user's units by ``generic.result.restore``, the la
 
 from __future__ import annotations
 
+import sys
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +17,7 @@ from aeid_struct.generic.normalised import feedthrough_of, separable
 from aeid_struct.records import Record, Units
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["METHODS", "Call", "check_grid", "checked", "keeps_gain", "measured"]
+__all__ = ["METHODS", "Call", "check_grid", "checked", "keeps_gain", "measured", "warn_caller"]
 
 #: Refinement methods of ``ae.identify``.
 METHODS = ("auto", "separable", "casadi")
@@ -275,3 +277,20 @@ def _order(order, structure):
                               or order < 1):
         raise ValueError(f"order must be None (selected) or an integer >= 1; got {order!r}")
     return None if order is None else int(order)
+
+
+def warn_caller(message: str, category: type[Warning]) -> None:
+    """``warnings.warn`` attributed to the caller's first frame outside ``aeid_struct``: the
+    entry points reach their warnings through a varying depth of the library's frames (the
+    thread limit's wrapper, the one-call body, the fit stage), which a fixed ``stacklevel``
+    would attribute to one of them.
+
+    Parameters
+    ----------
+    message : str
+    category : Warning subclass
+    """
+    frame, level = sys._getframe(1), 2      # stacklevel 1 is this function
+    while frame is not None and frame.f_globals.get("__name__", "").startswith("aeid_struct"):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)

@@ -27,8 +27,10 @@ import scipy.linalg
 import scipy.signal
 from scipy.stats import norm
 
+from aeid_struct.generic.boundary import warn_caller
+
 __all__ = ["FEEDBACK_ALPHA", "FEEDBACK_LAGS", "PREWHITEN", "QUIET", "FeedbackWarning",
-           "feedback_test"]
+           "feedback_test", "quiet", "warn_feedback"]
 
 #: Later-input lags tested.
 FEEDBACK_LAGS = 20
@@ -77,7 +79,7 @@ def feedback_test(y, y_hat, u, *, lags: int = FEEDBACK_LAGS, order: int = PREWHI
         return None
     L, p = max(1, min(lags, e.shape[0] // 8)), max(1, min(order, e.shape[0] // 16))
     e, uu = e - e.mean(), uu - uu.mean()
-    if not np.linalg.norm(e) > QUIET * np.linalg.norm(y[used] - y[used].mean()):
+    if quiet(y, y_hat):
         return None
     r = np.array([uu[: uu.shape[0] - j] @ uu[j:] for j in range(p + 1)])
     if not r[0] > 0:
@@ -107,3 +109,45 @@ def _autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:
     """``rho(0..lags)`` of a zero-mean series (biased estimate, ``rho(0) = 1``)."""
     r = np.array([x[: x.shape[0] - m] @ x[m:] for m in range(lags + 1)])
     return r / r[0]
+
+
+def quiet(y, y_hat) -> bool:
+    """Whether a model leaves less than :data:`QUIET` of the output unexplained (RMS, on the
+    samples it has, means removed): nothing for :func:`feedback_test` to read.
+
+    Parameters
+    ----------
+    y, y_hat : (steps,) arrays
+
+    Returns
+    -------
+    bool
+    """
+    y, y_hat = np.asarray(y, dtype=np.float64), np.asarray(y_hat, dtype=np.float64)
+    used = np.isfinite(y_hat)
+    e = y[used] - y_hat[used]
+    return not np.linalg.norm(e - e.mean()) > QUIET * np.linalg.norm(y[used] - y[used].mean())
+
+
+def warn_feedback(found: dict, strict: bool) -> None:
+    """The :class:`FeedbackWarning` of a record that looks closed-loop, attributed to the
+    caller.
+
+    Parameters
+    ----------
+    found : dict
+        :func:`feedback_test`'s result (detected).
+    strict : bool
+        Whether the estimate was identified again without its feedthrough.
+    """
+    what = ("the estimate has no direct feedthrough (d = 0): a free d takes up the noise a "
+            "controller feeds back in the same sample; pass structure=CCF(order, "
+            "feedthrough=True) to keep one" if strict else
+            "a model with a direct feedthrough takes up the noise a controller feeds back in "
+            "the same sample")
+    warn_caller(f"the record looks closed-loop: its residuals are correlated with later "
+                f"inputs (z = {found['statistic']:.1f} at lag {found['lag']}, bound "
+                f"{found['bound']:.2f}); {what}. The output-error fit from u to y is "
+                f"consistent under feedback only for white output noise: coloured noise "
+                f"(drift, disturbances the plant filters) biases it: identify such a plant "
+                f"from an open-loop experiment", FeedbackWarning)

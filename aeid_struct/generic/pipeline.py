@@ -59,17 +59,16 @@ fits are compared instead by the same rule.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from aeid_struct.generic.boundary import METHODS as METHODS
-from aeid_struct.generic.boundary import checked, shortest
+from aeid_struct.generic.boundary import checked, shortest, warn_caller
 from aeid_struct.generic.boundary import measured as measured
 from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.delay import arx_delay
-from aeid_struct.generic.feedback import FeedbackWarning, feedback_test
+from aeid_struct.generic.feedback import feedback_test, warn_feedback
 from aeid_struct.generic.normalised import Model, structure_of
 from aeid_struct.generic.polish import (
     better_of,
@@ -215,16 +214,16 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     # refined models only: the one pass's residual carries model error that the test reads as
     # feedback (measured: 2 false alarms in 59 open-loop records at 0-2 % noise, none refined)
     found = feedback_test(call.work.y, model.y_hat, call.work.u) if refine else None
+    strict = structure is None and call.feedthrough
+    if found is not None and found["detected"] and strict:
+        # a free d takes up the noise a controller acting on the sample it measures feeds back
+        # through u_k: measured on a PI loop (white noise, 10 % of the output), the poles'
+        # mean error 0.043 with d and 0.002 without
+        model, chosen, refined, info = _fit(replace(call, feedthrough=False), order,
+                                            CCF(order, feedthrough=False), *fitting)
+        found = found | {"refit": "no feedthrough"}
     if found is not None and found["detected"]:
-        strict = structure is None and call.feedthrough
-        if strict:
-            # a free d takes up the noise a controller acting on the sample it measures feeds
-            # back through u_k: measured on a PI loop (white noise, 10 % of the output), the
-            # poles' mean error 0.043 with d and 0.002 without
-            model, chosen, refined, info = _fit(replace(call, feedthrough=False), order,
-                                                CCF(order, feedthrough=False), *fitting)
-            found = found | {"refit": "no feedthrough"}
-        _warn_feedback(found, strict)
+        warn_feedback(found, strict)
     info |= {"order_fits": order_fits, "feedback": found}
     est = estimate_of(model, chosen, call.work, time.perf_counter() - start, refined, info)
     return restore(call.units, est, call.data)
@@ -253,22 +252,6 @@ def _fit(call, order: int, structure, refine: bool, method: str, iterations: int
     return model, structure, refined, info
 
 
-def _warn_feedback(found: dict, strict: bool) -> None:
-    """The :class:`~aeid_struct.generic.feedback.FeedbackWarning` of a record that looks
-    closed-loop (``strict``: the estimate was refit without its feedthrough)."""
-    what = ("the estimate has no direct feedthrough (d = 0): a free d takes up the noise a "
-            "controller feeds back in the same sample; pass structure=CCF(order, "
-            "feedthrough=True) to keep one" if strict else
-            "a model with a direct feedthrough takes up the noise a controller feeds back in "
-            "the same sample")
-    warnings.warn(f"the record looks closed-loop: its residuals are correlated with later "
-                  f"inputs (z = {found['statistic']:.1f} at lag {found['lag']}, bound "
-                  f"{found['bound']:.2f}); {what}. The output-error fit from u to y is "
-                  f"consistent under feedback only for white output noise: coloured noise "
-                  f"(drift, disturbances the plant filters) biases it: identify such a "
-                  f"plant from an open-loop experiment", FeedbackWarning, stacklevel=4)
-
-
 class StableOnlyWarning(UserWarning):
     """A record whose best model is unstable, identified in a structure that is stable by
     construction (the modal form): the estimate is the best stable model, not the system."""
@@ -284,9 +267,9 @@ def _stable_only(unstable: dict | None, model: Model, dt: float) -> dict:
         return {}
     poles = np.sort_complex(np.asarray(unstable["poles"]) / dt)
     fit = 100.0 * (1.0 - np.sqrt(unstable["cost"] / model.cost) * (1.0 - model.fit / 100.0))
-    warnings.warn(f"the record's best model is unstable (poles {np.round(poles, 4).tolist()}, "
-                  f"fit {fit:.1f} % against {model.fit:.1f} %): the modal form is stable by "
-                  f"construction and returns the best stable model, not the system; identify "
-                  f"it with structure='ccf' (the default)", StableOnlyWarning, stacklevel=4)
+    warn_caller(f"the record's best model is unstable (poles {np.round(poles, 4).tolist()}, "
+                f"fit {fit:.1f} % against {model.fit:.1f} %): the modal form is stable by "
+                f"construction and returns the best stable model, not the system; identify it "
+                f"with structure='ccf' (the default)", StableOnlyWarning)
     return {"unstable": {"poles": poles, "fit": float(fit)}}
 
