@@ -1475,7 +1475,7 @@ def _files() -> list[Case]:
              match=r"path must be a file name \(str or Path\); got None"),
         Case(area, "to_onnx to a number", lambda x: export.to_onnx(x.stable, 123),
              match=r"path must be a file name \(str or Path\); got 123"),
-        Case(area, "to_torchscript to None", lambda x: export.to_torchscript(x.stable, None),
+        Case(area, "to_exported to None", lambda x: export.to_exported(x.stable, None),
              match=r"path must be a file name \(str or Path\); got None"),
         Case(area, "OnnxIdentifier maps a list", lambda x: OnnxIdentifier(x.onnx, maps=[1]),
              match=r"maps must be a dict"),
@@ -1602,8 +1602,7 @@ def _files() -> list[Case]:
         Case(area, "save below a file", lambda x: x.stable.save(
             Path(x.file("plain.txt", "x")) / "m.aeid"),
              match=r"path must be a file to write; .*plain.txt.* is a file"),
-        Case(area, "to_torchscript to a directory", lambda x: export.to_torchscript(x.stable,
-                                                                                    x.tmp),
+        Case(area, "to_exported to a directory", lambda x: export.to_exported(x.stable, x.tmp),
              match=r"path must be a file to write; .* is a directory"),
         Case(area, "to_onnx below a file", lambda x: export.to_onnx(
             x.stable, Path(x.file("plain2.txt", "x")) / "m.onnx"),

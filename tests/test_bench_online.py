@@ -56,7 +56,7 @@ def test_bench_online_quick_runs_and_writes_the_targets(tmp_path, capsys):
     assert 0 < t["k_rms_percent_mean"] < 20
     assert 0.0 <= t["false_flags_max"] <= 1.0
     assert {r["engine"] for r in result["tracker"]} == {"onnx", "identifier"}
-    assert {"Identifier.identify", "TorchScript file", "ONNX file (onnxruntime)"} \
+    assert {"Identifier.identify", "torch.export program", "ONNX file (onnxruntime)"} \
         <= set(result["latency"])
 
 

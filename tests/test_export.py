@@ -11,7 +11,7 @@ import torch
 import aeid_struct as ae
 from aeid_struct.encoder import Encoder, EncoderConfig
 from aeid_struct.identification import Identifier
-from aeid_struct.online import to_torchscript
+from aeid_struct.online import to_exported, to_torchscript
 from symbolic import leg
 
 
@@ -39,15 +39,17 @@ EXPORTABLE = [(ae.CCF(2, descartes=True), False), (ae.CCF(2).fixed(a1=0.0), True
 @pytest.mark.parametrize("structure, inputs", EXPORTABLE)
 def test_exported_module_identifies_like_the_identifier(tmp_path, structure, inputs):
     ident = _identifier(structure, inputs)
-    path = to_torchscript(ident, tmp_path / "ident.pt")
-    module = torch.jit.load(str(path))
+    path = to_exported(ident, tmp_path / "ident.pt2")
+    module = torch.export.load(str(path)).module()
     rng = np.random.default_rng(1)
     for _ in range(3):
         y = np.cumsum(rng.uniform(0.1, 1.0, 60)) * rng.uniform(0.5, 5)
         u = rng.uniform(0.5, 1.5, 60) if inputs else np.ones(60)
         est = ident.identify(y, u if inputs else None)
-        A, b, c, d, el = (t.numpy() for t in module(torch.tensor(y, dtype=torch.float32),
-                                                     torch.tensor(u, dtype=torch.float32)))
+        with torch.no_grad():
+            out = module(torch.tensor(y, dtype=torch.float32),
+                         torch.tensor(u, dtype=torch.float32))
+        A, b, c, d, el = (t.numpy() for t in out)
         for got, want in ((A, est.A), (b, est.b), (c, est.c), (d, est.d)):
             np.testing.assert_allclose(got, want, rtol=2e-6, atol=2e-6 * np.abs(want).max())
         np.testing.assert_allclose(el, [est.elements[k] for k in structure.element_names],
@@ -56,15 +58,16 @@ def test_exported_module_identifies_like_the_identifier(tmp_path, structure, inp
 
 def test_exported_file_needs_neither_aeid_struct_nor_casadi(tmp_path):
     ident = ae.load_pretrained("leg-stable")
-    path = to_torchscript(ident, tmp_path / "leg.pt")
+    path = to_exported(ident, tmp_path / "leg.pt2")
     s = ae.LegFamily(subsystem="stable").systems(24.23, 2.24, 1.01)
     y = ae.simulate(s.A[0], s.b[0], s.c[0], 0.0, np.ones(300), 0.01)
     np.save(tmp_path / "y.npy", y.astype(np.float32))
     out = _run_without(("aeid_struct", "casadi", "symbolic"), (
         "import numpy as np, torch\n"
-        f"m = torch.jit.load({str(path)!r})\n"
+        f"m = torch.export.load({str(path)!r}).module()\n"
         f"y = torch.from_numpy(np.load({str(tmp_path / 'y.npy')!r}))\n"
-        "A, b, c, d, el = m(y, torch.ones(300))\n"
+        "with torch.no_grad():\n"
+        "    A, b, c, d, el = m(y, torch.ones(300))\n"
         "print(' '.join(repr(float(v)) for v in el))\n"), tmp_path)
     est = ident.identify(y)
     a0, a1, c0 = (float(v) for v in out[:3])
@@ -81,9 +84,32 @@ def test_export_refuses_what_torchscript_cannot_hold(tmp_path):
     ident = Identifier(enc, phys, dt=0.05, theta_mean=torch.zeros(3), theta_scale=torch.ones(3),
                        scale="feature")
     with pytest.raises(ValueError, match=r"ident's structure is Physical"):
-        to_torchscript(ident, tmp_path / "x.pt")
+        to_exported(ident, tmp_path / "x.pt2")
     with pytest.raises(ValueError, match=r"ident must be an Identifier"):
-        to_torchscript("leg-stable", tmp_path / "x.pt")
+        to_exported("leg-stable", tmp_path / "x.pt2")
+
+
+def test_exported_program_is_data_and_torchscript_is_deprecated(tmp_path):
+    """The .pt2 archive holds JSON and raw tensors (no pickle anywhere: the sample record
+    torch.export keeps is left out) and the record format; to_torchscript still writes its
+    module, with a DeprecationWarning that names the replacements."""
+    import json
+    import zipfile
+
+    ident = ae.load_pretrained("leg-stable")
+    path = to_exported(ident, tmp_path / "leg.pt2")
+    with zipfile.ZipFile(path) as archive:
+        for name in archive.namelist():
+            data = archive.read(name)
+            # a pickle starts with PROTO (0x80); torch.save writes a zip holding data.pkl
+            assert not data.startswith(b"\x80") and b"data.pkl" not in data, name
+        header = json.loads(archive.read(next(n for n in archive.namelist()
+                                              if n.endswith("extra/aeid.json"))))
+    assert header["kind"] == "exported" and header["steps"] == 300
+    assert header["elements"] == list(ident.structure.element_names)
+    with pytest.warns(DeprecationWarning, match=r"to_exported\(ident, path\).*to_onnx"):
+        script = to_torchscript(ident, tmp_path / "leg.pt")
+    assert torch.jit.load(str(script)) is not None
 
 
 # -- ONNX (the optional extra; the dev extra installs it) -----------------------------------------

@@ -571,13 +571,13 @@ def test_tracker_onnx_engine_passes_its_own_user_inverse():
 
 
 def test_exports_refuse_a_directory_and_the_reader_refuses_non_onnx(tmp_path):
-    from aeid_struct.online import OnnxIdentifier, to_onnx, to_torchscript
+    from aeid_struct.online import OnnxIdentifier, to_exported, to_onnx
 
     ident = ccf_identifier()
     folder = re.escape(repr(str(tmp_path)))
     with pytest.raises(ValueError, match=rf"path must be a file to write; {folder} is a "
                                          r"directory"):
-        to_torchscript(ident, tmp_path)
+        to_exported(ident, tmp_path)
     with pytest.raises(ValueError, match=rf"path must be a file to write; {folder} is a "
                                          r"directory"):
         to_onnx(ident, tmp_path)

@@ -32,6 +32,7 @@ from aeid_struct.records import RecordBatch as RecordBatch
 
 if TYPE_CHECKING:
     from aeid_struct.identification.export import onnx_bytes as onnx_bytes
+    from aeid_struct.identification.export import to_exported as to_exported
     from aeid_struct.identification.export import to_onnx as to_onnx
     from aeid_struct.identification.export import to_torchscript as to_torchscript
     from aeid_struct.identification.files import FORMAT as FORMAT
@@ -65,6 +66,7 @@ _LAZY = {
     "FORMAT_2": "files",
     "writable_file": "files",
     "onnx_bytes": "export",
+    "to_exported": "export",
     "to_onnx": "export",
     "to_torchscript": "export",
     "TorchBackend": "forward",
@@ -125,6 +127,7 @@ __all__ = [
     "refuse_other",
     "stamp",
     "through_ccf",
+    "to_exported",
     "to_onnx",
     "to_torchscript",
     "writable_file",

@@ -1,12 +1,14 @@
 """Deployment: an identifier as one TorchScript or ONNX file that needs neither this library nor
 Python's training code to identify a record.
 
-:func:`to_torchscript` traces the whole identification of one record (the normalisation of
-Eq. 15, the encoder, the structure's constraint maps and assembly, the exact de-normalisation)
-into a frozen TorchScript module; :func:`to_onnx` writes the same computation as an ONNX graph
-with the record format and the inverse map (a reference to a named map) in its metadata, which
-``Identifier.from_onnx`` runs with onnxruntime and numpy alone (the ONNX back end). Their
-latencies are measured by ``aeid-struct bench-online``.
+:func:`to_onnx` writes the whole identification of one record (the normalisation of Eq. 15,
+the encoder, the structure's constraint maps and assembly, the exact de-normalisation) as an
+ONNX graph from the exporter built on ``torch.export``, with the record format and the inverse
+map (a reference to a named map) in its metadata, which ``Identifier.from_onnx`` runs with
+onnxruntime and numpy alone (the ONNX back end); :func:`to_exported` writes the same
+computation as a ``torch.export`` program for a torch runtime (``torch.export.load``), graph
+and weights only. :func:`to_torchscript` (TorchScript, deprecated in PyTorch) is deprecated.
+Their latencies are measured by ``aeid-struct bench-online``.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import torch
 
 from aeid_struct.identification.container import stamp
 
-__all__ = ["onnx_bytes", "to_onnx", "to_torchscript"]
+__all__ = ["onnx_bytes", "to_exported", "to_onnx", "to_torchscript"]
 
 
 class _OneRecord(torch.nn.Module):
@@ -105,9 +107,13 @@ def to_torchscript(ident, path) -> Path:
 
     Notes
     -----
-    PyTorch marks ``torch.jit`` deprecated in favour of ``torch.export``; it still loads and
-    runs, and the format is the one libtorch reads.
+    Deprecated: PyTorch deprecates TorchScript in favour of ``torch.export``; write
+    :func:`to_exported` (a torch runtime) or :func:`to_onnx` (onnxruntime) instead. The file
+    still loads and runs where libtorch reads TorchScript.
     """
+    warnings.warn("to_torchscript is deprecated (PyTorch deprecates TorchScript): write "
+                  "to_exported(ident, path) for a torch runtime (torch.export.load) or "
+                  "to_onnx(ident, path) for onnxruntime", DeprecationWarning, stacklevel=2)
     _exportable(ident)
     path = _file_to_write(path)
     module = _OneRecord(ident).eval()
@@ -117,6 +123,53 @@ def to_torchscript(ident, path) -> Path:
         traced = torch.jit.trace(module, (y, u), check_trace=False)
         frozen = torch.jit.freeze(traced)
     torch.jit.save(frozen, str(path))
+    return path
+
+
+def to_exported(ident, path) -> Path:
+    """Save ``ident`` as a ``torch.export`` program (``.pt2``) at ``path``.
+
+    ``torch.export.load(path).module()(y, u)`` (under ``torch.no_grad()``: the weights are
+    the module's parameters) maps float32 ``y, u`` of shape ``(steps,)`` to
+    ``A (n, n), b (n,), c (n,), d ()`` and the elements ``(q,)``, as :func:`to_onnx`'s graph;
+    the record format (steps, dt, the elements' names, the inverse map's reference) is the
+    archive's ``aeid.json``. The archive holds the graph (JSON) and the weights (raw bytes)
+    only: the sample record ``torch.export`` keeps, a pickle, is left out (tested: no pickle
+    in the file), and the graph names operators, not code.
+
+    Parameters
+    ----------
+    ident : Identifier
+        An identifier of one record with a torch-assembled structure.
+    path : str or Path
+        The file to write (parent folders created).
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        An identifier that cannot be exported, or a path that cannot be written.
+    """
+    from aeid_struct.structures import to_entry
+
+    _exportable(ident)
+    path = _file_to_write(path)
+    module = _OneRecord(ident).eval()
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        program = torch.export.export(module, _example(ident))
+    program.example_inputs = None          # a pickle in the archive otherwise
+    inverse = ident.provenance.inverse
+    header = stamp("exported", {
+        "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
+        "elements": list(ident.structure.element_names),
+        "inverse": None if inverse is None or isinstance(inverse, tuple) else to_entry(inverse),
+        "structure": ident.structure.config(),
+    })
+    torch.export.save(program, str(path), extra_files={"aeid.json": json.dumps(header)})
     return path
 
 
@@ -131,7 +184,7 @@ def onnx_bytes(ident) -> bytes:
     Returns
     -------
     bytes
-        The model (opset 17), with the record format, the inverse map (a reference,
+        The model (opset 18), with the record format, the inverse map (a reference,
         ``structures.to_entry``) and the identifier's separable head (``Head.to_dict``, or
         null) in its ``aeid`` metadata.
 
@@ -147,12 +200,14 @@ def onnx_bytes(ident) -> bytes:
     in the metadata, and the ONNX back end applies it after onnxruntime in numpy, so the
     file gives ``Identifier.identify``'s estimate with the head.
 
-    The TorchScript-based ONNX exporter (``dynamo=False``), not ``torch.export``: the
-    structures validate their elements with data-dependent branches (``if bad.any(): raise``)
-    that ``torch.export`` refuses to trace; tracing records the branch taken for valid elements,
-    which is the deployed behaviour.
+    The exporter built on ``torch.export`` (``dynamo=True``; TorchScript, which the older
+    exporter traced through, is deprecated): the structures' checks of their elements are
+    data-dependent branches (``if bad.any(): raise``) that ``torch.export`` cannot hold, so
+    they stand aside while it traces (``torch.compiler.is_exporting``) and the file's reader
+    checks what the graph returns (``Identifier.from_onnx``). Its dependencies (onnxscript
+    beside onnx) are in the ``onnx`` extra.
     """
-    import io
+    import logging
 
     import onnx
 
@@ -160,13 +215,23 @@ def onnx_bytes(ident) -> bytes:
 
     _exportable(ident)
     module = _OneRecord(ident).eval()
-    buffer = io.BytesIO()
-    with warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore")       # tracer notes, and the TorchScript deprecation
-        torch.onnx.export(module, _example(ident), buffer, input_names=["y", "u"],
-                          output_names=["A", "b", "c", "d", "elements"], opset_version=17,
-                          dynamo=False)
-    model = onnx.load_from_string(buffer.getvalue())
+    # the exporter's notes (optional torchvision ops, initializer deduplication) are not the
+    # caller's business
+    quiet = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "onnxscript",
+                                            "onnx_ir")]
+    levels = [q.level for q in quiet]
+    try:
+        for q in quiet:
+            q.setLevel(logging.ERROR)
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(module, _example(ident), input_names=["y", "u"],
+                                        output_names=["A", "b", "c", "d", "elements"],
+                                        opset_version=18, dynamo=True, verbose=False)
+    finally:
+        for q, level in zip(quiet, levels, strict=True):
+            q.setLevel(level)
+    model = onnx.load_from_string(program.model_proto.SerializeToString())
     inverse = ident.provenance.inverse
     header = stamp("onnx", {
         "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,

@@ -17,6 +17,7 @@ from aeid_struct.online.tracker import Update as Update
 
 if TYPE_CHECKING:  # static analysers and the documentation see the lazy names
     from aeid_struct.online.export import onnx_bytes as onnx_bytes
+    from aeid_struct.online.export import to_exported as to_exported
     from aeid_struct.online.export import to_onnx as to_onnx
     from aeid_struct.online.export import to_torchscript as to_torchscript
     from aeid_struct.online.onnx import ONNX_FORMAT as ONNX_FORMAT
@@ -37,6 +38,7 @@ __all__ = [
     "TrackerConfig",
     "Update",
     "onnx_bytes",
+    "to_exported",
     "to_onnx",
     "to_torchscript",
 ]
@@ -45,7 +47,8 @@ __all__ = [
 _LAZY = {"ONNX_FORMAT": "onnx", "ONNX_FORMAT_1": "onnx", "ONNX_FORMAT_2": "onnx",
          "ONNX_FORMAT_3": "onnx",
          "OnnxIdentifier": "onnx",
-         "onnx_bytes": "export", "to_onnx": "export", "to_torchscript": "export"}
+         "onnx_bytes": "export", "to_exported": "export", "to_onnx": "export",
+         "to_torchscript": "export"}
 
 
 def __getattr__(name: str):

@@ -6,7 +6,7 @@ measured side by side in one run.
   error of the smoothed k, d, m, alarm time against the true 5 % crossing, and the update time
   per window (one window identified, smoothed and checked) on one core, for each engine.
 - **Latency** (:func:`bench_latency`): one record through ``Identifier.identify`` on its default
-  back end (the numpy pass), the TorchScript file, the identifier on its ONNX back end
+  back end (the numpy pass), the ``torch.export`` program, the identifier on its ONNX back end
   (``with_backend("onnx")``: the graph under onnxruntime, the head and the Estimate), and the
   same plus the physical parameters; one thread, the calls taking turns, median and 95th
   percentile.
@@ -107,7 +107,7 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
 
     import torch
 
-    from aeid_struct.online import to_torchscript
+    from aeid_struct.online import to_exported
 
     before = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -119,8 +119,8 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
     paths = {"Identifier.identify": lambda i: ident.identify(ys[i], us[i]),
              "Identifier.identify + physical": lambda i: ident.identify(ys[i], us[i]).physical}
     with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore")           # torch.jit's deprecation notice
-        module = torch.jit.load(str(to_torchscript(ident, Path(tmp) / "ident.pt")))
+        warnings.simplefilter("ignore")           # torch.export's notes while loading
+        module = torch.export.load(str(to_exported(ident, Path(tmp) / "ident.pt2"))).module()
         yt = [torch.tensor(y, dtype=torch.float32) for y in ys]
         ut = [torch.tensor(u, dtype=torch.float32) for u in us]
 
@@ -128,7 +128,7 @@ def bench_latency(ident, *, repeats: int = 2000, seed: int = 0) -> dict[str, dic
             with torch.no_grad():
                 return module(yt[i], ut[i])
 
-        paths["TorchScript file"] = script
+        paths["torch.export program"] = script
         try:
             onnx = ident.with_backend("onnx")
             paths["ONNX file (onnxruntime)"] = lambda i: onnx.identify(ys[i], us[i])
