@@ -9,7 +9,8 @@ beside its data, with the kind's own entries after those two:
 - ``"onnx"``: an exported identifier (``online.to_onnx``), the header in the ONNX model's
   ``aeid`` metadata entry (``.onnx``), read into an ``Identifier`` on its ONNX back end;
 - ``"exported"``: a ``torch.export`` program (``online.to_exported``), the header the
-  archive's ``aeid.json``, read by a torch runtime (``torch.export.load``), not by the library.
+  archive's ``aeid.json``; read by a torch runtime (``torch.export.load``), not by the library,
+  so not one of :data:`KINDS`.
 
 Files are data only: JSON and raw tensors (or an ONNX graph, which runs no Python), never a
 pickle or a CasADi Function read without ``trust``. Every older format still reads: its
@@ -30,12 +31,11 @@ __all__ = ["FORMAT", "KINDS", "OLD_FORMATS", "kind_of", "read_safetensors", "ref
 FORMAT = "aeid-struct/3"
 #: The kinds of identifier a container holds, and what reads each.
 KINDS = {"identifier": "ae.Identifier.load", "generic": "ae.generic.load_generic",
-         "onnx": "ae.Identifier.from_onnx", "exported": "torch.export.load (a torch runtime)"}
+         "onnx": "ae.Identifier.from_onnx"}
 #: What each kind is, in messages.
 NAMES = {"identifier": "a structured identifier (aeid_struct.Identifier)",
          "generic": "a generic identifier (any SISO record)",
-         "onnx": "an ONNX export",
-         "exported": "a torch.export program"}
+         "onnx": "an ONNX export"}
 #: The formats before the container, by the kind each held (all still read).
 OLD_FORMATS = {
     "aeid-struct/identifier/2": "identifier",

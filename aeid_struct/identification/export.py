@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from aeid_struct.identification.container import stamp
+from aeid_struct.identification.container import FORMAT, stamp
 
 __all__ = ["onnx_bytes", "to_exported", "to_onnx", "to_torchscript"]
 
@@ -163,12 +163,13 @@ def to_exported(ident, path) -> Path:
         program = torch.export.export(module, _example(ident))
     program.example_inputs = None          # a pickle in the archive otherwise
     inverse = ident.provenance.inverse
-    header = stamp("exported", {
-        "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
-        "elements": list(ident.structure.element_names),
-        "inverse": None if inverse is None or isinstance(inverse, tuple) else to_entry(inverse),
-        "structure": ident.structure.config(),
-    })
+    # the container's header, for a kind no reader of the library reads (container.KINDS)
+    header = {"format": FORMAT, "kind": "exported",
+              "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
+              "elements": list(ident.structure.element_names),
+              "inverse": (None if inverse is None or isinstance(inverse, tuple)
+                          else to_entry(inverse)),
+              "structure": ident.structure.config()}
     torch.export.save(program, str(path), extra_files={"aeid.json": json.dumps(header)})
     return path
 
