@@ -83,3 +83,35 @@ def test_bench_rows_of_the_rotational_leg_show_no_d():
     # noise-free: the refinement is exact, its k and m errors print as 0.000
     refine = next(r for r in rows if r[2] == "encoder + refine")
     assert refine[header.index("Δk % (median, ok)")] == "0.000"
+    # the roofline: the encoder's FLOPs counted by torch against the closed form below, the
+    # achieved rate a fraction of the measured peak
+    from aeid_struct.identification import load_pretrained
+    from aeid_struct.studies.roofline import encoder_flops
+
+    assert bench["encoder_flops_per_record"]["unstable"] == encoder_flops(
+        load_pretrained("leg-unstable"))
+    assert 1e9 < bench["matmul_peak_flops"] < 1e14
+    assert "% of the measured fp32 matmul peak" in "\n".join(lines)
+
+
+def test_encoder_flops_are_the_layers_multiply_adds():
+    """A one-layer encoder's FLOPs in closed form: the convolution's 2 k c_in c_out per output
+    sample and the dense layers' 2 m n (torch's counter counts matrix products and
+    convolutions, not the activations)."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from aeid_struct.encoder import Encoder, EncoderConfig
+    from aeid_struct.studies.roofline import encoder_flops
+
+    cfg = EncoderConfig(steps=40, outputs=3, width=4, kernel=5, depth=1, dense=(6,))
+    enc = Encoder(cfg)
+    convs = [m for m in enc.modules() if isinstance(m, torch.nn.Conv1d)]
+    linears = [m for m in enc.modules() if isinstance(m, torch.nn.Linear)]
+    expected = 0
+    for m in convs:          # each convolution's output length, from the module itself
+        length = m(torch.zeros(1, m.in_channels, 40)).shape[-1]
+        expected += 2 * m.kernel_size[0] * m.in_channels * m.out_channels * length
+    expected += sum(2 * m.in_features * m.out_features for m in linears)
+    assert encoder_flops(SimpleNamespace(encoder=enc), batch=8) == expected

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 from aeid_struct.cli.errors import InputError
+from aeid_struct.threads import settings
 
 
 def run_bench_online(args: argparse.Namespace) -> int:
@@ -33,7 +34,7 @@ def run_bench_online(args: argparse.Namespace) -> int:
 
     bench = studies.bench_online
     print("Online identification (issue 6's targets), measured in one run on the shipped "
-          "identifiers; errors against the noise-free truth:", flush=True)
+          f"identifiers; errors against the noise-free truth; {settings()}:", flush=True)
     result = bench.bench_online(quick=args.quick, seconds=args.seconds, noise=args.noise,
                                 progress=not args.quiet)
     print()
@@ -79,7 +80,6 @@ def run_bench(args: argparse.Namespace) -> int:
     """
 
     from aeid_struct import studies
-    from aeid_struct.threads import settings
 
     bench = studies.bench
     if args.decoder_only and args.onepass_only:
@@ -206,7 +206,7 @@ def _bench_channels(args: argparse.Namespace) -> int:
     bench = studies.channels_bench
     count = args.count or (5 if args.quick else 20)
     print(f"Several channels and experiments: {count} record sets per row, noise 1-5 %, "
-          f"validation on a further run; threads: default", flush=True)
+          f"validation on a further run; {settings()}", flush=True)
     rows = bench.bench_channels(count=count, seed=args.seed,
                                 progress=None if args.quiet else print)
     print()
@@ -245,7 +245,7 @@ def run_bench_mechanism(args: argparse.Namespace) -> int:
     timed = min(records, 4 if args.quick else 10)
     print(f"Mechanisms from their Lagrangians: {seconds:g} s of training per identifier, "
           f"{records} PRBS records per noise level {list(args.noise)}, {timed} timed at "
-          f"batch 1", flush=True)
+          f"batch 1; {settings()}", flush=True)
     try:
         rows = mechanism_bench.bench_mechanism(seconds=seconds, noises=tuple(args.noise),
                                                records=records, timed=timed, cases=args.cases,

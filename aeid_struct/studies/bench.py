@@ -291,16 +291,17 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
         over non-failed records), ``failure_rate`` (exception, invalid parameters or step error
         > 0.05, see ``baselines.failure``), ``median_ms``/``p95_ms`` per identification and
         ``encoder_speedup`` (this method's median time over the encoder's, same records);
-        ``throughput_per_s`` of the encoder at batch 4096.
+        ``throughput_per_s`` of the encoder at batch 4096, ``encoder_flops_per_record`` and
+        ``matmul_peak_flops`` (``studies.roofline``: the roofline of that throughput).
     """
-    from threadpoolctl import threadpool_limits
 
     from aeid_struct import baselines
     from aeid_struct.identification import load_pretrained
     from aeid_struct.studies.leg_paper import RECORDS
+    from aeid_struct.studies.roofline import encoder_flops, matmul_peak
     from aeid_struct.training import LegFamily, records
 
-    results, throughput = [], {}
+    results, throughput, flops = [], {}, {}
     for sub in subsystems:
         dt, steps = RECORDS[sub]
         clean = load_pretrained(f"leg-{sub}")
@@ -330,16 +331,10 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
                                               **base), ""),
             ]
             for name, call, start in methods:
-                # One core per identification for every method: torch and the BLAS under
-                # numpy/scipy both limited to one thread (an idle BLAS pool spins on the other
-                # core and measured up to 2x slower calls): the latency a weak processor sees.
-                threads = torch.get_num_threads()
-                torch.set_num_threads(1)
-                try:
-                    with threadpool_limits(limits=1):
-                        r = _run_method(call, rec.y, rec.y_clean, truth, structure)
-                finally:
-                    torch.set_num_threads(threads)
+                # at the process's threads, as a user runs them: the library's single-record
+                # calls limit their own BLAS (aeid_struct.threads); the header prints the
+                # settings (threads.settings())
+                r = _run_method(call, rec.y, rec.y_clean, truth, structure)
                 results.append({"subsystem": sub, "noise": noise, "method": name,
                                 "count": count, "start": start, **r})
                 if progress:
@@ -352,13 +347,15 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
         for _ in range(3):
             clean.identify(y)
         throughput[sub] = 3 * len(y) / (time.perf_counter() - t0)
+        flops[sub] = encoder_flops(clean)
     for r in results:
         if r["method"].startswith("encoder") and r["method"] != "encoder":
             continue
         enc = next(e for e in results if e["subsystem"] == r["subsystem"]
                    and e["noise"] == r["noise"] and e["method"] == "encoder")
         r["encoder_speedup"] = r["median_ms"] / enc["median_ms"]
-    return {"results": results, "throughput_per_s": throughput, "count": count, "seed": seed}
+    return {"results": results, "throughput_per_s": throughput, "count": count, "seed": seed,
+            "encoder_flops_per_record": flops, "matmul_peak_flops": matmul_peak()}
 
 
 #: The columns of ``format_identification_table``, printed under the table.
@@ -379,7 +376,8 @@ Columns:
   (fixed elements, Descartes' sign rule, bounds); a physical parameter is not finite and
   positive; its unit-step response has a step error above 0.05. With 20 records (--quick) one
   record is 5 %.
-- median / p95 ms: wall time of one identification of one record (batch 1), one thread.
+- median / p95 ms: wall time of one identification of one record (batch 1), at the threads
+  the header names.
 - baseline / encoder time: this method's median time over the plain encoder's, same records.
 - encoder + refine: the CasADi NLP started from the noise-trained encoder on noisy records
   (from the clean-trained one on noise-free records). It minimises the output error, so on
@@ -427,6 +425,12 @@ def format_identification_table(bench: dict, *, legend: bool = True) -> str:
             f"{'' if speed is None or r['method'] == 'encoder' else f'{speed:.1f}x'} |")
     thr = ", ".join(f"{k}: {v:,.0f}/s" for k, v in bench["throughput_per_s"].items())
     lines.append(f"\nEncoder batched throughput (batch 4096): {thr}")
+    peak = bench.get("matmul_peak_flops")
+    for sub, per in bench.get("encoder_flops_per_record", {}).items():
+        achieved = bench["throughput_per_s"][sub] * per
+        lines.append(f"  {sub}: {per / 1e6:.3f} MFLOP/record (encoder), {achieved / 1e9:.2f} "
+                     f"GFLOP/s achieved = {100 * achieved / peak:.1f} % of the measured fp32 "
+                     f"matmul peak ({peak / 1e9:.0f} GFLOP/s, torch.mm 1024 x 1024)")
     if legend:
         lines.append("\n" + IDENTIFICATION_LEGEND)
     return "\n".join(lines)
