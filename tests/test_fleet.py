@@ -91,8 +91,10 @@ def test_identify_many_is_the_plain_loop_and_resumes(fleet, tmp_path):
 
 
 def test_a_worker_killed_mid_run_loses_nothing(fleet, tmp_path):
-    """A local cluster of two nannied workers; when the first chunk is done one worker's
-    process is killed (SIGKILL): its tasks run again elsewhere and every record gets its row."""
+    """A local cluster of two nannied workers, reached by its address (the test's own client,
+    which reads the workers' process ids, is the one identify_many uses); when the first chunk
+    is done one worker's process is killed (SIGKILL): its tasks run again elsewhere and every
+    record gets its row."""
     from dask.distributed import Client, LocalCluster
 
     src, plain = fleet

@@ -55,13 +55,22 @@ class FleetRun:
 
 
 def _client(scheduler: str | None, workers: int | None):
-    from dask.distributed import Client, LocalCluster
+    """``(client, cluster, owned)``: the process's client of ``scheduler`` where it has one
+    (a second client of one scheduler in a process binds futures to another event loop), else
+    a new one; a new local cluster where no scheduler is given. Only what is owned is closed."""
+    from dask.distributed import Client, LocalCluster, default_client
 
     if scheduler is not None:
-        return Client(scheduler), None
+        try:
+            current = default_client()
+        except ValueError:          # no client in this process
+            current = None
+        if current is not None and current.scheduler.address == scheduler:
+            return current, None, False
+        return Client(scheduler), None, True
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            dashboard_address=None)
-    return Client(cluster), cluster
+    return Client(cluster), cluster, True
 
 
 def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
@@ -119,7 +128,7 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
     out.mkdir(parents=True, exist_ok=True)
     pending = [c for c in todo if not part_path(out, c).exists()]
     records = ok = 0
-    client, cluster = _client(scheduler, workers) if pending else (None, None)
+    client, cluster, owned = _client(scheduler, workers) if pending else (None, None, False)
     try:
         if pending:
             from dask.distributed import as_completed
@@ -138,7 +147,7 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
                              f"{records} records, {rate:.0f} records/s")
         nworkers = len(client.scheduler_info()["workers"]) if client is not None else 0
     finally:
-        if client is not None:
+        if client is not None and owned:
             client.close()
         if cluster is not None:
             cluster.close()

@@ -74,7 +74,7 @@ def part_path(out: Path, c: Chunk) -> Path:
     return Path(out) / f"part-{safe}.parquet"
 
 
-def _rows(est, names: list, ident) -> dict:
+def _rows(est, names: list) -> dict:
     """The table's columns of a batched estimate (model rows NaN where refused)."""
     A = np.asarray(est.A, dtype=np.float64)
     count, n = A.shape[0], A.shape[1]
@@ -142,12 +142,12 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
     rel = str(Path(c.path).relative_to(root)) if root.is_dir() else Path(c.path).name
     meta = {"schema": SCHEMA, "identifier": identifier, "chunk": c.key,
             "elements": list(ident.structure.element_names),
-            "physical": list(getattr(ident, "physical_names", []) or [])}
+            "physical": []}        # the estimate's names, where it has physical parameters
     try:
         y, u = read_chunk(c)
         names = [f"{rel}#{c.start + i}" for i in range(y.shape[0])]
         est = ident.identify(y, u, errors="collect")
-        columns = _rows(est, names, ident)
+        columns = _rows(est, names)
         if est.physical:
             meta["physical"] = list(est.physical)
     except ValueError as err:
