@@ -3,21 +3,22 @@ r"""Is the record closed-loop? A test of the residuals against later inputs.
 In an open-loop experiment the input does not depend on the output's noise: the residuals
 ``e = y - yhat`` of a model (noise, plus model error driven by *past* inputs) are uncorrelated
 with *later* inputs. Under feedback (``u = C(r - y)``) the controller feeds the noise back:
-``u_{k+tau}`` depends on ``e_k`` for ``tau >= 1``. The test (the cross-correlation of
-MATLAB's ``resid`` at positive lags, Ljung, *System Identification*, 2nd ed., §16.6), with
-the input prewhitened so that model error cannot leak into later lags through the input's own
+``u_{k+tau}`` depends on ``e_k`` for ``tau >= 1``. The test is the residual analysis of
+model validation (the cross-correlation MATLAB's ``resid`` plots, at positive lags), with the
+input prewhitened so that model error cannot leak into later lags through the input's own
 correlation:
 
-    u_k = sum_{i=1}^{p} a_i u_{k-i} + w_k           (AR(p) by Yule-Walker, w white)
-    r(tau) = sum_k e_k w_{k+tau} / (||e|| ||w||),   tau = 1 .. L
-    z = max_tau |r(tau)| sqrt(N)  >  Phi^{-1}(1 - alpha / (2 L))
+    u_k = sum_{i=1}^{p} a_i u_{k-i} + w_k            (AR(p) by Yule-Walker, w white)
+    r(tau) = sum_k e_k w_{k+tau} / (||e|| ||w||),    tau = 1 .. L
+    v = max(1, sum_{|m| <= L} rho_e(m) rho_w(m))     (Bartlett: N var r under open loop)
+    z = max_tau |r(tau)| sqrt(N / v)  >  Phi^{-1}(1 - alpha / (2 L))
 
-Under open loop ``r(tau) sqrt(N)`` is approximately standard normal for every ``tau`` (``w``
-white and independent of ``e``), so ``alpha`` is the false-alarm rate over all ``L`` lags
-(Bonferroni). What the library does with a closed-loop record: it identifies the plant from
-``u`` to ``y`` by output error (the direct method) and says so (:class:`FeedbackWarning`,
-``info["feedback"]``): that model is biased where the noise fed back is not small against the
-input, and exact without noise.
+Under open loop ``r(tau) sqrt(N / v)`` is approximately standard normal for every ``tau``, so
+``alpha`` is the false-alarm rate over all ``L`` lags (Bonferroni). What the library does with
+a closed-loop record (``generic.pipeline``, step 6): it identifies the plant from ``u`` to
+``y`` by output error (the direct method), without a feedthrough where the structure is the
+default, and says so (:class:`FeedbackWarning`, ``info["feedback"]``): consistent where the
+output noise is white, biased where it is coloured.
 """
 
 from __future__ import annotations
