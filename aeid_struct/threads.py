@@ -27,7 +27,7 @@ import threadpoolctl
 
 __all__ = ["one_thread", "settings"]
 
-_depth = threading.local()
+_state = threading.local()      # .inside: a limited call is running in this thread
 
 
 @functools.cache
@@ -54,14 +54,14 @@ def one_thread(fn):
 
     @functools.wraps(fn)
     def limited(*args, **kwargs):
-        if getattr(_depth, "inside", False):
+        if getattr(_state, "inside", False):
             return fn(*args, **kwargs)
         limiter = _controller().limit(limits=1)
-        _depth.inside = True
+        _state.inside = True
         try:
             return fn(*args, **kwargs)
         finally:
-            _depth.inside = False
+            _state.inside = False
             limiter.restore_original_limits()
 
     return limited

@@ -116,7 +116,10 @@ def test_a_worker_killed_mid_run_loses_nothing(fleet, tmp_path):
     _check(_table(tmp_path / "out"), plain)
 
 
-def test_identify_many_refuses_what_it_cannot_run(fleet, tmp_path):
+def test_identify_many_refuses_what_it_cannot_run(fleet, tmp_path, monkeypatch):
+    from aeid_struct.fleet import many
+
+    monkeypatch.setattr(many, "CONNECT_TIMEOUT", "2s")      # a closed port answers nothing
     src, _ = fleet
     with pytest.raises(ValueError, match="a generic identifier"):
         identify_many(src, "generic-2", tmp_path / "o", progress=None)
@@ -124,6 +127,12 @@ def test_identify_many_refuses_what_it_cannot_run(fleet, tmp_path):
         identify_many(tmp_path / "none", "leg-stable", tmp_path / "o", progress=None)
     with pytest.raises(ValueError, match="workers must be an integer"):
         identify_many(src, "leg-stable", tmp_path / "o", workers=0, progress=None)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="out must be a directory"):
+        identify_many(src, "leg-stable", tmp_path / "file", progress=None)
+    with pytest.raises(ValueError, match="scheduler 'tcp://127.0.0.1:9': no Dask scheduler"):
+        identify_many(src, "leg-stable", tmp_path / "o", scheduler="tcp://127.0.0.1:9",
+                      progress=None)
 
 
 def test_cli_identify_many(fleet, tmp_path, capsys):
@@ -138,3 +147,20 @@ def test_cli_identify_many(fleet, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "identify-many: identifier 'generic-2'" in err[0]
     shutil.rmtree(out)
+
+
+def test_parquet_chunks_read_their_own_row_groups(tmp_path):
+    """Chunks that cut across a Parquet file's row groups read exactly their rows (pyarrow's
+    table as the oracle), with u where the table has it."""
+    from aeid_struct.fleet.sources import read_chunk
+
+    y = np.arange(50 * 4, dtype=float).reshape(50, 4)
+    u = -y
+    pq.write_table(pa.table({"y": [list(r) for r in y], "u": [list(r) for r in u]}),
+                   tmp_path / "t.parquet", row_group_size=7)
+    cs = chunks(tmp_path / "t.parquet", chunk=12)
+    assert [(c.start, c.stop) for c in cs] == [(0, 12), (12, 24), (24, 36), (36, 48), (48, 50)]
+    for c in cs:
+        got_y, got_u = read_chunk(c)
+        np.testing.assert_array_equal(got_y, y[c.start:c.stop])
+        np.testing.assert_array_equal(got_u, u[c.start:c.stop])

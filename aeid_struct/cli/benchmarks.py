@@ -187,7 +187,7 @@ def run_bench_generic(args: argparse.Namespace) -> int:
     count = args.count or (3 if args.quick else 10)
     print(f"Generic identifiers on unseen systems: {', '.join(args.plants)} plants, orders "
           f"{args.orders}, noise {args.noise}, lengths {list(lengths)}, {count} records per "
-          f"cell; validation on the record's second half", flush=True)
+          f"cell; validation on the record's second half; {settings()}", flush=True)
     rows = generic_bench.bench_generic(orders=tuple(args.orders), noises=tuple(args.noise),
                                        lengths=lengths, count=count, seed=args.seed,
                                        progress=None if args.quiet else print,

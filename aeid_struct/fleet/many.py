@@ -17,7 +17,10 @@ from pathlib import Path
 from aeid_struct.fleet.sources import chunks
 from aeid_struct.fleet.work import identify_chunk, part_path
 
-__all__ = ["FleetRun", "identify_many"]
+__all__ = ["CONNECT_TIMEOUT", "FleetRun", "identify_many"]
+
+#: How long a scheduler given by its address may take to answer.
+CONNECT_TIMEOUT = "30s"
 
 
 @dataclass(frozen=True)
@@ -67,7 +70,11 @@ def _client(scheduler: str | None, workers: int | None):
             current = None
         if current is not None and current.scheduler.address == scheduler:
             return current, None, False
-        return Client(scheduler), None, True
+        try:
+            return Client(scheduler, timeout=CONNECT_TIMEOUT), None, True
+        except OSError as err:
+            raise ValueError(f"scheduler {scheduler!r}: no Dask scheduler answered ({err})") \
+                from None
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            dashboard_address=None)
     return Client(cluster), cluster, True
@@ -108,7 +115,8 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
     ------
     ValueError
         Naming the argument: a source without record files, an identifier that is not a
-        shipped name or a readable file, a bad chunk, workers or retries.
+        shipped name or a readable file, a bad chunk, workers or retries, an ``out`` that is a
+        file, a scheduler that does not answer.
     """
     from aeid_struct.loading import load
 
@@ -125,6 +133,8 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
                          f"trained identifiers, whose records share their steps and dt")
     todo = chunks(source, chunk)
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out must be a directory (the table's parts); {str(out)!r} is a file")
     out.mkdir(parents=True, exist_ok=True)
     pending = [c for c in todo if not part_path(out, c).exists()]
     records = ok = 0

@@ -5,8 +5,10 @@ Files (read as data only: ``allow_pickle=False``, Parquet's own columns):
 
 - ``.npy``: ``y``, a ``(steps,)`` array (one record) or ``(batch, steps)``; read by memory map,
   so a chunk reads its own rows only;
-- ``.npz``: arrays ``y`` and, optionally, ``u`` of the same shape;
-- ``.parquet``: a table of records, a row each: a list column ``y``, optionally ``u``.
+- ``.npz``: arrays ``y`` and, optionally, ``u`` of the same shape (read whole by each of its
+  chunks: an archive's members cannot be mapped; a large data set is better as ``.npy``);
+- ``.parquet``: a table of records, a row each: a list column ``y``, optionally ``u`` (each
+  chunk reads only the row groups that hold its rows).
 
 Records are named ``FILE#INDEX`` (``INDEX`` the row within the file, from 0).
 """
@@ -44,10 +46,6 @@ class Chunk:
     start: int
     stop: int | None
     key: str
-
-    @property
-    def name(self) -> str:
-        return Path(self.path).name
 
 
 def _count(path: Path) -> int:
@@ -128,13 +126,7 @@ def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
                 y = np.atleast_2d(archive["y"])[c.start:stop]
                 u = np.atleast_2d(archive["u"])[c.start:stop] if "u" in archive else None
         else:
-            import pyarrow.parquet as pq
-
-            table = pq.read_table(path, columns=None)
-            rows = table.slice(c.start, None if stop is None else stop - c.start)
-            y = np.array(rows.column("y").to_pylist(), dtype=np.float64)
-            u = (np.array(rows.column("u").to_pylist(), dtype=np.float64)
-                 if "u" in rows.column_names else None)
+            y, u = _read_parquet(path, c.start, stop)
     except Exception as err:        # the reason becomes the file's row
         raise ValueError(f"{path.name} cannot be read as records ({type(err).__name__}: "
                          f"{err})") from None
@@ -144,3 +136,23 @@ def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
                          + ("" if u is None else f" and u of shape {np.shape(u)}")
                          + "; expected y (records, steps) and u alike")
     return y, None if u is None else np.asarray(u, dtype=np.float64)
+
+
+def _read_parquet(path: Path, start: int, stop: int | None):
+    """Rows ``start .. stop - 1`` of a Parquet table of records: only the row groups that hold
+    them, only the ``y`` and ``u`` columns (each chunk of a large file reads its own part)."""
+    import pyarrow.parquet as pq
+
+    file = pq.ParquetFile(path)
+    meta = file.metadata
+    stop = meta.num_rows if stop is None else stop
+    ends = np.cumsum([meta.row_group(i).num_rows for i in range(meta.num_row_groups)])
+    groups = [i for i, end in enumerate(ends) if end > start and end - meta.row_group(i).num_rows
+              < stop]
+    first = int(ends[groups[0]] - meta.row_group(groups[0]).num_rows) if groups else 0
+    columns = [n for n in ("y", "u") if n in file.schema_arrow.names]
+    rows = file.read_row_groups(groups, columns=columns).slice(start - first, stop - start)
+    y = np.array(rows.column("y").to_pylist(), dtype=np.float64)
+    u = (np.array(rows.column("u").to_pylist(), dtype=np.float64)
+         if "u" in rows.column_names else None)
+    return y, u

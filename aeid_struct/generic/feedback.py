@@ -31,7 +31,7 @@ from scipy.stats import norm
 from aeid_struct.generic.boundary import warn_caller
 
 __all__ = ["FEEDBACK_ALPHA", "FEEDBACK_LAGS", "PREWHITEN", "QUIET", "FeedbackWarning",
-           "feedback_test", "quiet", "warn_feedback"]
+           "feedback_test", "warn_feedback"]
 
 #: Later-input lags tested.
 FEEDBACK_LAGS = 20
@@ -46,8 +46,9 @@ QUIET = 1e-3
 
 
 class FeedbackWarning(UserWarning):
-    """The record's residuals are correlated with later inputs: it looks closed-loop, and the
-    output-error model of the plant is biased by the noise the controller fed back."""
+    """The record's residuals are correlated with later inputs: it looks closed-loop, and an
+    output-error model of the plant is biased by the noise the controller fed back unless it
+    has no direct feedthrough and that noise is white."""
 
 
 def feedback_test(y, y_hat, u, *, lags: int = FEEDBACK_LAGS, order: int = PREWHITEN,
@@ -65,6 +66,11 @@ def feedback_test(y, y_hat, u, *, lags: int = FEEDBACK_LAGS, order: int = PREWHI
         ``p``, capped at a sixteenth of the samples.
     alpha : float in (0, 1)
 
+    Raises
+    ------
+    ValueError
+        Arrays of other shapes.
+
     Returns
     -------
     dict or None
@@ -74,13 +80,16 @@ def feedback_test(y, y_hat, u, *, lags: int = FEEDBACK_LAGS, order: int = PREWHI
         the residual is below :data:`QUIET` of the output (nothing material to be biased).
     """
     y, y_hat, u = (np.asarray(v, dtype=np.float64) for v in (y, y_hat, u))
+    if y.ndim != 1 or y_hat.shape != y.shape or u.shape != y.shape:
+        raise ValueError(f"y, y_hat and u must be (steps,) arrays of one length; got shapes "
+                         f"{y.shape}, {y_hat.shape}, {u.shape}")
     used = np.isfinite(y_hat)
     e, uu = y[used] - y_hat[used], u[used]
     if e.shape[0] < 64:
         return None
     L, p = max(1, min(lags, e.shape[0] // 8)), max(1, min(order, e.shape[0] // 16))
     e, uu = e - e.mean(), uu - uu.mean()
-    if quiet(y, y_hat):
+    if not np.linalg.norm(e) > QUIET * np.linalg.norm(y[used] - y[used].mean()):
         return None
     r = np.array([uu[: uu.shape[0] - j] @ uu[j:] for j in range(p + 1)])
     if not r[0] > 0:
@@ -110,24 +119,6 @@ def _autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:
     """``rho(0..lags)`` of a zero-mean series (biased estimate, ``rho(0) = 1``)."""
     r = np.array([x[: x.shape[0] - m] @ x[m:] for m in range(lags + 1)])
     return r / r[0]
-
-
-def quiet(y, y_hat) -> bool:
-    """Whether a model leaves less than :data:`QUIET` of the output unexplained (RMS, on the
-    samples it has, means removed): nothing for :func:`feedback_test` to read.
-
-    Parameters
-    ----------
-    y, y_hat : (steps,) arrays
-
-    Returns
-    -------
-    bool
-    """
-    y, y_hat = np.asarray(y, dtype=np.float64), np.asarray(y_hat, dtype=np.float64)
-    used = np.isfinite(y_hat)
-    e = y[used] - y_hat[used]
-    return not np.linalg.norm(e - e.mean()) > QUIET * np.linalg.norm(y[used] - y[used].mean())
 
 
 def warn_feedback(found: dict, strict: bool) -> None:

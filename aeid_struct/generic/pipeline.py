@@ -214,7 +214,7 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     # refined models only: the one pass's residual carries model error that the test reads as
     # feedback (measured: 2 false alarms in 59 open-loop records at 0-2 % noise, none refined)
     found = feedback_test(call.work.y, model.y_hat, call.work.u) if refine else None
-    strict = structure is None and call.feedthrough
+    strict = structure is None            # the default structure: CCF with a free d
     if found is not None and found["detected"] and strict:
         # a free d takes up the noise a controller acting on the sample it measures feeds back
         # through u_k: measured on a PI loop (white noise, 10 % of the output), the poles'

@@ -1,5 +1,5 @@
-"""Deployment: an identifier as one TorchScript or ONNX file that needs neither this library nor
-Python's training code to identify a record.
+"""Deployment: an identifier as one ONNX or ``torch.export`` file that needs neither this
+library nor Python's training code to identify a record.
 
 :func:`to_onnx` writes the whole identification of one record (the normalisation of Eq. 15,
 the encoder, the structure's constraint maps and assembly, the exact de-normalisation) as an
@@ -62,6 +62,25 @@ def _example(ident) -> tuple[torch.Tensor, torch.Tensor]:
     y = torch.cumsum(torch.rand(ident.steps, generator=g), 0)
     u = 0.5 + torch.rand(ident.steps, generator=g)
     return y, u
+
+
+def _program(ident):
+    """The ``torch.export`` program of ``ident``'s identification of one record: the one trace
+    both exports are made from (:func:`to_exported` saves it, :func:`onnx_bytes` translates it).
+    The structures' element checks stand aside while it traces (``torch.compiler.is_exporting``:
+    they are data-dependent branches); each file's reader checks what the graph returns."""
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        return torch.export.export(_OneRecord(ident).eval(), _example(ident))
+
+
+def _inverse_entry(ident):
+    """The inverse map as the files name it: a reference (``structures.to_entry``), never a
+    serialised Function; None without one or for a physical pair (its own header entry)."""
+    from aeid_struct.structures import to_entry
+
+    inverse = ident.provenance.inverse
+    return None if inverse is None or isinstance(inverse, tuple) else to_entry(inverse)
 
 
 def _file_to_write(path) -> Path:
@@ -153,23 +172,15 @@ def to_exported(ident, path) -> Path:
     ValueError
         An identifier that cannot be exported, or a path that cannot be written.
     """
-    from aeid_struct.structures import to_entry
-
     _exportable(ident)
     path = _file_to_write(path)
-    module = _OneRecord(ident).eval()
-    with warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore")
-        program = torch.export.export(module, _example(ident))
+    program = _program(ident)
     program.example_inputs = None          # a pickle in the archive otherwise
-    inverse = ident.provenance.inverse
     # the container's header, for a kind no reader of the library reads (container.KINDS)
     header = {"format": FORMAT, "kind": "exported",
               "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
               "elements": list(ident.structure.element_names),
-              "inverse": (None if inverse is None or isinstance(inverse, tuple)
-                          else to_entry(inverse)),
-              "structure": ident.structure.config()}
+              "inverse": _inverse_entry(ident), "structure": ident.structure.config()}
     torch.export.save(program, str(path), extra_files={"aeid.json": json.dumps(header)})
     return path
 
@@ -202,20 +213,16 @@ def onnx_bytes(ident) -> bytes:
     file gives ``Identifier.identify``'s estimate with the head.
 
     The exporter built on ``torch.export`` (``dynamo=True``; TorchScript, which the older
-    exporter traced through, is deprecated): the structures' checks of their elements are
-    data-dependent branches (``if bad.any(): raise``) that ``torch.export`` cannot hold, so
-    they stand aside while it traces (``torch.compiler.is_exporting``) and the file's reader
-    checks what the graph returns (``Identifier.from_onnx``). Its dependencies (onnxscript
-    beside onnx) are in the ``onnx`` extra.
+    exporter traced through, is deprecated), from the program :func:`to_exported` saves
+    (``_program``); the ONNX back end checks the graph's outputs (non-finite rows are refused).
+    Its dependencies (onnxscript beside onnx) are in the ``onnx`` extra.
     """
     import logging
 
-    import onnx
-
-    from aeid_struct.structures import CCF, to_entry
+    from aeid_struct.structures import CCF
 
     _exportable(ident)
-    module = _OneRecord(ident).eval()
+    exported = _program(ident)
     # the exporter's notes (optional torchvision ops, initializer deduplication) are not the
     # caller's business
     quiet = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "onnxscript",
@@ -226,19 +233,17 @@ def onnx_bytes(ident) -> bytes:
             q.setLevel(logging.ERROR)
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
-            program = torch.onnx.export(module, _example(ident), input_names=["y", "u"],
-                                        output_names=["A", "b", "c", "d", "elements"],
-                                        opset_version=18, dynamo=True, verbose=False)
+            model = torch.onnx.export(exported, input_names=["y", "u"],
+                                      output_names=["A", "b", "c", "d", "elements"],
+                                      opset_version=18, dynamo=True, verbose=False).model_proto
     finally:
         for q, level in zip(quiet, levels, strict=True):
             q.setLevel(level)
-    model = onnx.load_from_string(program.model_proto.SerializeToString())
     inverse = ident.provenance.inverse
     header = stamp("onnx", {
         "steps": ident.steps, "dt": ident.dt, "inputs": ident.inputs,
         "initial": ident.initial, "elements": list(ident.structure.element_names),
-        "inverse": None if inverse is None or isinstance(inverse, tuple)
-        else to_entry(inverse),
+        "inverse": _inverse_entry(ident),
         "physical_elements": list(inverse[1]) if isinstance(inverse, tuple) else None,
         "structure": ident.structure.config(),
         "ccf": isinstance(ident.structure, CCF),

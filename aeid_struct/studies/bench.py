@@ -294,7 +294,6 @@ def bench_identification(*, count: int = 500, noises=(0.0, 0.01, 0.05),
         ``throughput_per_s`` of the encoder at batch 4096, ``encoder_flops_per_record`` and
         ``matmul_peak_flops`` (``studies.roofline``: the roofline of that throughput).
     """
-
     from aeid_struct import baselines
     from aeid_struct.identification import load_pretrained
     from aeid_struct.studies.leg_paper import RECORDS

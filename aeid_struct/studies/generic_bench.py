@@ -49,7 +49,6 @@ import numpy as np
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import ccf_matrices
-from aeid_struct.threads import settings
 
 __all__ = ["METHODS", "PLANTS", "Row", "bench_generic", "format_tables", "measured_stand_ins",
            "write_json"]
@@ -421,7 +420,7 @@ def format_tables(rows: list[Row]) -> str:
     for r in rows:
         if r.noise < 0:
             lines.append(f"  {r.case:10s} {r.method:13s} {r.fit:7.2f}   ({r.seconds * 1e3:.1f} ms)")
-    lines += ["", "Time per call (median ms) by record length; " + settings()]
+    lines += ["", "Time per call (median ms) by record length"]
     for steps in sorted({r.steps for r in rows if r.noise >= 0}):
         sel = [r for r in rows if r.steps == steps and r.noise >= 0]
         lines.append(f"  {steps:5d} samples: " + ", ".join(
