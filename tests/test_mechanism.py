@@ -50,6 +50,18 @@ def _numbers(function, **values):
     return [np.array(v) for v in function(**values).values()]
 
 
+def _hanging_pendulum() -> Mechanism:
+    """A mechanism none of ``symbolic.mechanisms`` ships, written as a user would: a point mass
+    ``m`` on a massless rod ``l`` hanging from a pivot with viscous friction ``b``, a torque in,
+    the angle out (a nonlinear Lagrangian whose rest point the rootfinder finds)."""
+    q, dq, u = casadi.SX.sym("q", 1), casadi.SX.sym("dq", 1), casadi.SX.sym("u", 1)
+    p = {k: casadi.SX.sym(k) for k in ("m", "l", "b", "g")}
+    L = 0.5 * p["m"] * p["l"] ** 2 * dq[0] ** 2 + p["m"] * p["g"] * p["l"] * casadi.cos(q[0])
+    return Mechanism(q=q, dq=dq, u=u, parameters=p, lagrangian=L,
+                     dissipation=0.5 * p["b"] * dq[0] ** 2, forces=u, outputs=q,
+                     name="pendulum")
+
+
 # -- the robot leg rebuilt on Mechanism ------------------------------------------------------------
 def test_leg_equations_of_motion_equal_slip_at_random_states():
     legs = mechanisms.leg()
@@ -270,3 +282,18 @@ def test_simulate_refuses_bad_arguments_by_name(call, message):
     args = {"u": np.zeros(5), "dt": 0.01, **call}
     with pytest.raises(ValueError, match=message):
         two.simulate(p, args.pop("u"), args.pop("dt"), **args)
+
+
+@pytest.mark.parametrize("point", [{"m": 0.4, "l": 0.5, "b": 0.05}, {"m": 1.0, "l": 0.2, "b": 0.2}])
+def test_a_users_hanging_pendulum_linearises_to_its_closed_form(point):
+    # m l^2 thdd + b thd + m g l sin(th) = tau: at the rest point th = 0 (found by the
+    # rootfinder from a guess off it) A = [[0, 1], [-g / l, -b / (m l^2)]], B = [0, 1 / (m l^2)]
+    pendulum = _hanging_pendulum()
+    m, l, b, g = point["m"], point["l"], point["b"], 9.81
+    eq = pendulum.equilibrium(guess=[0.3])(**point, g=g)
+    np.testing.assert_allclose(np.array(eq["x_eq"]).ravel(), [0, 0], atol=1e-12)
+    A, B, C, D = _numbers(pendulum.linearise(guess=[0.3], known={"g": g}), **point)
+    np.testing.assert_allclose(A, [[0, 1], [-g / l, -b / (m * l * l)]], rtol=1e-12)
+    np.testing.assert_allclose(B, [[0], [1 / (m * l * l)]], rtol=1e-12)
+    np.testing.assert_array_equal(C, [[1, 0]])
+    np.testing.assert_array_equal(D, [[0]])
