@@ -31,3 +31,14 @@ def test_an_unknown_row_is_refused_by_name():
 
     with pytest.raises(ValueError, match="cases must be among"):
         channels_bench.bench_channels(cases=("4x4",), count=1, progress=None)
+
+
+def test_the_coloured_row_holds_the_output_error_fit_near_the_true_model():
+    # a low-pass input and AR(1) noise (pole 0.95): the output-error fit is consistent for
+    # coloured noise, so refined stays near the true model's validation fit
+    rows = channels_bench.bench_channels(cases=("2x2 coloured, low-pass",), count=1,
+                                         progress=None)
+    by = {r.method: r for r in rows}
+    assert 90.0 < by["true"].fit < 100.0
+    assert by["refined"].fit > by["true"].fit - 1.0
+    assert {r.method for r in rows} == set(channels_bench.METHODS)
