@@ -292,6 +292,28 @@ def test_raw_inverts_the_constraint_maps(theta):
         torch.testing.assert_close(s.raw(x), theta, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.parametrize("make", [lambda: CCF(3, descartes=True, feedthrough=True).fixed(a1=0.5),
+                                  lambda: MCF(real=1, pairs=1), lambda: msd()])
+def test_casadi_elements_equal_the_torch_maps_and_assemble_the_same_system(make):
+    # the batch-1 path evaluates theta -> (A, b, c, d, elements) as one CasADi graph: torch's
+    # maps are the oracle, at moderate theta and where softplus switches to the identity (> 20)
+    # or underflows and the sigmoid saturates
+    s = make()
+    theta = casadi.SX.sym("theta", s.p)
+    el = s.casadi_elements(theta)
+    f = casadi.Function("f", [theta], [el, *s.casadi_system(el)])
+    rng = np.random.default_rng(4)
+    for row in [*rng.normal(0.0, 3.0, (5, s.p)), np.full(s.p, 25.0), np.full(s.p, -40.0),
+                np.full(s.p, 19.999)]:
+        x = s.elements(torch.from_numpy(row[None]))
+        system = s.assemble(x)
+        got = [np.array(v) for v in f(row)]
+        np.testing.assert_allclose(got[0].ravel(), x[0].numpy(), rtol=1e-13, atol=1e-300)
+        for mine, theirs in zip(got[1:], (system.A, system.b, system.c, system.d), strict=True):
+            np.testing.assert_allclose(mine.reshape(theirs[0].shape), theirs[0].numpy(),
+                                       rtol=1e-13, atol=1e-14)
+
+
 @settings(max_examples=40, deadline=None)
 @given(arrays(np.float64, (2, 3), elements=st.floats(-15, 15)))
 def test_physical_raw_inverts_the_sigmoid(theta):

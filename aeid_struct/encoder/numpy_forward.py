@@ -71,6 +71,11 @@ class NumpyEncoder:
                        sd[f"main.{2 * i}.bias"][:, None]) for i in range(cfg.depth)]
         self.shortcut = (sd["shortcut.0.weight"].reshape(cfg.width, -1),
                          sd["shortcut.0.bias"][:, None])
+        # the first main convolution and the shortcut read the same input with the same kernel:
+        # one gather and one matmul of their stacked weights serve both (one layer's overhead
+        # less at batch 1; the same products row by row)
+        self.first = (np.concatenate([self.convs[0][0], self.shortcut[0]]),
+                      np.concatenate([self.convs[0][1], self.shortcut[1]]))
         self.rows = [(sd[f"head.{2 * i}.weight"], sd[f"head.{2 * i}.bias"])
                      for i in range(len(cfg.dense) + 1)]            # (out, in): W @ v
         self.layers = [(W.T.copy(), b) for W, b in self.rows]      # (in, out): z @ W
@@ -118,10 +123,11 @@ class NumpyEncoder:
         xp = np.zeros((C, K, L + 2 * p), dtype=self.dtype)
         xp[:, :, p : p + L] = x
         xp = xp.reshape(C, -1)
-        h = xp
-        for W, b in self.convs:
+        both = self._conv(xp, *self.first)
+        h, shortcut = both[: self.config.width], both[self.config.width:]
+        for W, b in self.convs[1:]:
             h = self._conv(h, W, b)
-        both = np.concatenate([h, self._conv(xp, *self.shortcut)], axis=0)
+        both = np.concatenate([h, shortcut], axis=0)
         return both.reshape(-1, K, L + 2 * p)[:, :, p : p + L].transpose(1, 0, 2).reshape(K, -1)
 
     def dense(self, z: np.ndarray) -> np.ndarray:

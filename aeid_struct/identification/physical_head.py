@@ -41,7 +41,7 @@ import casadi
 import numpy as np
 
 from aeid_struct.refinement import Pattern, fit_rows
-from aeid_struct.structures import Numeric, ccf_matrices
+from aeid_struct.structures import Numeric, ccf_matrices, expanded
 
 __all__ = ["PhysicalHead", "centred", "physical_head"]
 
@@ -100,13 +100,13 @@ class PhysicalHead:
         self.free = np.flatnonzero(~constant)
         k_free = coefficients[self.free.tolist()]
         # dense outputs: the buffer writes nonzeros only, and numpy reads full matrices
-        self.coefficients = Numeric(_expanded(casadi.Function("k_free", [p], [
+        self.coefficients = Numeric(expanded(casadi.Function("k_free", [p], [
             casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))])))
         # per record: A, B, C, D and the CCF's a
         model = casadi.Function("model", [p], [
             casadi.densify(v) for r, system in enumerate(systems)
             for v in (*system, coefficients[r * width: r * width + n])])
-        self.model = Numeric(_expanded(model))
+        self.model = Numeric(expanded(model))
         self._model, self._mapped = model, {}
         self.lo, self.hi, self.n, self.q, self.records = lo, hi, n, q, R
         self.square = self.free.size == q
@@ -149,7 +149,7 @@ class PhysicalHead:
         if numeric is None:
             if len(self._mapped) > 16:
                 self._mapped.clear()
-            numeric = self._mapped[P] = Numeric(_expanded(self._model.map(P)))
+            numeric = self._mapped[P] = Numeric(expanded(self._model.map(P)))
         # column-major blocks, one per point: (q, P) in, (rows, cols * P) out
         out = numeric(points.ravel())
         return [(out[5 * r].reshape(P, n, n).transpose(0, 2, 1), out[5 * r + 1].reshape(P, n),
@@ -384,15 +384,6 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
                 A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
         el[row] = p
     return (A, b, c, d, el), failed
-
-
-def _expanded(function: casadi.Function) -> casadi.Function:
-    """``function`` as an SX Function where it expands (a map with a rootfinder does not):
-    SX evaluates a small map in a few microseconds, MX's virtual machine in tens."""
-    try:
-        return function.expand()
-    except RuntimeError:
-        return function
 
 
 def _ccf_coefficients(A, B, C) -> casadi.MX:

@@ -28,6 +28,7 @@ from aeid_struct.structures.maps import resolve as resolve
 from aeid_struct.structures.maps import sha256 as sha256
 from aeid_struct.structures.maps import to_entry as to_entry
 from aeid_struct.structures.numeric import Numeric as Numeric
+from aeid_struct.structures.numeric import expanded as expanded
 
 if TYPE_CHECKING:
     from aeid_struct.structures.base import Structure as Structure
@@ -63,6 +64,7 @@ __all__ = [
     "ccf_coefficients",
     "ccf_matrices",
     "check_maps",
+    "expanded",
     "factory",
     "from_entry",
     "reference",

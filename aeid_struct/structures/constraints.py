@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import casadi
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -100,6 +101,28 @@ class ElementMap:
             return -(F.softplus(t) + MARGIN)
         # interval: clamp only removes a rounding ulp outside [lo, hi]
         return torch.clamp(self.lo + (self.hi - self.lo) * torch.sigmoid(t), self.lo, self.hi)
+
+    def casadi(self, t):
+        """:meth:`forward` written with CasADi operations (torch's softplus: ``t`` itself above
+        20, where ``log(1 + e^t)`` equals it in float64).
+
+        Parameters
+        ----------
+        t : casadi SX or MX scalar
+            One entry of ``theta``.
+
+        Returns
+        -------
+        casadi SX or MX scalar
+        """
+        if self.kind == "real":
+            return t
+        if self.kind == "interval":
+            return casadi.fmin(casadi.fmax(self.lo + (self.hi - self.lo) / (1 + casadi.exp(-t)),
+                                           self.lo), self.hi)
+        softplus = casadi.if_else(t > 20, t, casadi.log1p(casadi.exp(t)))
+        return {"nonneg": softplus, "pos": softplus + MARGIN,
+                "neg": -(softplus + MARGIN)}[self.kind]
 
     def inverse(self, x: torch.Tensor) -> torch.Tensor:
         """Raw ``theta`` of element values ``x`` in the closure of the set.

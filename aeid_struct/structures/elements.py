@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 
+import casadi
 import numpy as np
 import torch
 
@@ -127,6 +128,28 @@ class ElementSet:
                 j += 1
         x = torch.stack(cols, dim=1)
         return x[0] if squeeze else x
+
+    def casadi_elements(self, theta):
+        """:meth:`elements` of one raw ``theta`` written with CasADi operations (the fixed
+        elements as constants): with :meth:`~aeid_struct.structures.Structure.casadi_system`,
+        the whole map ``theta -> (A, b, c, d)`` as one expression graph.
+
+        Parameters
+        ----------
+        theta : casadi SX or MX (p, 1)
+
+        Returns
+        -------
+        casadi SX or MX (q, 1)
+        """
+        cols, j = [], 0
+        for name, m in self._maps.items():
+            if name in self._fixed:
+                cols.append(type(theta)(self._fixed[name]))
+            else:
+                cols.append(m.casadi(theta[j]))
+                j += 1
+        return casadi.vertcat(*cols)
 
     def _check(self, x: torch.Tensor, atol, what: str, *, fixed: bool = True,
                constraints: bool = True, open_: bool = False) -> None:

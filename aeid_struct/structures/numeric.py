@@ -6,7 +6,7 @@ from __future__ import annotations
 import casadi
 import numpy as np
 
-__all__ = ["Numeric"]
+__all__ = ["Numeric", "expanded"]
 
 
 class Numeric:
@@ -45,3 +45,22 @@ class Numeric:
         dict
         """
         return self.buffer.stats()
+
+
+def expanded(function: casadi.Function) -> casadi.Function:
+    """``function`` as an SX Function where it expands (a map with a rootfinder does not).
+
+    Why: SX evaluates a small map in a few microseconds, MX's virtual machine in tens.
+
+    Parameters
+    ----------
+    function : casadi.Function
+
+    Returns
+    -------
+    casadi.Function
+    """
+    try:
+        return function.expand()
+    except RuntimeError:
+        return function
