@@ -161,6 +161,39 @@ def test_parquet_chunks_read_their_own_row_groups(tmp_path):
     cs = chunks(tmp_path / "t.parquet", chunk=12)
     assert [(c.start, c.stop) for c in cs] == [(0, 12), (12, 24), (24, 36), (36, 48), (48, 50)]
     for c in cs:
-        got_y, got_u = read_chunk(c)
+        got_y, got_u, dt = read_chunk(c)
+        assert dt is None
         np.testing.assert_array_equal(got_y, y[c.start:c.stop])
         np.testing.assert_array_equal(got_u, u[c.start:c.stop])
+
+
+def test_csv_sources_are_read_as_the_command_line_reads_them(tmp_path):
+    """CSV records in the layouts of ``aeid-struct identify`` (records.files): a named-column
+    record whose t column is checked against the identifier's dt, a batch of records one per
+    line; a record at another dt and a several-channel file are refused by name; the estimates
+    are the plain batched call's."""
+    ident = ae.load("leg-stable")
+    rec = ae.data.records(ae.LegFamily(subsystem="stable"), 4, steps=ident.steps, dt=ident.dt,
+                          seed=6, noise=0.01)
+    t = np.arange(ident.steps) * ident.dt
+    src = tmp_path / "csv"
+    src.mkdir()
+    np.savetxt(src / "one.csv", np.column_stack([t, rec.y[0]]), delimiter=",",
+               header="t [s],y [m]", comments="")
+    np.savetxt(src / "batch.csv", rec.y[1:3], delimiter=",")
+    np.savetxt(src / "slow.csv", np.column_stack([2 * t, rec.y[3]]), delimiter=",",
+               header="t,y", comments="")
+    np.savetxt(src / "two.csv", np.column_stack([t, rec.y[0], rec.y[1]]), delimiter=",",
+               header="t,y1,y2", comments="")
+    out = tmp_path / "csv.parquet"
+    run = identify_many(src, "leg-stable", out, workers=1, chunk=10, progress=None)
+    assert (run.records, run.ok) == (5, 3)
+    table = _table(out)
+    # the one-record file takes the batch-1 path, the batch file the batched one, as plainly
+    one, batch = ident.identify(rec.y[0]), ident.identify(rec.y[1:3])
+    for name, A in [("one.csv#0", one.A), ("batch.csv#0", batch.A[0]),
+                    ("batch.csv#1", batch.A[1])]:
+        np.testing.assert_allclose(np.reshape(table.loc[name, "A"], (2, 2)), A, rtol=1e-12)
+    assert table.loc["slow.csv#0", "status"] == "refused"
+    assert "dt" in table.loc["slow.csv#0", "reason"]
+    assert "several outputs or inputs" in table.loc["two.csv#0", "reason"]

@@ -20,7 +20,9 @@ def add_identify_many(sub) -> None:
         usage="aeid-struct identify-many SOURCE --identifier NAME --out DIR [options]",
         description="Identify every record under SOURCE (a directory, searched recursively, "
                     "or one file: .npy y arrays (steps,) or (records, steps), .npz with y and "
-                    "optionally u, .parquet tables with list columns y and optionally u) with "
+                    "optionally u, .parquet tables with list columns y and optionally u, .csv in "
+                    "the layouts of identify: t,u,y columns, its t checked against the "
+                    "identifier's dt, or one record per line) with "
                     "a trained identifier (a shipped name or an identifier file), on a local "
                     "Dask cluster or the one at --scheduler. Each chunk of records is one task "
                     "and one Parquet part of DIR, written when it is done: run the same command "

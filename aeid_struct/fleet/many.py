@@ -89,7 +89,7 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
     ----------
     source : str or PathLike
         A directory of record files (searched recursively) or one file
-        (``fleet.sources``: ``.npy``, ``.npz``, ``.parquet``).
+        (``fleet.sources``: ``.npy``, ``.npz``, ``.parquet``, ``.csv``).
     identifier : str
         A shipped identifier's name or an identifier file, read once per worker.
     out : str or PathLike

@@ -8,7 +8,11 @@ Files (read as data only: ``allow_pickle=False``, Parquet's own columns):
 - ``.npz``: arrays ``y`` and, optionally, ``u`` of the same shape (read whole by each of its
   chunks: an archive's members cannot be mapped; a large data set is better as ``.npy``);
 - ``.parquet``: a table of records, a row each: a list column ``y``, optionally ``u`` (each
-  chunk reads only the row groups that hold its rows).
+  chunk reads only the row groups that hold its rows);
+- ``.csv``: the layouts ``aeid-struct identify`` reads (``records.files``): named columns
+  ``t, u, y`` (one record, its ``t`` column's sample time checked against the identifier's),
+  one number per line (one record) or one record per line (a batch); read whole by each of its
+  chunks (a CSV is a record or a few, not a data set's bulk).
 
 Records are named ``FILE#INDEX`` (``INDEX`` the row within the file, from 0).
 """
@@ -23,7 +27,7 @@ import numpy as np
 __all__ = ["FORMATS", "Chunk", "chunks", "read_chunk"]
 
 #: File suffixes read as records.
-FORMATS = (".npy", ".npz", ".parquet")
+FORMATS = (".npy", ".npz", ".parquet", ".csv")
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,8 @@ class Chunk:
 
 def _count(path: Path) -> int:
     """Records in a file, from its header or metadata alone where the format allows."""
+    if path.suffix == ".csv":
+        return _read_csv(path)[0].shape[0]
     if path.suffix == ".npy":
         shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
         return 1 if len(shape) == 1 else shape[0]
@@ -107,8 +113,9 @@ def chunks(source, chunk: int = 10_000) -> list[Chunk]:
     return out
 
 
-def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
-    """The records of a chunk: ``y (records, steps)`` and ``u`` alike or None.
+def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None, float | None]:
+    """The records of a chunk: ``y (records, steps)``, ``u`` alike or None, and the sample time
+    a CSV's ``t`` column gives (None for the other formats and a CSV without one).
 
     Raises
     ------
@@ -117,6 +124,7 @@ def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
     """
     path = Path(c.path)
     stop = c.stop
+    dt = None
     try:
         if path.suffix == ".npy":
             y = np.load(path, mmap_mode="r", allow_pickle=False)
@@ -125,6 +133,9 @@ def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
             with np.load(path, allow_pickle=False) as archive:
                 y = np.atleast_2d(archive["y"])[c.start:stop]
                 u = np.atleast_2d(archive["u"])[c.start:stop] if "u" in archive else None
+        elif path.suffix == ".csv":
+            y, u, dt = _read_csv(path)
+            y, u = y[c.start:stop], None if u is None else u[c.start:stop]
         else:
             y, u = _read_parquet(path, c.start, stop)
     except Exception as err:        # the reason becomes the file's row
@@ -135,7 +146,7 @@ def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f"{path.name} holds y of shape {y.shape}"
                          + ("" if u is None else f" and u of shape {np.shape(u)}")
                          + "; expected y (records, steps) and u alike")
-    return y, None if u is None else np.asarray(u, dtype=np.float64)
+    return y, None if u is None else np.asarray(u, dtype=np.float64), dt
 
 
 def _read_parquet(path: Path, start: int, stop: int | None):
@@ -156,3 +167,17 @@ def _read_parquet(path: Path, start: int, stop: int | None):
     u = (np.array(rows.column("u").to_pylist(), dtype=np.float64)
          if "u" in rows.column_names else None)
     return y, u
+
+
+def _read_csv(path: Path) -> tuple[np.ndarray, np.ndarray | None, float | None]:
+    """A CSV of records (``records.files``): ``y (records, steps)``, ``u`` alike or None, and
+    its ``t`` column's sample time; a file of several outputs or inputs is refused (the
+    fleet's identifiers read one channel)."""
+    from aeid_struct.records.files import read_record
+
+    rec = read_record(str(path), "source", "y")
+    if rec.several:
+        raise ValueError("it holds several outputs or inputs (numbered columns); identify-many "
+                         "runs trained identifiers of one output and one input")
+    y = np.atleast_2d(rec.values)
+    return y, None if rec.u is None else np.atleast_2d(rec.u), rec.dt

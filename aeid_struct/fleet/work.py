@@ -153,9 +153,9 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
             "elements": list(ident.structure.element_names),
             "physical": []}        # the estimate's names, where it has physical parameters
     try:
-        y, u = read_chunk(c)
+        y, u, dt = read_chunk(c)
         names = [f"{rel}#{c.start + i}" for i in range(y.shape[0])]
-        est = ident.identify(y, u, errors="collect")
+        est = ident.identify(y, u, dt=dt, errors="collect")
         columns = _rows(est, names)
         if est.physical:
             meta["physical"] = list(est.physical)

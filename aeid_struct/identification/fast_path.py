@@ -153,14 +153,14 @@ def warm(ident, chunk: int) -> None:
     """Identify a made-up record twice, so that the first call on a user's record costs what
     the next ones do.
 
-    Why: a single-record identifier builds its batch-1 path on first use (a TorchScript trace,
-    freezing and the agreement check with the eager pass, whose first torch operations
-    initialise their kernels), TorchScript optimises a frozen graph only after its first
-    profiling run, a separable head's first FFTs and solves initialise scipy's and LAPACK's,
-    and the first batched call takes its memory (a chunk's activations, ``chunk`` records)
-    from the system page by page. An identifier file's ``load`` runs this once (a record
-    twice, then one chunk of a batch), so that none of it falls on the first identification.
-    Best effort: a failure is left to that first call to report.
+    Why: a single-record identifier builds its batch-1 path on first use (the structure's CasADi
+    graph, or a frozen TorchScript trace, which TorchScript optimises only after its first
+    profiling run; and the agreement check with the eager pass, whose first torch operations
+    initialise their kernels), a separable head's first FFTs and solves initialise scipy's and
+    LAPACK's, and the first batched call takes its memory (a chunk's activations, ``chunk``
+    records) from the system page by page. An identifier file's ``load`` runs this once (a
+    record twice, then one chunk of a batch), so that none of it falls on the first
+    identification. Best effort: a failure is left to that first call to report.
 
     Parameters
     ----------
