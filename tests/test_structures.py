@@ -297,14 +297,14 @@ def test_raw_inverts_the_constraint_maps(theta):
 def test_casadi_elements_equal_the_torch_maps_and_assemble_the_same_system(make):
     # the batch-1 path evaluates theta -> (A, b, c, d, elements) as one CasADi graph: torch's
     # maps are the oracle, at moderate theta and where softplus switches to the identity (> 20)
-    # or underflows and the sigmoid saturates
+    # or underflows, where exp overflows in the branch not taken, and the sigmoid saturates
     s = make()
     theta = casadi.SX.sym("theta", s.p)
     el = s.casadi_elements(theta)
     f = casadi.Function("f", [theta], [el, *s.casadi_system(el)])
     rng = np.random.default_rng(4)
     for row in [*rng.normal(0.0, 3.0, (5, s.p)), np.full(s.p, 25.0), np.full(s.p, -40.0),
-                np.full(s.p, 19.999)]:
+                np.full(s.p, 19.999), np.full(s.p, 800.0), np.full(s.p, -800.0)]:
         x = s.elements(torch.from_numpy(row[None]))
         system = s.assemble(x)
         got = [np.array(v) for v in f(row)]
