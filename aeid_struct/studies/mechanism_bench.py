@@ -9,7 +9,11 @@ relative error of every parameter for: the encoder alone, the one pass (encoder 
 iterations), ``refine=True``, the cold grey-box fit (scipy's output-error least squares in the
 same structure from 4 starts drawn in the box, the best cost kept: what ``greyest`` does from
 guesses), and n4sid's model taken to the nearest parameters (the head's coefficient inverse);
-batch-1 medians of the one pass, the refinement and the cold fit.
+batch-1 medians of the one pass, the refinement and the cold fit. Per record, the output-error
+cost of the one pass, refined and the cold fit at their parameters: the one pass's excess over
+refined's (median, 90th percentile), and how often refined and the cold fit reach the lower of
+their two optima (a record's own optimum, which medians of parameter errors over a few dozen
+noisy records read only roughly).
 """
 
 from __future__ import annotations
@@ -234,12 +238,51 @@ def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
                 t0 = time.perf_counter()
                 ident.identify(y, u, refine=refine)
                 seconds[label].append(time.perf_counter() - t0)
+    costs = {k: _costs(ph, rows[k], rec, several) for k in ("one pass", "refined",
+                                                             "cold grey-box x4")}
     out = {"noise": noise, "errors": {k: _median_error(v, truth) for k, v in rows.items()},
+           "cost": _cost_summary(costs),
            "ms": {k: float(np.median(v) * 1e3) for k, v in seconds.items()},
            # records a method gave no finite parameters for (left out of its medians)
            "failed": {k: int((~np.isfinite(v).all(axis=1)).sum()) for k, v in rows.items()}}
     out["speedup refined vs cold"] = out["ms"]["cold grey-box x4"] / out["ms"]["refined"]
     return out
+
+
+#: Costs below this are a noise-free record's optimum (round-off): compared as equal.
+FLOOR = 1e-12
+
+
+def _costs(ph, P: np.ndarray, rec, several: bool) -> np.ndarray:
+    """Each record's output-error cost (``refinement.fit_joint``'s, records from rest) at the
+    parameters ``P (records, q)``; NaN where a method gave none."""
+    from aeid_struct.refinement import fit_joint
+
+    ys, us = (list(rec.y), list(rec.u)) if several else ([rec.y], [rec.u])
+    dts = tuple(rec.dt) if several else (rec.dt,)
+    ok = np.isfinite(P).all(axis=1)
+    out = np.full(P.shape[0], math.nan)
+    if ok.any():
+        out[ok] = fit_joint(ph.at, P[ok], [y[ok] for y in ys], [u[ok] for u in us], dts,
+                            lower=ph.lo, upper=ph.hi, initial=False, max_iter=0).cost
+    return out
+
+
+def _cost_summary(costs: dict) -> dict:
+    """The one pass's cost over refined's (median and 90th percentile of the relative excess),
+    and the shares of records where refined, and the cold fit, reach the lower of their two
+    optima (to ``1e-6``): a record's own optimum, which medians of parameter errors over a
+    few dozen noisy records read only roughly. A cost is a normalised mean square (Eq. 14,
+    15), so below ``FLOOR`` (a noise-free record's optimum) costs count as equal."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        excess = (costs["one pass"] - costs["refined"]) / np.maximum(costs["refined"], FLOOR)
+        best = np.fmin(costs["refined"], costs["cold grey-box x4"])
+        at = {k: float(np.mean(costs[k] <= best * (1 + 1e-6) + FLOOR))
+              for k in ("refined", "cold grey-box x4")}
+    finite = excess[np.isfinite(excess)]
+    return {"one pass excess median": float(np.median(finite)) if finite.size else math.nan,
+            "one pass excess p90": float(np.quantile(finite, 0.9)) if finite.size else math.nan,
+            "refined at the best": at["refined"], "cold at the best": at["cold grey-box x4"]}
 
 
 def bench_mechanism(*, seconds: float = 120.0, noises=(0.0, 0.02, 0.05), records: int = 40,
@@ -350,6 +393,14 @@ def report(rows: list[dict]) -> str:
             if failed:
                 lines.append("    no finite parameters for " + ", ".join(
                     f"{v} record(s) of {k}" for k, v in failed.items()))
+            cost = level.get("cost")          # runs recorded before it was measured lack it
+            if cost:
+                median, p90 = cost["one pass excess median"], cost["one pass excess p90"]
+                lines.append(f"    cost over refined's: one pass +{100 * median:.3g} % median, "
+                             f"+{100 * p90:.3g} % p90; at the "
+                             f"lower of refined's and the cold fit's optimum: refined "
+                             f"{cost['refined at the best']:.0%}, cold x4 "
+                             f"{cost['cold at the best']:.0%} of records")
             lines.append(f"    refined is {level['speedup refined vs cold']:.0f}x faster than "
                          "the cold grey-box fit")
     return "\n".join(lines)
