@@ -23,9 +23,9 @@ class Batch1:
     weights, numpy's activations); the structure (theta -> elements -> A, b, c, d) is one
     CasADi Function of ``theta`` (``ElementSet.casadi_elements`` and
     ``Structure.casadi_system``, SX where they expand) evaluated through its buffer
-    (``structures.Numeric``): a few microseconds, where the frozen TorchScript trace it
-    replaces costs four times that in interpreter overhead; the trace remains for a structure
-    without a CasADi assembly. A physical structure maps its elements by the head's expanded
+    (``structures.Numeric``): one call of compiled SX instructions, where a TorchScript trace
+    pays its interpreter's dispatch per operation; the trace remains for a structure without
+    a CasADi assembly. A physical structure maps its elements by the head's expanded
     SX map (``physical_head.PhysicalHead``). A call ``(y (steps,),
     u (steps,) or None)`` returns float64 ``A (1, n, n), b, c (1, n), d (1,), elements (1,
     q)``, in measured units like ``Identifier.system``.
