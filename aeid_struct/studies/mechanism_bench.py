@@ -249,8 +249,10 @@ def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
     return out
 
 
-#: Costs below this are a noise-free record's optimum (round-off): compared as equal.
-FLOOR = 1e-12
+#: Costs below this count as equal: an rms residual of 5e-5 of ``max|y|`` (the cost is 4 times
+#: the mean square of the residual over ``max|y|``), a thousandth of the cost of 1 % noise;
+#: relative excesses of noise-free records' costs (round-off over round-off) mean nothing.
+FLOOR = 1e-8
 
 
 def _costs(ph, P: np.ndarray, rec, several: bool) -> np.ndarray:
@@ -273,7 +275,7 @@ def _cost_summary(costs: dict) -> dict:
     and the shares of records where refined, and the cold fit, reach the lower of their two
     optima (to ``1e-6``): a record's own optimum, which medians of parameter errors over a
     few dozen noisy records read only roughly. A cost is a normalised mean square (Eq. 14,
-    15), so below ``FLOOR`` (a noise-free record's optimum) costs count as equal."""
+    15): below :data:`FLOOR` costs count as equal."""
     with np.errstate(invalid="ignore", divide="ignore"):
         excess = (costs["one pass"] - costs["refined"]) / np.maximum(costs["refined"], FLOOR)
         best = np.fmin(costs["refined"], costs["cold grey-box x4"])
