@@ -11,8 +11,8 @@ Files (read as data only: ``allow_pickle=False``, Parquet's own columns):
   chunk reads only the row groups that hold its rows);
 - ``.csv``: the layouts ``aeid-struct identify`` reads (``records.files``): named columns
   ``t, u, y`` (one record, its ``t`` column's sample time checked against the identifier's),
-  one number per line (one record) or one record per line (a batch); read whole by each of its
-  chunks (a CSV is a record or a few, not a data set's bulk).
+  one number per line (one record) or one record per line (a batch); a file is one chunk,
+  parsed by its worker alone (a CSV is a record or a few, not a data set's bulk).
 
 Records are named ``FILE#INDEX`` (``INDEX`` the row within the file, from 0).
 """
@@ -40,8 +40,8 @@ class Chunk:
         The file.
     start : int
     stop : int or None
-        None: a file that could not be sized, read whole by the worker, which reports why it
-        cannot.
+        None: a file read whole by the worker (a CSV, or a file that could not be sized, whose
+        worker reports why).
     key : str
         ``RELPATH@START``: the chunk's name, and its part's.
     """
@@ -52,10 +52,12 @@ class Chunk:
     key: str
 
 
-def _count(path: Path) -> int:
-    """Records in a file, from its header or metadata alone where the format allows."""
+def _count(path: Path) -> int | None:
+    """Records in a file, from its header or metadata alone where the format allows; None for
+    a CSV, which only parsing would size: it is one chunk, parsed once, by its worker (a fleet
+    of many small CSV files is cut into chunks without reading one)."""
     if path.suffix == ".csv":
-        return _read_csv(path)[0].shape[0]
+        return None
     if path.suffix == ".npy":
         shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
         return 1 if len(shape) == 1 else shape[0]
@@ -106,6 +108,8 @@ def chunks(source, chunk: int = 10_000) -> list[Chunk]:
         try:
             count = _count(path)
         except Exception:           # any unreadable file: its worker says why
+            count = None
+        if count is None:
             out.append(Chunk(str(path), 0, None, f"{rel}@0"))
             continue
         out += [Chunk(str(path), s, min(s + chunk, count), f"{rel}@{s}")
