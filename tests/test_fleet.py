@@ -185,6 +185,9 @@ def test_csv_sources_are_read_as_the_command_line_reads_them(tmp_path):
                header="t,y", comments="")
     np.savetxt(src / "two.csv", np.column_stack([t, rec.y[0], rec.y[1]]), delimiter=",",
                header="t,y1,y2", comments="")
+    # a CSV is one chunk its worker parses (nothing read while the source is cut)
+    assert [(c.key, c.stop) for c in chunks(src, chunk=1)] == [
+        ("batch.csv@0", None), ("one.csv@0", None), ("slow.csv@0", None), ("two.csv@0", None)]
     out = tmp_path / "csv.parquet"
     run = identify_many(src, "leg-stable", out, workers=1, chunk=10, progress=None)
     assert (run.records, run.ok) == (5, 3)
@@ -197,3 +200,29 @@ def test_csv_sources_are_read_as_the_command_line_reads_them(tmp_path):
     assert table.loc["slow.csv#0", "status"] == "refused"
     assert "dt" in table.loc["slow.csv#0", "reason"]
     assert "several outputs or inputs" in table.loc["two.csv#0", "reason"]
+
+
+def test_a_part_cut_off_mid_write_leaves_the_table_readable(fleet, tmp_path, monkeypatch):
+    """A worker killed while writing its part leaves the temporary file behind: it is hidden,
+    so the directory still reads as the table of the finished parts (a visible one made
+    pyarrow fail on the whole directory)."""
+    import pyarrow.parquet as parquet
+
+    from aeid_struct.fleet import work
+
+    src, _ = fleet
+    out = tmp_path / "out"
+    out.mkdir()
+    first, second = chunks(src, chunk=400)[:2]
+    work.identify_chunk("leg-stable", first, out, str(src))
+
+    def dies_mid_write(table, where):
+        open(where, "wb").write(b"PAR1 half a part")
+        raise KeyboardInterrupt                   # the process ends here
+
+    monkeypatch.setattr(parquet, "write_table", dies_mid_write)
+    with pytest.raises(KeyboardInterrupt):
+        work.identify_chunk("leg-stable", second, out, str(src))
+    left = sorted(p.name for p in out.iterdir())
+    assert len(left) == 2 and left[0].startswith(".") and left[1].startswith("part-a.npy@0")
+    assert len(_table(out)) == 400

@@ -166,7 +166,9 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
     table = pa.table(columns, schema=_arrow_schema()).replace_schema_metadata(
         {"aeid": json.dumps(meta)})
     path = part_path(out, c)
-    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    # a hidden name: a worker killed while writing leaves it behind, and readers of the
+    # directory (pyarrow, pandas, Dask) skip names that start with "." instead of failing on it
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     pq.write_table(table, tmp)
     os.replace(tmp, path)          # atomic: a part is whole or absent
     return {"key": c.key, "records": len(columns["record"]),
