@@ -185,12 +185,14 @@ def test_csv_sources_are_read_as_the_command_line_reads_them(tmp_path):
                header="t,y", comments="")
     np.savetxt(src / "two.csv", np.column_stack([t, rec.y[0], rec.y[1]]), delimiter=",",
                header="t,y1,y2", comments="")
+    np.savetxt(src / "short.csv", rec.y[:3, :50], delimiter=",")       # 3 records, too short
     # a CSV is one chunk its worker parses (nothing read while the source is cut)
     assert [(c.key, c.stop) for c in chunks(src, chunk=1)] == [
-        ("batch.csv@0", None), ("one.csv@0", None), ("slow.csv@0", None), ("two.csv@0", None)]
+        ("batch.csv@0", None), ("one.csv@0", None), ("short.csv@0", None), ("slow.csv@0", None),
+        ("two.csv@0", None)]
     out = tmp_path / "csv.parquet"
     run = identify_many(src, "leg-stable", out, workers=1, chunk=10, progress=None)
-    assert (run.records, run.ok) == (5, 3)
+    assert (run.records, run.ok) == (8, 3)
     table = _table(out)
     # the one-record file takes the batch-1 path, the batch file the batched one, as plainly
     one, batch = ident.identify(rec.y[0]), ident.identify(rec.y[1:3])
@@ -200,6 +202,9 @@ def test_csv_sources_are_read_as_the_command_line_reads_them(tmp_path):
     assert table.loc["slow.csv#0", "status"] == "refused"
     assert "dt" in table.loc["slow.csv#0", "reason"]
     assert "several outputs or inputs" in table.loc["two.csv#0", "reason"]
+    # a CSV batch the identifier refuses as a whole: each of its records gets the reason
+    assert [table.loc[f"short.csv#{i}", "status"] for i in range(3)] == ["refused"] * 3
+    assert "300" in table.loc["short.csv#2", "reason"]
 
 
 def test_a_part_cut_off_mid_write_leaves_the_table_readable(fleet, tmp_path, monkeypatch):

@@ -152,6 +152,7 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
     meta = {"schema": SCHEMA, "identifier": identifier, "chunk": c.key,
             "elements": list(ident.structure.element_names),
             "physical": []}        # the estimate's names, where it has physical parameters
+    names = None
     try:
         y, u, dt = read_chunk(c)
         names = [f"{rel}#{c.start + i}" for i in range(y.shape[0])]
@@ -161,7 +162,9 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
             meta["physical"] = list(est.physical)
     except ValueError as err:
         # the whole chunk's file is unreadable, or a malformed batch: every record says why
-        names = [f"{rel}#{c.start + i}" for i in range(max((c.stop or 1) - c.start, 1))]
+        # (as many rows as were read; a file that could not be read or sized is one row)
+        if names is None:
+            names = [f"{rel}#{c.start + i}" for i in range(max((c.stop or 1) - c.start, 1))]
         columns = _refused_rows(names, str(err))
     table = pa.table(columns, schema=_arrow_schema()).replace_schema_metadata(
         {"aeid": json.dumps(meta)})
