@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from aeid_struct.cli.errors import InputError
+from aeid_struct.cli.errors import InputError, one_line
 from aeid_struct.records.files import RECORD_LAYOUTS as RECORD_LAYOUTS
 from aeid_struct.records.files import RecordFile as RecordFile
 from aeid_struct.records.files import read_record as read_file
@@ -94,4 +94,4 @@ def read_record(file: str, option: str, channel: str) -> RecordFile:
     try:
         return read_file(file, option, channel)
     except ValueError as err:
-        raise InputError(str(err)) from None
+        raise InputError(one_line(err)) from None

@@ -2,7 +2,8 @@
 columns ``t, u, y``, numbered ``u1, u2, y1, ...``, one number or one record per line), one reading
 for the command line (``aeid-struct identify``, ``track``) and the fleet's CSV sources
 (``fleet.sources``). Errors are ValueErrors that name the file and what was expected, prefixed
-by the caller's label (the option or the source that named the file)."""
+by the caller's label (the option or the source that named the file); the command line prints
+them on one line (``cli.errors.one_line``)."""
 
 from __future__ import annotations
 
@@ -70,7 +71,7 @@ def _read_npy(path: Path, option: str) -> np.ndarray:
     except (ValueError, OSError, EOFError) as err:
         # allow_pickle=False: object arrays and pickles are refused, never unpickled
         raise ValueError(f"{option} file {str(path)!r} is not a numeric .npy array "
-                         f"({_one_line(err)})") from None
+                         f"({err})") from None
     if not isinstance(arr, np.ndarray):
         raise ValueError(f"{option} file {str(path)!r} is an .npz archive; expected one .npy "
                          "array")
@@ -109,7 +110,7 @@ def _read_csv(path: Path, option: str) -> tuple[np.ndarray, list[str] | None]:
         raise ValueError(f"{option} file {str(path)!r} is not a text CSV file (nor .npy)") \
             from None
     except (OSError, csv.Error) as err:
-        raise ValueError(f"{option} file {str(path)!r} cannot be read ({_one_line(err)})") \
+        raise ValueError(f"{option} file {str(path)!r} cannot be read ({err})") \
             from None
     if not lines:
         raise ValueError(f"{option} file {str(path)!r} holds no numbers")
@@ -232,8 +233,3 @@ def _sample_time(t: np.ndarray, file: str, option: str) -> float | None:
                          f"(one record sampled every dt); got steps from {steps.min():g} to "
                          f"{steps.max():g} s")
     return float(dt)
-
-
-def _one_line(err: object) -> str:
-    """The text of ``err`` on one line."""
-    return " ".join(str(err).split())
