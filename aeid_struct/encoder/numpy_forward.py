@@ -67,15 +67,15 @@ class NumpyEncoder:
         self.pool, self.length = int(cfg.pool), cfg.length
         self.kernel, self.pad = cfg.kernel, cfg.kernel // 2
         self._index: dict[int, np.ndarray] = {}       # padded length -> im2col gather index
-        self.convs = [(sd[f"main.{2 * i}.weight"].reshape(cfg.width, -1),
-                       sd[f"main.{2 * i}.bias"][:, None]) for i in range(cfg.depth)]
-        self.shortcut = (sd["shortcut.0.weight"].reshape(cfg.width, -1),
-                         sd["shortcut.0.bias"][:, None])
+        convs = [(sd[f"main.{2 * i}.weight"].reshape(cfg.width, -1),
+                  sd[f"main.{2 * i}.bias"][:, None]) for i in range(cfg.depth)]
         # the first main convolution and the shortcut read the same input with the same kernel:
         # one gather and one matmul of their stacked weights serve both (one layer's overhead
-        # less at batch 1; the same products row by row)
-        self.first = (np.concatenate([self.convs[0][0], self.shortcut[0]]),
-                      np.concatenate([self.convs[0][1], self.shortcut[1]]))
+        # less at batch 1; the same products row by row); then the other main convolutions
+        self.first = (np.concatenate([convs[0][0], sd["shortcut.0.weight"].reshape(cfg.width,
+                                                                                    -1)]),
+                      np.concatenate([convs[0][1], sd["shortcut.0.bias"][:, None]]))
+        self.convs = convs[1:]
         self.rows = [(sd[f"head.{2 * i}.weight"], sd[f"head.{2 * i}.bias"])
                      for i in range(len(cfg.dense) + 1)]            # (out, in): W @ v
         self.layers = [(W.T.copy(), b) for W, b in self.rows]      # (in, out): z @ W
@@ -125,7 +125,7 @@ class NumpyEncoder:
         xp = xp.reshape(C, -1)
         both = self._conv(xp, *self.first)
         h, shortcut = both[: self.config.width], both[self.config.width:]
-        for W, b in self.convs[1:]:
+        for W, b in self.convs:
             h = self._conv(h, W, b)
         both = np.concatenate([h, shortcut], axis=0)
         return both.reshape(-1, K, L + 2 * p)[:, :, p : p + L].transpose(1, 0, 2).reshape(K, -1)
