@@ -129,6 +129,48 @@ def test_numpy_pass_is_the_torch_module(config, dtype, activation, batch):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("config, activation", [
+    (EncoderConfig(steps=300, outputs=3, width=8, kernel=5, depth=3, dense=(48, 48), pool=6),
+     "numpy"),
+    (EncoderConfig(steps=48, outputs=4, inputs=True, features=2, width=5, kernel=7, depth=1,
+                   pool=2, activation="relu"), "numpy"),
+    (EncoderConfig(steps=64, outputs=3, inputs=True, features=1, dense=(12,), pool=4,
+                   activation="silu"), "torch"),
+])
+@pytest.mark.parametrize("dtype", [np.float64, None])
+def test_one_record_pass_is_the_torch_module(config, activation, dtype):
+    """NumpyEncoder.one (its workspace, the bias as a row of ones, the pooling mean in the
+    weights, the caller's affine map folded into the last layer) against the torch module on
+    the same record, twice (the workspace reused) and from a copy (pickle, deepcopy)."""
+    import copy
+    import pickle
+
+    from aeid_struct.encoder import NumpyEncoder
+
+    torch.manual_seed(0)
+    enc = Encoder(config).eval()
+    channels = 2 if config.inputs else 1
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, (channels, config.steps))
+    feats = rng.standard_normal(config.features) if config.features else None
+    shift, scale = rng.standard_normal(config.outputs), rng.uniform(0.1, 2, config.outputs)
+    net = NumpyEncoder(enc, dtype=dtype, activation=activation, affine=(shift, scale))
+    with torch.no_grad():
+        z = copy.deepcopy(enc).double()(
+            torch.from_numpy(x[None]),
+            None if feats is None else torch.from_numpy(feats[None])).numpy()[0]
+    want = shift + scale * z
+    tol = 1e-12 if dtype == np.float64 else 1e-5
+    for other in (net, net, copy.deepcopy(net), pickle.loads(pickle.dumps(net))):
+        got = other.one(x, feats)
+        assert got.dtype == np.float64           # the affine map's layer computes in float64
+        np.testing.assert_allclose(got, want, rtol=tol, atol=tol)
+    # without a map: the network's own outputs, in the pass's dtype
+    plain = NumpyEncoder(enc, dtype=dtype, activation=activation).one(x, feats)
+    assert plain.dtype == (np.float64 if dtype == np.float64 else np.float32)
+    np.testing.assert_allclose(plain, z, rtol=tol, atol=tol)
+
+
 def test_numpy_pass_refuses_what_numpy_cannot_evaluate():
     from aeid_struct.encoder import NumpyEncoder
 

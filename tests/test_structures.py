@@ -881,3 +881,44 @@ def test_a_fresh_interpreter_reads_every_structure_type_whichever_name_came_firs
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          check=True).stdout.split()
     assert out == ["CCF", "MCF"]
+
+
+def test_numeric_evaluates_each_threads_own_arguments():
+    """Four threads evaluate one Numeric with their own arguments, switching between any two
+    bytecodes: each gets its own result (one shared buffer gave a thread another's
+    arguments: 3 of 4 threads wrong here before each thread had its own)."""
+    import sys
+    import threading
+
+    from aeid_struct.structures import Numeric
+
+    x = casadi.SX.sym("x", 3)
+    f = casadi.Function("f", [x], [casadi.sin(x) * 2 + x[0] * x[1]])
+    numeric = Numeric(f)
+    args = [np.random.default_rng(k).standard_normal(3) for k in range(4)]
+    want = [np.asarray(f(a)).ravel() for a in args]
+    wrong = []
+
+    def work(k):
+        for _ in range(5000):
+            if not np.array_equal(numeric(args[k])[0], want[k]):
+                wrong.append(k)
+                return
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert wrong == []
+    # a copy (pickle, deepcopy) evaluates through buffers of its own
+    import copy
+    import pickle
+
+    for other in (copy.deepcopy(numeric), pickle.loads(pickle.dumps(numeric))):
+        np.testing.assert_array_equal(other(args[0])[0], want[0])

@@ -135,12 +135,12 @@ class Estimate(EstimateFields):
                  provenance=None, seconds=0.0, refined=False, info=None, errors=None, **old):
         if not (legacy or old) and isinstance(record, RecordBatch) and all(
                 v is not None for v in (A, b, c, d, elements)):
-            # the library's own keyword form (one per tracker window): nothing to translate
-            for name, value in (("A", A), ("b", b), ("c", c), ("d", d), ("elements", elements),
-                                ("record", record), ("provenance", _provenance(provenance, old)),
-                                ("seconds", seconds), ("refined", refined),
-                                ("info", {} if info is None else info), ("errors", errors)):
-                object.__setattr__(self, name, value)
+            # the library's own keyword form (one per tracker window): nothing to translate,
+            # the fields set at once (a frozen dataclass's fields live in its __dict__)
+            self.__dict__.update(A=A, b=b, c=c, d=d, elements=elements, record=record,
+                                 provenance=_provenance(provenance, old), seconds=seconds,
+                                 refined=refined, info={} if info is None else info,
+                                 errors=errors)
             return
         values = old_forms.arguments(legacy, {"A": A, "b": b, "c": c, "d": d,
                                               "elements": elements, "seconds": seconds,

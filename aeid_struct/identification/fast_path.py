@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from aeid_struct.encoder import NumpyEncoder
-from aeid_struct.records import denormalise, normalise
+from aeid_struct.records import denormalise
 from aeid_struct.structures import Numeric, Physical, expanded
 
 __all__ = ["Batch1", "fast_path", "warm"]
@@ -19,16 +19,16 @@ __all__ = ["Batch1", "fast_path", "warm"]
 class Batch1:
     """One record through the identifier without per-operation torch overhead.
 
-    The encoder is the one numpy pass (``encoder.NumpyEncoder``, float64 copies of the
-    weights, numpy's activations); the structure (theta -> elements -> A, b, c, d) is one
-    CasADi Function of ``theta`` (``ElementSet.casadi_elements`` and
-    ``Structure.casadi_system``, SX where they expand) evaluated through its buffer
-    (``structures.Numeric``): one call of compiled SX instructions, where a TorchScript trace
-    pays its interpreter's dispatch per operation; the trace remains for a structure without
-    a CasADi assembly. A physical structure maps its elements by the head's expanded
-    SX map (``physical_head.PhysicalHead``). A call ``(y (steps,),
-    u (steps,) or None)`` returns float64 ``A (1, n, n), b, c (1, n), d (1,), elements (1,
-    q)``, in measured units like ``Identifier.system``.
+    The encoder is the one numpy pass of one record (``encoder.NumpyEncoder.one``, in the
+    weights' float32 and numpy's activations, ``theta`` in float64); the structure (theta ->
+    elements -> A, b, c, d) is one CasADi Function of ``theta``
+    (``ElementSet.casadi_elements`` and ``Structure.casadi_system``, SX where they expand, one
+    output vector) evaluated through its buffer (``structures.Numeric``): one call of compiled
+    SX instructions, where a TorchScript trace pays its interpreter's dispatch per operation;
+    the trace remains for a structure without a CasADi assembly. A physical structure maps its
+    elements by the head's expanded SX map (``physical_head.PhysicalHead``). A call ``(y
+    (steps,), u (steps,) or None)`` returns float64 ``A (1, n, n), b, c (1, n), d (1,),
+    elements (1, q)``, in measured units like ``Identifier.system``.
 
     Parameters
     ----------
@@ -37,13 +37,17 @@ class Batch1:
     """
 
     def __init__(self, ident):
-        # the one numpy pass, in float64 and numpy's own activations (ValueError for others)
-        self.net = NumpyEncoder(ident.encoder, dtype=np.float64, activation="numpy")
+        # the one numpy pass in numpy's own activations (ValueError for others) and the
+        # weights' float32, as the network was trained and the eager pass runs it (float64
+        # would double the bytes the dense layers read for nothing the weights hold);
+        # theta = theta_mean + theta_scale * z folded into the last layer, in float64
+        self.net = NumpyEncoder(ident.encoder, activation="numpy",
+                                affine=(ident.theta_mean.double().numpy(),
+                                        ident.theta_scale.double().numpy()))
         self.cfg = ident.encoder.config
-        self.mean = ident.theta_mean.double().numpy()
-        self.scale = ident.theta_scale.double().numpy()
         self.ident = ident
         self.mask = ident._output_mask.double().numpy()[0]
+        self.output = self.mask > 0
         structure = ident.structure
         self.physical = self.map = None
         theta = casadi.SX.sym("theta", structure.p)
@@ -62,8 +66,11 @@ class Batch1:
         except NotImplementedError:
             A = None
         if A is not None:
-            self.map = Numeric(expanded(casadi.Function("structure", [theta],
-                                                         [A, b, c, d, elements])))
+            # one output vector (vec A, b, c, d, elements): one result pointer to set per call
+            self.n = n = structure.n
+            self.split = np.cumsum([n * n, n, n, 1])
+            self.map = Numeric(expanded(casadi.Function("structure", [theta], [casadi.vertcat(
+                casadi.vec(A), b, c, d, elements)])))
             return
 
         class _Structure(torch.nn.Module):
@@ -79,28 +86,40 @@ class Batch1:
                 check_trace=False))
 
     def __call__(self, y: np.ndarray, u: np.ndarray | None):
-        cfg = self.cfg
-        y_tilde, u_tilde, y_bar, u_bar = normalise(y[None], None if u is None else u[None])
-        gain = float(y_bar[0] / u_bar[0])
-        x = np.concatenate([y_tilde, u_tilde]) if cfg.inputs else y_tilde     # Eq. 15
-        z = self.net.convolve(x[:, None, :])
-        if cfg.features:
+        # Eq. 15 with records.normalise's arithmetic, for one record (a few calls less)
+        y_bar = np.abs(y).max()
+        u_bar = 1.0 if u is None else np.abs(u).max()
+        gain = y_bar / u_bar
+        y_tilde = 2.0 * (y / y_bar) - 1.0
+        if self.cfg.inputs:
+            x = np.empty((2, y.size))
+            x[0] = y_tilde
+            np.divide(1.0 if u is None else u, u_bar, out=x[1])
+        else:
+            x = y_tilde[None]
+        features = None
+        if self.cfg.features:
             ident = self.ident
-            z = np.append(z, (np.log(gain) - ident.feature_mean) / ident.feature_scale)[None]
-        z = self.net.dense(z)[0]
-        theta = self.mean + self.scale * z
+            features = (np.log(gain) - ident.feature_mean) / ident.feature_scale
+        theta = self.net.one(x, features)
         if self.map is not None:
-            A, b, c, d, el = self.map(theta)
-            n = b.size
-            A, b, c, d, el = A.reshape(1, n, n, order="F"), b[None], c[None], d, el[None]
-        elif self.physical is not None:
+            flat = self.map(theta)[0]
+            n, split = self.n, self.split
+            if self.ident.scale == "denormalise":
+                # records.denormalise's products, in place in the map's new vector
+                flat[split[1] : split[3]] *= gain
+                np.multiply(flat[split[3] :], gain, out=flat[split[3] :], where=self.output)
+            A = flat[: n * n].reshape(1, n, n, order="F")
+            return (A, flat[split[0] : split[1]][None], flat[split[1] : split[2]][None],
+                    flat[split[2] : split[3]], flat[split[3] :][None])
+        if self.physical is not None:
             A, b, c, d, el = self._physical(theta)
         else:
             with torch.no_grad():
                 A, b, c, d, el = (t.numpy() for t in self.structure(
                     torch.from_numpy(theta[None])))
         if self.ident.scale == "denormalise":
-            c, d, el = denormalise(c, d, el, np.array([gain]), self.mask > 0)
+            c, d, el = denormalise(c, d, el, np.array([gain]), self.output)
         return A, b, c, d, el
 
     def _physical(self, theta: np.ndarray) -> tuple:
@@ -130,7 +149,7 @@ def fast_path(ident):
     """
     if ident.records > 1:
         return None
-    version = tuple(p._version for p in ident._params)
+    version = [p._version for p in ident._params]
     if ident._fast_path is not None and ident._fast_path[0] == version:
         return ident._fast_path[1]
     try:

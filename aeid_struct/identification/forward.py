@@ -219,5 +219,7 @@ class TorchBackend:
         fast = fast_path(ident)
         if fast is None:          # "auto" where the numpy pass does not apply
             return encode(ident, ys, us)
+        if count == 1:
+            return fast(ys[0][0], us[0][0])          # its rows carry the batch axis
         rows = [fast(ys[0][r], us[0][r]) for r in range(count)]
         return tuple(np.concatenate(part) for part in zip(*rows, strict=True))

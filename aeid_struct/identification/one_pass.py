@@ -44,19 +44,22 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
     if errors == "raise":
         record.raise_first()
     good = record.good
+    every = bool(good.all())
     with np.errstate(over="ignore", invalid="ignore"):   # overflow: _overflowed says it
-        model, missed = _on_rows(ident, record, good, ident.head if head is None else head)
-    if missed.any():
+        model, missed = _on_rows(ident, record, good, every,
+                                 ident.head if head is None else head)
+    if missed is not None and missed.any():
         out = list(record.problems)
         used = ident.head if head is None else head
         for r in np.flatnonzero(missed):
             out[r] = head_failure(int(r), used)
         record = dataclasses.replace(record, problems=tuple(out))
         good = good & ~missed
+        every = False
         if errors == "raise":
             record.raise_first()
     if record.records == 1:
-        problems = _overflowed(record, good, model)
+        problems = _overflowed(record, good, every, model)
         if problems is not record.problems:
             record = dataclasses.replace(record, problems=problems)
             if errors == "raise":
@@ -101,21 +104,23 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
     return with_standard_errors(polish_at_bounds(est))
 
 
-def _on_rows(ident, record: RecordBatch, good: np.ndarray, head) -> tuple:
-    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False: the
-    good records through the identifier's back end (``ident.backend``), then the ``head``, if
-    any. Returns ``(model, missed)``: ``missed (count,)`` marks the records the head found no
-    finite model for (NaN rows)."""
-    ys, us, rows = record.y, record.u, np.flatnonzero(good)
-    missed = np.zeros(good.shape, dtype=bool)
-    if not good.all():
+def _on_rows(ident, record: RecordBatch, good: np.ndarray, every: bool, head) -> tuple:
+    """Float64 ``A, b, c, d, elements`` of every system, NaN rows where ``good`` is False
+    (``every``: none is): the good records through the identifier's back end
+    (``ident.backend``), then the ``head``, if any. Returns ``(model, missed)``: ``missed
+    (count,)`` marks the records the head found no finite model for (NaN rows); None without
+    a head."""
+    ys, us = record.y, record.u
+    missed = None if head is None else np.zeros(good.shape, dtype=bool)
+    rows = slice(None) if every else np.flatnonzero(good)
+    if not every:
         ys, us = [v[rows] for v in ys], [v[rows] for v in us]
     parts = None
-    if rows.size:
+    if every or rows.size:
         parts = ident.backend.model(ident, _encoded(ident, list(ys)), list(us))
         if head is not None:
             parts, missed[rows] = apply_head(ident, head, list(ys), list(us), parts)
-    if good.all():
+    if every:
         return parts, missed
     R, count = record.records, record.count
     n, q = ident.structure.n, len(ident.structure.element_names)
@@ -138,16 +143,16 @@ def _encoded(ident, ys: list) -> list:
     return centred(ident.structure, ident.initial == "fitted", ys)
 
 
-def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:
+def _overflowed(record: RecordBatch, good: np.ndarray, every: bool, model: tuple) -> tuple:
     """The record's problems with a reason added for each good record whose identified model
-    is not finite, and its model rows set to NaN (in place).
+    is not finite, and its model rows set to NaN (in place); ``every``: all records are good.
 
     Why: the de-normalisation multiplies ``c, d`` by ``max|y| / max|u|`` (Eq. 15 and
     linearity); a record of 1e308 has a model whose ``c`` lies beyond float64 (inf), which
     must not come back as an estimate."""
     problems = record.problems
-    if good.all() and all(math.isfinite(part.sum()) for part in model):
-        return problems       # the common case, in a few microseconds (a window of a stream)
+    if every and _finite(model):
+        return problems       # the common case, in microseconds (a window of a stream)
     finite = np.ones(len(problems), dtype=bool)
     for part in model:
         finite &= np.isfinite(part.reshape(len(problems), -1)).all(axis=1)
@@ -162,6 +167,16 @@ def _overflowed(record: RecordBatch, good: np.ndarray, model: tuple) -> tuple:
         for part in model:
             part[r] = math.nan
     return tuple(out)
+
+
+def _finite(model: tuple) -> bool:
+    """Whether every entry of the model is finite (False may be an overflow of a sum)."""
+    if model[0].shape[0] == 1:
+        # one record's few dozen numbers: Python floats, a third of five numpy reductions' time
+        return all(map(math.isfinite, [x for part in model for x in part.ravel().tolist()]))
+    # a sum of the parts' sums is finite only where every entry is (an overflow of the sum
+    # itself goes on to the entries' own check)
+    return math.isfinite(sum(float(np.add.reduce(part, axis=None)) for part in model))
 
 
 def estimate_of(ident, record: RecordBatch, model: tuple, start: float, errors,

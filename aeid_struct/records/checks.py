@@ -142,7 +142,7 @@ def as_records(name: str, value, steps: int, dt: float, *,
     if arr.ndim == 2 and arr.shape[0] == 0:
         raise ValueError(f"{name} must hold at least one record; got shape {arr.shape} (a "
                          "batch of no records)")
-    return np.atleast_2d(arr), arr.ndim == 2
+    return (arr[None] if arr.ndim == 1 else arr), arr.ndim == 2
 
 
 @dataclass(frozen=True)
@@ -244,6 +244,8 @@ def record_problems(y2: np.ndarray, u2: np.ndarray | None, *, reads_u: bool,
     """
     yname, uname = names
     count = y2.shape[0]
+    if count == 1 and _one_good(y2, u2, reads_u):
+        return (None,)
     # One reduction per signal screens every rule (a record's check runs on each tracker
     # window): max|v| is NaN or inf exactly when v is not finite, and 0 when v is all zero.
     # The ratio rule reads the finite samples' maxima; only a non-finite record recomputes
@@ -269,6 +271,19 @@ def record_problems(y2: np.ndarray, u2: np.ndarray | None, *, reads_u: bool,
         out[r] = _problem(int(r), count, y2[r], None if u2 is None else u2[r], reads_u,
                           y_bar[r], u_bar[r], yname, uname)
     return tuple(out)
+
+
+def _one_good(y2: np.ndarray, u2: np.ndarray | None, reads_u: bool) -> bool:
+    """Whether ONE record ``y2, u2 (1, steps)`` breaks none of :func:`record_problems`' rules,
+    in Python floats (the rules' screen below in numpy costs a tracker window's or a batch-1
+    call's time several times over); False sends it through the rules themselves."""
+    y_bar = float(np.abs(y2).max())           # NaN or inf exactly when y is not finite
+    u_bar = 1.0 if u2 is None else float(np.abs(u2).max())
+    if not (0.0 < y_bar < math.inf and 0.0 < u_bar < math.inf):
+        return False
+    if u2 is not None and not reads_u and (u2 != u2[0, 0]).any():
+        return False
+    return 0.0 < y_bar / u_bar < math.inf
 
 
 def _problem(r: int, count: int, y: np.ndarray, u: np.ndarray | None, reads_u: bool,

@@ -162,6 +162,11 @@ def check_record(y, u=None, *, steps, dt, reads_u: bool) -> RecordBatch:
         For a malformed argument (not real numbers, a wrong shape, no records, several-record
         sequences of another length or batch).
     """
+    if not isinstance(steps, tuple):     # one record (a batch-1 call's path: no tuples)
+        checked = check_records(y, u, steps=steps, dt=dt, reads_u=reads_u)
+        return RecordBatch((checked.y,), (unit_step(checked.y.shape) if checked.u is None
+                                          else np.asarray(checked.u),),
+                           (float(dt),), checked.batched, checked.problems, checked=True)
     grids = list(zip(*(v if isinstance(v, tuple) else (v,) for v in (steps, dt)), strict=True))
     R = len(grids)
     if R == 1:
@@ -169,8 +174,9 @@ def check_record(y, u=None, *, steps, dt, reads_u: bool) -> RecordBatch:
     else:
         checks = _check_several(y, u, grids, reads_u)
     # A system is good when each of its R records is; its reason is the first one's.
-    problems = tuple(next((c.problems[i] for c in checks if c.problems[i] is not None), None)
-                     for i in range(checks[0].count))
+    problems = checks[0].problems if R == 1 else tuple(
+        next((c.problems[i] for c in checks if c.problems[i] is not None), None)
+        for i in range(checks[0].count))
     return RecordBatch(tuple(c.y for c in checks),
                   tuple(unit_step(np.shape(c.y)) if c.u is None else np.asarray(c.u)
                         for c in checks),

@@ -3,6 +3,8 @@ CasADi map (a physical structure's, an inverse, a refinement graph) on numpy arr
 
 from __future__ import annotations
 
+import threading
+
 import casadi
 import numpy as np
 
@@ -14,7 +16,9 @@ class Numeric:
 
     Why: a Python call of a CasADi Function converts every numpy argument to a DM and every
     result back, which would dominate a refinement of about a millisecond; the buffer reads and
-    writes numpy memory directly.
+    writes numpy memory directly. A buffer holds the pointers of one evaluation and its work
+    memory, so each thread evaluates through its own (``threading.local``): two threads that
+    shared one could each read the other's arguments.
 
     Parameters
     ----------
@@ -25,16 +29,34 @@ class Numeric:
 
     def __init__(self, function: casadi.Function) -> None:
         self.function = function
-        self.buffer, self.eval = function.buffer()
         self.sizes = [function.nnz_out(i) for i in range(function.n_out())]
+        self._local = threading.local()
+
+    def __getstate__(self) -> dict:
+        return {"function": self.function}        # the buffers are rebuilt where it is read
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["function"])
+
+    @property
+    def buffer(self):
+        """The calling thread's ``casadi.FunctionBuffer``, made on its first use there."""
+        return self._buffer()[0]
+
+    def _buffer(self) -> tuple:
+        got = self._local.__dict__.get("buffer")
+        if got is None:
+            got = self._local.buffer = self.function.buffer()
+        return got
 
     def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
+        buffer, evaluate = self._buffer()
         out = [np.empty(k) for k in self.sizes]
         for i, a in enumerate(args):
-            self.buffer.set_arg(i, memoryview(a))
+            buffer.set_arg(i, memoryview(a))
         for i, r in enumerate(out):
-            self.buffer.set_res(i, memoryview(r))
-        self.eval()
+            buffer.set_res(i, memoryview(r))
+        evaluate()
         return out
 
     def stats(self) -> dict:
