@@ -171,6 +171,28 @@ def test_one_record_pass_is_the_torch_module(config, activation, dtype):
     np.testing.assert_allclose(plain, z, rtol=tol, atol=tol)
 
 
+def test_inference_is_the_differentiable_pass_and_leaves_its_input_alone():
+    """Without autograd the tanh runs in numpy, in place on each layer's fresh output: the
+    same numbers as the recorded pass (float32 and float64), the caller's records untouched,
+    and gradients still flow where autograd records."""
+    torch.manual_seed(3)
+    cfg = EncoderConfig(steps=120, outputs=3, inputs=True, features=1, pool=2, width=6,
+                        dense=(9, 7))
+    for dtype in (torch.float32, torch.float64):
+        enc = Encoder(cfg).to(dtype)
+        x = torch.rand(5, 2, 120, dtype=dtype) * 2 - 1
+        f = torch.randn(5, 1, dtype=dtype)
+        kept = x.clone()
+        recorded = enc(x, f)
+        with torch.no_grad():
+            inferred = enc(x, f)
+        assert torch.equal(x, kept)
+        tol = 1e-6 if dtype == torch.float32 else 1e-13
+        torch.testing.assert_close(inferred, recorded.detach(), rtol=tol, atol=tol)
+        recorded.sum().backward()
+        assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in enc.parameters())
+
+
 def test_numpy_pass_refuses_what_numpy_cannot_evaluate():
     from aeid_struct.encoder import NumpyEncoder
 

@@ -84,10 +84,27 @@ def decode(ident, x: list, features):
         As the structure outputs them, with the encoder's standardised output ``z``.
     """
     z = ident.encoder(x[0] if ident.records == 1 else x, features)
+    sys, elements = structured(ident, z)
+    return sys, elements, z
+
+
+def structured(ident, z: torch.Tensor) -> tuple:
+    """The structure's ``System`` and ``elements (batch, q)`` of the encoder's standardised
+    output ``z (batch, p)``: ``theta = theta_mean + theta_scale z``, then the structure.
+
+    Parameters
+    ----------
+    ident : Identifier
+    z : (batch, p) tensor
+
+    Returns
+    -------
+    System, elements (batch, q)
+    """
     theta = (ident.theta_mean.to(z.device, z.dtype)
              + ident.theta_scale.to(z.device, z.dtype) * z)
     elements = ident.structure.elements(theta)
-    return ident.structure.assemble(elements), elements, z
+    return ident.structure.assemble(elements), elements
 
 
 def encode(ident, ys: list, us: list) -> tuple:
@@ -113,13 +130,20 @@ def encode(ident, ys: list, us: list) -> tuple:
     elements : (count, q)
     """
     count = ys[0].shape[0]
-    x, gains = [], []
-    for y2, u2 in zip(ys, us, strict=True):
-        y_tilde, u_tilde, y_bar, u_bar = normalise(y2, u2)
-        channels = [y_tilde, u_tilde] if ident.inputs else [y_tilde]
-        x.append(torch.from_numpy(np.stack(channels, axis=1).astype(np.float32)))
-        gains.append(y_bar / u_bar)
-    gain = np.stack(gains, axis=1)                                   # (count, R)
+    x, gain = [], np.empty((count, len(ys)))                           # gain (count, R)
+    for r, (y2, u2) in enumerate(zip(ys, us, strict=True)):
+        x.append(np.empty((count, 2 if ident.inputs else 1, y2.shape[1]), dtype=np.float32))
+        # chunk by chunk: a chunk's float64 temporaries stay in cache and reuse their memory,
+        # where a whole batch's take fresh pages from the system for each operation
+        for i in range(0, count, CHUNK):
+            rows = slice(i, i + CHUNK)
+            y_tilde, u_tilde, y_bar, u_bar = normalise(
+                y2[rows], None if u2 is None else u2[rows], inputs=ident.inputs)
+            x[r][rows, 0] = y_tilde
+            if ident.inputs:
+                x[r][rows, 1] = u_tilde
+            gain[rows, r] = y_bar / u_bar
+    x = [torch.from_numpy(v) for v in x]
     features = None
     if ident.scale == "feature":
         mean, spread = (f.numpy() for f in ident._features)
@@ -143,15 +167,16 @@ def _decoded(ident, x: list, features, count: int) -> tuple:
         torch.set_num_threads(1)
     try:
         with torch.no_grad():
-            # Chunks (CHUNK) keep the activations in cache and bound the memory a call takes,
-            # which load (fast_path.warm) touches once.
-            parts = []
-            for i in range(0, count, CHUNK):
-                sys, el, _ = decode(ident, [v[i: i + CHUNK] for v in x],
-                                           None if features is None else features[i: i + CHUNK])
-                parts.append((sys.A, sys.b, sys.c, sys.d, el))
-            return tuple(torch.cat(t).numpy().astype(np.float64)
-                         for t in zip(*parts, strict=True))
+            # The encoder in chunks (CHUNK): they keep the activations in cache and bound the
+            # memory a call takes, which load (fast_path.warm) touches once; the structure's
+            # few numbers per record in one pass over all (a chunk's pass is its operations'
+            # overhead).
+            z = torch.cat([ident.encoder(
+                [v[i: i + CHUNK] for v in x] if ident.records > 1 else x[0][i: i + CHUNK],
+                None if features is None else features[i: i + CHUNK])
+                for i in range(0, count, CHUNK)])
+            sys, el = structured(ident, z)
+            return tuple(t.numpy().astype(np.float64) for t in (sys.A, sys.b, sys.c, sys.d, el))
     finally:
         if torch.get_num_threads() != threads:
             torch.set_num_threads(threads)

@@ -334,7 +334,7 @@ def overflow_problem(r: int, gain: float, yname: str = "y") -> str:
             f"beyond float64's range; rescale {yname} (e.g. to other units)")
 
 
-def normalise(y2: np.ndarray, u2: np.ndarray | None):
+def normalise(y2: np.ndarray, u2: np.ndarray | None, *, inputs: bool = True):
     """Eq. 15 per record, in float64: ``y_tilde = 2 y / y_bar - 1`` with ``y_bar = max|y|``,
     and ``u / u_bar`` with ``u_bar = max|u|`` (ones and ``u_bar = 1`` for a unit step).
 
@@ -343,19 +343,24 @@ def normalise(y2: np.ndarray, u2: np.ndarray | None):
     y2 : (count, steps) float64 array
         Good records (:func:`record_problems`).
     u2 : (count, steps) float64 array or None
+    inputs : bool
+        Whether ``u_tilde`` is wanted (False: None, for a reader that reads ``u_bar`` only).
 
     Returns
     -------
-    y_tilde, u_tilde : (count, steps) arrays in [-1, 1]
+    y_tilde, u_tilde : (count, steps) arrays in [-1, 1] (``u_tilde`` None without ``inputs``)
     y_bar, u_bar : (count,) arrays
     """
     y_bar = np.abs(y2).max(axis=1)
-    # y / y_bar first: 2 y overflows for |y| near float64's largest number
-    y_tilde = 2.0 * (y2 / y_bar[:, None]) - 1.0
+    # y / y_bar first: 2 y overflows for |y| near float64's largest number; then in place
+    # (the same products, no further temporaries)
+    y_tilde = y2 / y_bar[:, None]
+    y_tilde *= 2.0
+    y_tilde -= 1.0
     if u2 is None:
-        return y_tilde, unit_step(y2.shape), y_bar, unit_step(y_bar.shape)
+        return y_tilde, unit_step(y2.shape) if inputs else None, y_bar, unit_step(y_bar.shape)
     u_bar = np.abs(u2).max(axis=1)
-    return y_tilde, u2 / u_bar[:, None], y_bar, u_bar
+    return y_tilde, u2 / u_bar[:, None] if inputs else None, y_bar, u_bar
 
 
 def denormalise(c: np.ndarray, d: np.ndarray, elements: np.ndarray, gain: np.ndarray,
