@@ -129,3 +129,34 @@ def pi_loop(noise: float, seed: int, steps: int = 1000, dt: float = 0.05):
         u[k] = 1.5 * (r[k] - y[k]) + 0.8 * integral
         x = A @ x + B[:, 0] * u[k]
     return ae.Record(y, u, dt, intersample="zoh")
+
+
+def pi_loop_2x2(noise: float, seed: int, steps: int = 1000, dt: float = 0.05,
+                closed: bool = True):
+    """Two coupled second-order modes (poles ``-0.4 +- 0.917j``, ``-0.6 +- 1.281j``; two
+    inputs, two outputs) under a decentralised PI controller, ``u_j = 1.2 e_j + 0.6 int e_j``,
+    ``e = r - y`` with the measured (noisy) ``y``, reference steps every 100 and 80 samples;
+    the input held between samples (``closed=False``: the references themselves are the
+    inputs). Returns the :class:`aeid_struct.Record` (``intersample="zoh"``) and the true
+    continuous poles."""
+    import scipy.signal
+
+    import aeid_struct as ae
+
+    A = np.array([[0, 1, 0, 0], [-1.0, -0.8, 0, 0], [0, 0, 0, 1], [0, 0, -2.0, -1.2]])
+    B = np.array([[0, 0], [1.0, 0.3], [0, 0], [0.4, 1.5]])
+    C = np.array([[1.0, 0, 0.2, 0], [0, 0.1, 1.0, 0]])
+    Ad, Bd, Cd, _, _ = scipy.signal.cont2discrete((A, B, C, np.zeros((2, 2))), dt, "zoh")
+    rng = np.random.default_rng(seed)
+    r = np.stack([np.repeat(rng.choice([-1.0, 1.0], steps // 100 + 1), 100)[:steps],
+                  np.repeat(rng.choice([-1.0, 1.0], steps // 80 + 1), 80)[:steps]], axis=1)
+    V = noise * rng.standard_normal((steps, 2))
+    x, integral = np.zeros(4), np.zeros(2)
+    Y, U = np.zeros((steps, 2)), np.zeros((steps, 2))
+    for k in range(steps):
+        Y[k] = Cd @ x + V[k]
+        e = r[k] - Y[k]
+        integral += e * dt
+        U[k] = 1.2 * e + 0.6 * integral if closed else r[k]
+        x = Ad @ x + Bd @ U[k]
+    return ae.Record(Y, U, dt, intersample="zoh"), np.linalg.eigvals(A)

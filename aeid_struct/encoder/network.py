@@ -19,7 +19,6 @@ import torch
 from torch import nn
 
 
-
 class _Tanh(nn.Tanh):
     """``nn.Tanh``; in inference on a CPU tensor, numpy's vectorised tanh in place.
 

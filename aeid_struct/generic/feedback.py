@@ -31,7 +31,7 @@ from scipy.stats import norm
 from aeid_struct.generic.boundary import warn_caller
 
 __all__ = ["FEEDBACK_ALPHA", "FEEDBACK_LAGS", "PREWHITEN", "QUIET", "FeedbackWarning",
-           "feedback_test", "warn_feedback"]
+           "feedback_channels", "feedback_test", "warn_feedback"]
 
 #: Later-input lags tested.
 FEEDBACK_LAGS = 20
@@ -115,6 +115,42 @@ def feedback_test(y, y_hat, u, *, lags: int = FEEDBACK_LAGS, order: int = PREWHI
             "detected": bool(abs(z[k]) > bound), "lags": L}
 
 
+def feedback_channels(Ys, Y_hats, Us, *, lags: int = FEEDBACK_LAGS, order: int = PREWHITEN,
+                      alpha: float = FEEDBACK_ALPHA) -> dict | None:
+    """:func:`feedback_test` of every record's every output against every input, ``alpha``
+    the false-alarm rate over all of them (Bonferroni: ``alpha / (R p m)`` each).
+
+    Under feedback a controller may close any loop: output ``i``'s noise reaches input ``j``
+    wherever the controller reads ``y_i`` for ``u_j``, so every pair is tested.
+
+    Parameters
+    ----------
+    Ys, Y_hats : sequences of R (steps_r, p) arrays
+        Measured outputs and the model's (NaN where it has none).
+    Us : sequence of R (steps_r, m) arrays
+    lags, order : int
+        As :func:`feedback_test`.
+    alpha : float in (0, 1)
+
+    Returns
+    -------
+    dict or None
+        The pair furthest above (or nearest to) its bound: :func:`feedback_test`'s result with
+        ``record``, ``output`` and ``input`` (indices) added; None where no pair is testable.
+    """
+    tests = sum(np.shape(Y)[1] * np.shape(U)[1] for Y, U in zip(Ys, Us, strict=True))
+    worst = None
+    for r, (Y, Y_hat, U) in enumerate(zip(Ys, Y_hats, Us, strict=True)):
+        for i in range(np.shape(Y)[1]):
+            for j in range(np.shape(U)[1]):
+                found = feedback_test(Y[:, i], Y_hat[:, i], U[:, j], lags=lags, order=order,
+                                      alpha=alpha / tests)
+                if found is not None and (worst is None or found["statistic"] / found["bound"]
+                                          > worst["statistic"] / worst["bound"]):
+                    worst = found | {"record": r, "output": i, "input": j}
+    return worst
+
+
 def _autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:
     """``rho(0..lags)`` of a zero-mean series (biased estimate, ``rho(0) = 1``)."""
     r = np.array([x[: x.shape[0] - m] @ x[m:] for m in range(lags + 1)])
@@ -128,17 +164,28 @@ def warn_feedback(found: dict, strict: bool) -> None:
     Parameters
     ----------
     found : dict
-        :func:`feedback_test`'s result (detected).
+        :func:`feedback_test`'s result (detected), or :func:`feedback_channels`' (naming the
+        output and input).
     strict : bool
         Whether the estimate was identified again without its feedthrough.
     """
-    what = ("the estimate has no direct feedthrough (d = 0): a free d takes up the noise a "
-            "controller feeds back in the same sample; pass structure=CCF(order, "
-            "feedthrough=True) to keep one" if strict else
-            "a model with a direct feedthrough takes up the noise a controller feeds back in "
-            "the same sample")
+    several = "output" in found
+    if several:
+        what = ("the estimate has no direct feedthrough (D = 0): a free D takes up the noise a "
+                "controller feeds back in the same sample" if strict else
+                "a model with a direct feedthrough takes up the noise a controller feeds back "
+                "in the same sample")
+    else:
+        what = ("the estimate has no direct feedthrough (d = 0): a free d takes up the noise "
+                "a controller feeds back in the same sample; pass structure=CCF(order, "
+                "feedthrough=True) to keep one" if strict else
+                "a model with a direct feedthrough takes up the noise a controller feeds back "
+                "in the same sample")
+    where = (f" (output {found['output']} against input {found['input']}"
+             + (f", record {found['record']}" if found.get("record") else "") + ")"
+             if several else "")
     warn_caller(f"the record looks closed-loop: its residuals are correlated with later "
-                f"inputs (z = {found['statistic']:.1f} at lag {found['lag']}, bound "
+                f"inputs{where} (z = {found['statistic']:.1f} at lag {found['lag']}, bound "
                 f"{found['bound']:.2f}); {what}. The output-error fit from u to y is "
                 f"consistent under feedback only for white output noise: coloured noise "
                 f"(drift, disturbances the plant filters) biases it: identify such a plant "

@@ -9,14 +9,17 @@ the identifier's class, the loader and the pipeline import one another in one di
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
+import time
 
 import numpy as np
 
 from aeid_struct.generic.boundary import shortest
 from aeid_struct.generic.classical import MAX_ORDER, NoEncoder
 from aeid_struct.generic.config import ORDERS
+from aeid_struct.generic.feedback import feedback_channels, warn_feedback
 from aeid_struct.generic.model import load_generic
 from aeid_struct.generic.pipeline import (
     ESTIMATION_SHARE as ESTIMATION_SHARE,
@@ -104,11 +107,12 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         the candidate or start that won) and, where they ran, the iterations' ``iterations,
         converged`` (and the one pass's ``delay_moved``: its re-scan moved the delay), and
         ``feedback``: the closed-loop test of ``generic.feedback`` on the refined model's
-        residuals (None for the one pass and where the record is too short for it). Where it
-        finds the input correlated with earlier residuals it warns
-        (:class:`~aeid_struct.generic.feedback.FeedbackWarning`) and, for the default
+        residuals (None for the one pass and where the record is too short for it; for
+        several channels or experiments every output against every input of every record,
+        ``feedback_channels``). Where it finds an input correlated with earlier residuals it
+        warns (:class:`~aeid_struct.generic.feedback.FeedbackWarning`) and, for the default
         structure, identifies the record again without a feedthrough (``feedback["refit"]``;
-        a free ``d`` takes up the noise a controller feeds back in the same sample).
+        a free ``d`` or ``D`` takes up the noise a controller feeds back in the same sample).
 
     Raises
     ------
@@ -161,9 +165,33 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
         # included, already reach the refined fit from these and the classical candidates
         return candidates(ident, y, u, growth=())
 
-    return identify_multi(record, order, refine=refine, delay=delay, max_delay=max_delay,
-                          iterations=iterations, classical=classical, proposals=proposals,
-                          orders=range(1, MAX_ORDER + 1))
+    began = time.perf_counter()
+    kw = {"refine": refine, "delay": delay, "max_delay": max_delay, "iterations": iterations,
+          "classical": classical, "proposals": proposals, "orders": range(1, MAX_ORDER + 1)}
+    est = identify_multi(record, order, **kw)
+    if not refine:      # as for one channel: the one pass's residual carries model error
+        return est
+    records = est.record
+    found = feedback_channels([y[0].reshape(y.shape[1], -1) for y in records.y],
+                              _per_record(est.info["y_hat"], records.records),
+                              [u[0].reshape(u.shape[1], -1) for u in records.u])
+    if found is not None and found["detected"]:
+        # a free D takes up the noise a controller acting on the samples it measures feeds
+        # back through u_k, as d does for one channel (generic.pipeline): the order found
+        # again without it
+        order_fits = est.info["order_fits"]
+        est = identify_multi(record, est.A.shape[-1], feedthrough=False, **kw)
+        est.info["order_fits"] = order_fits
+        found = found | {"refit": "no feedthrough"}
+        warn_feedback(found, True)
+    return dataclasses.replace(est, seconds=time.perf_counter() - began,
+                               info={**est.info, "feedback": found})
+
+
+def _per_record(y_hat, count: int) -> list:
+    """``info["y_hat"]`` of a several-channel estimate as R ``(steps, p)`` arrays."""
+    parts = y_hat if count > 1 else (y_hat,)
+    return [np.reshape(v, (np.shape(v)[0], -1)) for v in parts]
 
 
 @functools.cache
