@@ -330,6 +330,22 @@ def test_identify_perturbed_double_keeps_the_best_candidate():
     assert est.fit > np.median(fits) + 1 and est.info["candidates"] == len(dens) + 1
 
 
+def test_the_delay_search_recovers_from_a_neighbours_degenerate_poles():
+    """A first-order unstable record dominated by its feedthrough (true delay 3, 3 % noise;
+    the generic benchmark's cell at seed 777): at delay 2 the refined pole runs to -1.3e5, and
+    refined from there the true delay's optimum was missed (the search stopped at delay 0, a
+    validation fit of 59 against 97.0 with the delay given)."""
+    from aeid_struct.studies.generic_bench import PLANTS, _case_records
+
+    seed = 777 + 1000 + 300 + 400 + 100_000 * PLANTS.index("unstable")
+    estimation, validation, _, true = _case_records(1, 0.03, 400, 3, seed, "unstable")[1]
+    assert true[4] == 3
+    est = identify(estimation, order=1)
+    assert est.delay == 3
+    given = identify(estimation.with_delay(3), order=1)
+    assert compare(est, validation).fit >= compare(given, validation).fit - 0.5 > 95
+
+
 def test_identify_known_delay_is_used_as_given():
     y, u = make_record(delay=2)
     est = identify((y, u, DT), 3, refine=False, delay=5, identifier=ArxDouble(3))

@@ -127,6 +127,26 @@ def test_a_delay_per_input_is_found():
     assert _frequency_gap(known, system) < 1e-6
 
 
+def test_a_delay_several_samples_off_is_walked_to():
+    """A 2x1 unstable record at 4 % noise (the channels bench's first '2x1 unstable' set): the
+    ARX delay is 5 for a true 2 and one re-scan step stopped at 4 (validation fit 84.3, ten
+    points below least squares given the true delay); the walk and the fit again reach 2."""
+    from aeid_struct.studies.channels_bench import CASES, _run, _system
+
+    order, p, m, _, kind, steps = CASES["2x1 unstable"][:6]
+    rng = np.random.default_rng(20_261_123 + 1000 * list(CASES).index("2x1 unstable"))
+    system = _system(order, p, m, kind, rng)
+    delays = np.full(m, int(rng.integers(0, 4)))
+    noise = float(rng.uniform(0.01, 0.05))
+    record, validation = (_run(system, delays, steps, noise, rng) for _ in range(2))
+    assert delays.tolist() == [2] and noise > 0.04
+    est = ae.identify(record, order=order)
+    assert int(np.ravel(est.delay)[0]) == 2
+    given = least_squares(record.with_delay(2), order=order)
+    fit = np.mean(ae.compare(est, validation, delay=2).fit)
+    assert fit >= np.mean(ae.compare(given, validation, delay=2).fit) - 0.1 > 90
+
+
 def test_several_experiments_one_model_own_initial_states_and_offsets():
     system = _system(3, 1, 1, 4)
     recs = [_record(system, s, steps=300 + 100 * s, offset=float(s)) for s in range(3)]

@@ -13,8 +13,8 @@ The steps (docs/architecture.md, "Several channels, several experiments"):
 5. output error over every record by variable projection (``multi.fit``): the one pass
    (``refine=False``) runs a fixed number of residual evaluations from the best candidate; the
    refinement runs to convergence from the two best, and keeps the better; then each input's
-   delay is re-scanned one sample either side by projection and, where one is better, the fit
-   runs again there.
+   delay is walked one sample at a time by projection while that is better, and the fit runs
+   again there (up to :data:`RESCANS` rounds).
 
 *Order selection* (``order=None``): as for one channel (``generic.pipeline``): every order the
 records have samples for, fitted on the first 70 % of each record and validated on the rest
@@ -55,6 +55,8 @@ MAX_DELAY = 10
 #: Records whose output-input pairs the encoders read for candidates (the first ones): each pair
 #: is one batched encoder call, and the candidates are ranked on every record anyway.
 PROPOSING_RECORDS = 3
+#: Rounds of the delays' re-scan and the fit at the delays found, at most.
+RESCANS = 3
 #: Starts refined to convergence at most (the best candidates by the relaxed projection).
 STARTS = 2
 #: The second start is refined only where the first's optimum costs more than this times the
@@ -132,13 +134,17 @@ def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int
         fitted = iterate(layout, theta, h, ex, delays, feedthrough, budget, origin)
         if best is None or fitted.cost < best.cost:
             best = fitted
-    if ex.delay is None and top > 0:
+    # the delays walked at the fit's poles and the fit run again there, until they stay (the
+    # poles of a fit at a wrong delay move towards the right one's, where the walk goes on)
+    for _ in range(RESCANS if ex.delay is None and top > 0 else 0):
         moved = rescan(best, ex, top, feedthrough)
-        if not np.array_equal(moved, best.delays):
-            again = iterate(best.layout, best.theta, best.h, ex, moved, feedthrough, budget,
-                            best.start)
-            if again.cost < best.cost:
-                best = again
+        if np.array_equal(moved, best.delays):
+            break
+        again = iterate(best.layout, best.theta, best.h, ex, moved, feedthrough, budget,
+                        best.start)
+        if not again.cost < best.cost:
+            break
+        best = again
     return best, len(found)
 
 
