@@ -106,6 +106,11 @@ def _record() -> list[Case]:
         Case(area, "NaN in u", lambda x: ae.Record(y, np.where(np.arange(N) == 7, np.nan, u),
                                                    DT),
              match=r"^u must be finite; got nan at sample 7"),
+        # several channels: the sample, then the channel (it said "record 7, sample 1")
+        Case(area, "NaN in one output of several",
+             lambda x: ae.Record(np.stack([y, np.where(np.arange(N) == 7, np.nan, y)], 1), u,
+                                 DT),
+             match=r"^y must be finite; got nan at sample 7, output 1$"),
         Case(area, "u shorter", lambda x: ae.Record(y, u[:-1], DT),
              match=r"^u must have as many samples as y \(600\); got 599"),
     ]

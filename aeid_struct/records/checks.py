@@ -92,7 +92,8 @@ def as_array(name: str, value) -> np.ndarray:
                          f"{type(value).__name__} of dtype {arr.dtype}") from None
 
 
-def require_finite(name: str, arr: np.ndarray) -> None:
+def require_finite(name: str, arr: np.ndarray, labels: tuple[str, ...] = ("record",
+                                                                          "sample")) -> None:
     """A ValueError naming the first non-finite entry of a record ("at sample k" or "at record
     r, sample k").
 
@@ -101,10 +102,13 @@ def require_finite(name: str, arr: np.ndarray) -> None:
     name : str
         The argument's name in messages.
     arr : (steps,) or (batch, steps) array
+    labels : tuple of str
+        The axes' names, the last ones used for an array of fewer axes (a measured record of
+        several channels, ``(steps, channels)``, passes ``("sample", "output")``).
     """
     if not np.all(np.isfinite(arr)):
         where = np.argwhere(~np.isfinite(arr))[0]
-        labels = ("record", "sample")[-arr.ndim:]
+        labels = labels[-arr.ndim:]
         at = ", ".join(f"{label} {i}" for label, i in zip(labels, where, strict=True))
         raise ValueError(f"{name} must be finite; got {arr[tuple(where)]} at {at}")
 

@@ -76,7 +76,8 @@ def _samples(name: str, value) -> np.ndarray:
     if arr.ndim not in (1, 2) or arr.shape[0] < 2:
         raise ValueError(f"{name} must have shape (steps,) or (steps, {what}) with steps >= 2 "
                          f"(one record); got shape {arr.shape}")
-    require_finite(name, arr)
+    # a record of several channels is (steps, channels): "at sample k, output i"
+    require_finite(name, arr, ("sample", "output" if name == "y" else "input")[: arr.ndim])
     arr = np.array(arr, dtype=np.float64)          # our own copy: the caller's may change
     arr.flags.writeable = False
     return arr
