@@ -361,6 +361,39 @@ def test_order_none_selects_three_on_a_clear_order3_record():
     assert fits[3] > fits[2] + 0.5 and fits[4] > fits[3] - 0.5   # 4 fits too: 3 is smaller
 
 
+def test_order_none_on_a_record_whose_input_steps_late():
+    """The input's one step after the first 70 % (the holdout's estimation part at rest): the
+    order is chosen on the whole record (it raised "u is constant over the whole record")."""
+    import scipy.signal
+
+    steps, dt = 400, 0.05
+    u = (np.arange(steps) >= 320).astype(float)
+    t = np.arange(steps) * dt
+    y = scipy.signal.lsim(([2.0], [1.0, 3.0, 2.0]), u, t)[1]
+    y += 0.002 * np.random.default_rng(0).standard_normal(steps)
+    est = identify(ae.Record(y, u, dt))
+    assert est.A.shape == (2, 2)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(est.A).real), [-2, -1], rtol=0.05)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_order_none_on_a_short_record_is_the_true_order(order):
+    """80 samples at 3 % noise, too short for the holdout: the order of least Bayesian
+    information criterion is the true one, where half a point of the best whole-record fit
+    chose a higher one for orders 2 and 3 (module docstring of generic.pipeline)."""
+    import scipy.signal
+
+    den = np.real(np.poly([-1.0, -0.4 + 1.5j, -0.4 - 1.5j][:order] if order != 2
+                          else [-0.5 + 1.2j, -0.5 - 1.2j]))
+    steps, dt = 80, 0.1
+    u = staircase(steps, seed=3)
+    t = np.arange(steps) * dt
+    y = scipy.signal.lsim(([den[-1]], den), u, t)[1]
+    y += 0.03 * np.std(y) * np.random.default_rng(order).standard_normal(steps)
+    est = identify(ae.Record(y, u, dt))
+    assert est.A.shape == (order, order)
+
+
 def test_identify_mcf_structure_is_the_same_model():
     y, u = make_record()
     ccf_est = identify((y, u, DT), 3, refine=False, identifier=ArxDouble(3))

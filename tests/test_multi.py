@@ -147,6 +147,22 @@ def test_a_delay_several_samples_off_is_walked_to():
     assert fit >= np.mean(ae.compare(given, validation, delay=2).fit) - 0.1 > 90
 
 
+def test_order_none_where_the_inputs_step_after_the_holdouts_cut():
+    """Both inputs step after the first 70 % (the estimation part at rest): the hold-out
+    rule fitted noise there and chose order 4 for this second-order plant; the whole records'
+    least Bayesian information criterion chooses 2."""
+    A = np.array([[0, 1], [-2.0, -1.5]])
+    B, C = np.array([[0, 0], [1.0, 0.5]]), np.array([[1.0, 0], [0.3, 1.0]])
+    steps, dt = 400, 0.05
+    U = np.stack([np.arange(steps) >= 320, np.arange(steps) >= 350], 1).astype(float)
+    Y = scipy.signal.lsim((A, B, C, np.zeros((2, 2))), U, np.arange(steps) * dt)[1]
+    Y = Y + 0.002 * np.random.default_rng(0).standard_normal(Y.shape)
+    est = ae.identify(ae.Record(Y, U, dt))
+    assert est.A.shape == (2, 2)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(est.A).real), [-0.75, -0.75],
+                               atol=0.05)
+
+
 def test_several_experiments_one_model_own_initial_states_and_offsets():
     system = _system(3, 1, 1, 4)
     recs = [_record(system, s, steps=300 + 100 * s, offset=float(s)) for s in range(3)]

@@ -52,8 +52,15 @@ record has samples for) is identified (refined where
 it) on the first 70 % of the record and validated on the last 30 % (NRMSE fit with the initial
 state and offset fitted, MATLAB's ``compare``); the smallest order whose validation fit is
 within :data:`ORDER_TOLERANCE` points of the best is chosen and identified on the whole
-record. Where 70 % of the record is shorter than the identifier's window, the whole-record
-fits are compared instead by the same rule.
+record. Where 70 % of the record is shorter than the identifier's window, or holds no
+variation of the input or output (a step late in the record), or the last 30 % none of the
+output, each order is identified on the whole record and the one of least Bayesian information
+criterion ``N log V + 3 n log N`` is chosen (``V`` the mean squared residual over the ``N``
+fitted samples, ``3 n`` the parameters that grow with the order: denominator, numerator and
+initial state). Why not the fit rule there: on the record it was fitted to, a higher order
+always fits better, and within half a point of the best was order 5-8 for records of 80
+samples of orders 1-3 (their validation fits 60-500000 points below the true order's on 3 of
+18); the criterion chose the true order on 11 of them.
 """
 
 from __future__ import annotations
@@ -146,15 +153,20 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
 
 
 def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
-                  refine: bool, method: str, iterations: int, classical: bool) -> dict:
+                  refine: bool, method: str, iterations: int, classical: bool) -> tuple:
     """Validation fit per order (see the module docstring), each order's model found as the
-    chosen order's is (the one pass, or refined); returns order -> fit."""
+    chosen order's is (the one pass, or refined); returns ``(fits, criterion)``: order -> fit,
+    and order -> Bayesian information criterion where there is no holdout (else None)."""
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
-    holdout = cut >= max(int(i.config.window) for i in identifiers.values())
+    # a part that says nothing (the input's step after the cut, an output at rest before it)
+    # cannot be fitted, and a validation part at rest scores nothing: the whole record then
+    holdout = (cut >= max(int(i.config.window) for i in identifiers.values())
+               and np.ptp(data.u[:cut]) > 0 and np.ptp(data.y[:cut]) > 0
+               and np.ptp(data.y[cut:]) > 0)
     part = Record(data.y[:cut], data.u[:cut], data.dt, delay=data.delay,
                   intersample=data.intersample) if holdout else data
-    fits = {}
+    fits, criterion = {}, ({} if not holdout else None)
     for n, ident in sorted(identifiers.items()):
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough,
                            classical and not refine, data.intersample, classical)
@@ -169,11 +181,13 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
             model = iterate(None, ccf_n, model, part, iterations, max_delay)[0]
         if not holdout:
             fits[n] = model.fit
+            used = N - model.delay
+            criterion[n] = used * np.log(model.cost) + 3 * n * np.log(used)
             continue
         fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
                               1.0, delay=min(model.delay, N - cut - 2),
                               intersample=data.intersample).fit
-    return fits
+    return fits, criterion
 
 
 def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
@@ -206,10 +220,14 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     order, order_fits = call.order, None
     fitting = (refine, method, int(iterations), bool(classical))
     if order is None:
-        order_fits = _select_order(call.identifiers, call.work, call.max_delay,
-                                   call.feedthrough, *fitting)
-        best = max(f for f in order_fits.values() if np.isfinite(f))
-        order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
+        order_fits, criterion = _select_order(call.identifiers, call.work, call.max_delay,
+                                              call.feedthrough, *fitting)
+        finite = {n: c for n, c in (criterion or {}).items() if np.isfinite(c)}
+        if criterion is not None and finite:
+            order = min(finite, key=finite.get)
+        else:
+            best = max(f for f in order_fits.values() if np.isfinite(f))
+            order = min(n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
     model, chosen, refined, info = _fit(call, order, structure, *fitting)
     # refined models only: the one pass's residual carries model error that the test reads as
     # feedback (measured: 2 false alarms in 59 open-loop records at 0-2 % noise, none refined)

@@ -19,7 +19,9 @@ The steps (docs/architecture.md, "Several channels, several experiments"):
 *Order selection* (``order=None``): as for one channel (``generic.pipeline``): every order the
 records have samples for, fitted on the first 70 % of each record and validated on the rest
 (initial state and offsets fitted); the smallest order within ``ORDER_TOLERANCE`` points of the
-best mean validation fit (over outputs and records).
+best mean validation fit (over outputs and records). Where the first part holds no variation of
+an input or the rest none of an output, the order of least Bayesian information criterion of
+the whole records' fits.
 """
 
 from __future__ import annotations
@@ -277,23 +279,45 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
           "proposals": proposals, "feedthrough": feedthrough}
     order_fits = None
     if order is None:
-        estimation, validation = ex.cut(ESTIMATION_SHARE)
-        order_fits = {}
-        for n in wanted:
-            room = _room(estimation, n)
-            if room < 0:
-                continue
-            fitted, _ = _fit(estimation, n, top=min(largest, room), most=SELECTION_ITERATIONS,
-                             **kw)
-            order_fits[n] = float(np.mean(validation_fit(fitted, validation, feedthrough)))
-        best = max(order_fits.values(), default=None)
-        order = least if best is None else min(
-            n for n, f in order_fits.items() if f >= best - ORDER_TOLERANCE)
+        order, order_fits = _select(ex, wanted, least, largest, kw)
     # a higher order selected leaves fewer samples: the delays it may take are capped there
     top = min(largest, _room(ex, order))
     fitted, count = _fit(ex, order, top=top, **kw)
     info = {"candidates": count, "order_fits": order_fits}
     return _estimate(fitted, ex, refine, info, time.perf_counter() - began)
+
+
+def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -> tuple:
+    """``order=None``: ``(order, order_fits)`` by the hold-out rule (module docstring), or,
+    where the estimation part holds no variation of an input or the validation part none of an
+    output, by the least Bayesian information criterion of the whole records' fits
+    (``generic.pipeline``'s rule for one channel; ``order_fits`` then the whole records'
+    mean fits)."""
+    estimation, validation = ex.cut(ESTIMATION_SHARE)
+    holdout = (all(np.all(np.ptp(u, axis=0) > 0) for u in estimation.U)
+               and all(np.all(np.ptp(y, axis=0) > 0) for y in validation.Y))
+    fits, criterion = {}, {}
+    for n in wanted:
+        part = estimation if holdout else ex
+        room = _room(part, n)
+        if room < 0:
+            continue
+        fitted, _ = _fit(part, n, top=min(largest, room), most=SELECTION_ITERATIONS, **kw)
+        if holdout:
+            fits[n] = float(np.mean(validation_fit(fitted, validation, kw["feedthrough"])))
+            continue
+        fits[n] = float(np.mean(validation_fit(fitted, ex, kw["feedthrough"])))
+        # residuals of every output at every fitted sample; the parameters that grow with n:
+        # the denominator, B, C and every record's initial state
+        used = fitted.projection.residual.size
+        criterion[n] = (used * np.log(fitted.cost)
+                        + n * (1 + ex.inputs + ex.outputs + ex.count) * np.log(used))
+    finite = {n: c for n, c in criterion.items() if np.isfinite(c)}
+    if finite:
+        return min(finite, key=finite.get), fits
+    best = max(fits.values(), default=None)
+    return (least if best is None else min(n for n, f in fits.items()
+                                           if f >= best - ORDER_TOLERANCE)), fits
 
 
 def _check(order, orders, refine, iterations, classical, max_delay) -> None:
