@@ -64,3 +64,31 @@ def torchrun(args, *, cwd, env, timeout=240):
         except ProcessLookupError:
             pass
     return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+def wrong_in_threads(check, threads: int = 4, calls: int = 400) -> list[int]:
+    """Run ``check(k)`` (True when thread ``k``'s result is its own) ``calls`` times in each of
+    ``threads`` threads at once, switching threads between any two bytecodes; the threads that
+    got a wrong result (an empty list where none did)."""
+    import sys
+    import threading
+
+    wrong = []
+
+    def work(k):
+        for _ in range(calls):
+            if not check(k):
+                wrong.append(k)
+                return
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        running = [threading.Thread(target=work, args=(k,)) for k in range(threads)]
+        for t in running:
+            t.start()
+        for t in running:
+            t.join()
+    finally:
+        sys.setswitchinterval(interval)
+    return wrong

@@ -193,32 +193,14 @@ def test_batch1_identifications_from_several_threads_are_each_records_own():
     """A web server's threads identify on one identifier: each call's model is its own
     record's (the structure's CasADi buffer and the encoder's workspace are per thread; a
     shared buffer gave one thread another's arguments)."""
-    import sys
-    import threading
+    from helpers import wrong_in_threads
 
     ident = _random_identifier(ae.CCF(3, feedthrough=True), inputs=True)
     rng = np.random.default_rng(5)
     ys, us = np.cumsum(rng.random((4, 60)), axis=1), 0.5 + rng.random((4, 60))
     want = [ident.identify(ys[k], us[k]).A for k in range(4)]
-    wrong = []
-
-    def work(k):
-        for _ in range(400):
-            if not np.array_equal(ident.identify(ys[k], us[k]).A, want[k]):
-                wrong.append(k)
-                return
-
-    interval = sys.getswitchinterval()
-    sys.setswitchinterval(1e-6)           # switch threads between any two bytecodes
-    try:
-        threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-    finally:
-        sys.setswitchinterval(interval)
-    assert wrong == []
+    assert wrong_in_threads(lambda k: np.array_equal(ident.identify(ys[k], us[k]).A,
+                                                     want[k])) == []
 
 
 def test_fast_path_follows_weight_changes():

@@ -887,8 +887,7 @@ def test_numeric_evaluates_each_threads_own_arguments():
     """Four threads evaluate one Numeric with their own arguments, switching between any two
     bytecodes: each gets its own result (one shared buffer gave a thread another's
     arguments: 3 of 4 threads wrong here before each thread had its own)."""
-    import sys
-    import threading
+    from helpers import wrong_in_threads
 
     from aeid_struct.structures import Numeric
 
@@ -897,25 +896,8 @@ def test_numeric_evaluates_each_threads_own_arguments():
     numeric = Numeric(f)
     args = [np.random.default_rng(k).standard_normal(3) for k in range(4)]
     want = [np.asarray(f(a)).ravel() for a in args]
-    wrong = []
-
-    def work(k):
-        for _ in range(5000):
-            if not np.array_equal(numeric(args[k])[0], want[k]):
-                wrong.append(k)
-                return
-
-    interval = sys.getswitchinterval()
-    sys.setswitchinterval(1e-6)
-    try:
-        threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-    finally:
-        sys.setswitchinterval(interval)
-    assert wrong == []
+    assert wrong_in_threads(lambda k: np.array_equal(numeric(args[k])[0], want[k]),
+                            calls=5000) == []
     # a copy (pickle, deepcopy) evaluates through buffers of its own
     import copy
     import pickle
