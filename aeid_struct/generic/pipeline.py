@@ -56,11 +56,12 @@ record. Where 70 % of the record is shorter than the identifier's window, or hol
 variation of the input or output (a step late in the record), or the last 30 % none of the
 output, each order is identified on the whole record and the one of least Bayesian information
 criterion ``N log V + 3 n log N`` is chosen (``V`` the mean squared residual over the ``N``
-fitted samples, ``3 n`` the parameters that grow with the order: denominator, numerator and
-initial state). Why not the fit rule there: on the record it was fitted to, a higher order
-always fits better, and within half a point of the best was order 5-8 for records of 80
-samples of orders 1-3 (their validation fits 60-500000 points below the true order's on 3 of
-18); the criterion chose the true order on 11 of them.
+fitted samples, at least ``(EXACT std(y))^2``, so that exact fits count as equal; ``3 n`` the
+parameters that grow with the order: denominator, numerator and initial state). Why not the
+fit rule there: on the record it was fitted to, a higher order always fits better, and within
+half a point of the best was order 5-8 for records of 80 samples of orders 1-3 (their
+validation fits 60-500000 points below the true order's on 3 of 18); the criterion chose the
+true order on 11 of them.
 """
 
 from __future__ import annotations
@@ -89,7 +90,7 @@ from aeid_struct.generic.result import estimate_of, restore
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
-from aeid_struct.multi import ESTIMATION_SHARE, MAX_DELAY, ORDER_TOLERANCE
+from aeid_struct.multi import ESTIMATION_SHARE, EXACT, MAX_DELAY, ORDER_TOLERANCE
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
@@ -182,7 +183,10 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
         if not holdout:
             fits[n] = model.fit
             used = N - model.delay
-            criterion[n] = used * np.log(model.cost) + 3 * n * np.log(used)
+            # fits within round-off of exact count as equal (EXACT), or the criterion of a
+            # noise-free record would prefer the order whose round-off is smallest
+            floor = (EXACT * np.std(data.y)) ** 2
+            criterion[n] = used * np.log(max(model.cost, floor)) + 3 * n * np.log(used)
             continue
         fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
                               1.0, delay=min(model.delay, N - cut - 2),

@@ -17,6 +17,7 @@ from aeid_struct.multi.experiments import Experiments as Experiments
 from aeid_struct.multi.experiments import experiments_of as experiments_of
 from aeid_struct.multi.experiments import several as several
 from aeid_struct.multi.identify import ESTIMATION_SHARE as ESTIMATION_SHARE
+from aeid_struct.multi.identify import EXACT as EXACT
 from aeid_struct.multi.identify import MAX_DELAY as MAX_DELAY
 from aeid_struct.multi.identify import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.multi.identify import fit_from_poles as fit_from_poles
@@ -29,7 +30,7 @@ from aeid_struct.multi.realisation import project as project
 from aeid_struct.multi.start import continuous_poles as continuous_poles
 from aeid_struct.multi.start import reflected as reflected
 
-__all__ = ["ESTIMATION_SHARE", "Experiments", "Layout", "MAX_DELAY", "ORDER_TOLERANCE",
+__all__ = ["ESTIMATION_SHARE", "EXACT", "Experiments", "Layout", "MAX_DELAY", "ORDER_TOLERANCE",
            "compare_channels", "continuous_poles", "experiments_of", "fit_from_poles",
            "identify", "observer_form", "packed", "parameters", "project", "reflected",
            "several"]

@@ -38,8 +38,8 @@ from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, start_
 from aeid_struct.records import RecordBatch
 from aeid_struct.threads import one_thread
 
-__all__ = ["ESTIMATION_SHARE", "MAX_DELAY", "ORDER_TOLERANCE", "fit_from_poles", "identify",
-           "packed", "parameters", "validation_fit"]
+__all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "fit_from_poles",
+           "identify", "packed", "parameters", "validation_fit"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``; the
 #: rule of one channel too: ``generic.pipeline`` reads it from here).
@@ -57,6 +57,10 @@ MAX_DELAY = 10
 #: Records whose output-input pairs the encoders read for candidates (the first ones): each pair
 #: is one batched encoder call, and the candidates are ranked on every record anyway.
 PROPOSING_RECORDS = 3
+#: The order criterion's floor on the residual's rms, relative to the output's: fits below it
+#: count as exact (the Bayesian information criterion of round-off would prefer the highest
+#: order on a noise-free record; ``generic.pipeline`` reads it from here).
+EXACT = 1e-6
 #: Rounds of the delays' re-scan and the fit at the delays found, at most.
 RESCANS = 3
 #: Starts refined to convergence at most (the best candidates by the relaxed projection).
@@ -310,7 +314,8 @@ def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -
         # residuals of every output at every fitted sample; the parameters that grow with n:
         # the denominator, B, C and every record's initial state
         used = fitted.projection.residual.size
-        criterion[n] = (used * np.log(fitted.cost)
+        floor = EXACT ** 2 * float(np.mean([np.var(y, axis=0).mean() for y in ex.Y]))
+        criterion[n] = (used * np.log(max(fitted.cost, floor))
                         + n * (1 + ex.inputs + ex.outputs + ex.count) * np.log(used))
     finite = {n: c for n, c in criterion.items() if np.isfinite(c)}
     if finite:
