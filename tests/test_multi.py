@@ -163,6 +163,33 @@ def test_order_none_where_the_inputs_step_after_the_holdouts_cut():
                                atol=0.05)
 
 
+def test_the_refinements_cap_counts_iterations(monkeypatch):
+    """MAX_ITERATIONS caps the refinement's Levenberg-Marquardt iterations (Jacobians), whatever
+    scipy counts: with scipy's own differences its evaluations cap allowed len(theta) + 1 times
+    as many (a closed-loop 2x2 record ran 893 Jacobians under a cap of 100)."""
+    from problems import pi_loop_2x2
+
+    from aeid_struct.multi import fit
+
+    runs = []
+    made = fit._residual
+
+    def counted(*args):
+        residual, jacobian = made(*args)
+        runs.append(0)
+
+        def counting(theta):
+            runs[-1] += 1
+            return jacobian(theta)
+        return residual, counting
+
+    monkeypatch.setattr(fit, "_residual", counted)
+    monkeypatch.setattr(fit, "MAX_ITERATIONS", 5)
+    record, _ = pi_loop_2x2(0.1, 0)
+    ae.multi.identify(record, 4, feedthrough=False)
+    assert runs and max(runs) <= 5 + 1
+
+
 def test_several_experiments_one_model_own_initial_states_and_offsets():
     system = _system(3, 1, 1, 4)
     recs = [_record(system, s, steps=300 + 100 * s, offset=float(s)) for s in range(3)]
