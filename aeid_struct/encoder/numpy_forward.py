@@ -198,23 +198,17 @@ class NumpyEncoder:
             work = self._local.work = _Workspace(self)
         L, P = self.length, self.pool
         np.add.reduce(x[:, : L * P].reshape(x.shape[0], L, P), axis=2, out=work.pooled)
-        into = None if self.act is np.tanh else self._into     # tanh: written in place
+        into = self._into
         for W, columns, windows, stack, out in work.convs:
             np.copyto(columns, windows)
-            if into is None:
-                np.tanh(W @ stack, out=out)
-            else:
-                into(W @ stack, out)
+            into(W @ stack, out)
         if work.shortcut is not None:
             np.copyto(*work.shortcut)
         if features is not None:
             work.features[:] = features
         v = work.flat
         for W, hidden in zip(self._one_rows, work.hidden, strict=False):
-            if into is None:
-                np.tanh(W @ v, out=hidden[:-1])
-            else:
-                into(W @ v, hidden[:-1])
+            into(W @ v, hidden[:-1])
             v = hidden
         return self._one_rows[-1] @ v
 

@@ -71,9 +71,9 @@ def _residual(layout: Layout, parts, holds, h: float, feedthrough: bool, big: np
     forward differences (scipy's two-point step), reusing the residual at ``theta`` where the
     last evaluation was there (MINPACK asks for the Jacobian at the point it just accepted).
 
-    Why our own Jacobian: with scipy's finite differences MINPACK's ``max_nfev`` counts the
-    residuals of the steps only, not the differences (scipy 1.17; older versions counted
-    both), so the refinement's cap of :data:`MAX_ITERATIONS` iterations, written as that many
+    Why our own Jacobian: with scipy's finite differences (scipy 1.17 hands them to MINPACK as
+    a Jacobian function) ``max_nfev`` counts the residuals of the steps only, not the
+    differences, so the refinement's cap of :data:`MAX_ITERATIONS` iterations, written as that many
     times ``len(theta) + 1`` evaluations, allowed ``len(theta) + 1`` times as many (a
     closed-loop 2x2 record: 893 Jacobians, 6 s); with a Jacobian of ours the cap counts
     iterations whatever scipy's version."""
