@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from helpers import companion
 
-from aeid_struct.generic.classical import EARLY, classical_candidates, steiglitz_mcbride
+from aeid_struct.generic.classical import EARLY, arx, classical_candidates, steiglitz_mcbride
 from aeid_struct.simulation import simulate
 
 ccf = companion
@@ -74,3 +74,29 @@ def test_the_refits_run_to_the_fixed_point():
     np.testing.assert_allclose(np.sort_complex(np.roots(one[0])), np.sort_complex(POLES[2]),
                                atol=1e-6)
     assert classical_candidates(np.ones(8), np.arange(8.0), 3).shape == (0, 4)
+
+
+def test_arx_solves_the_least_squares_problem_of_lstsq():
+    """``arx`` solves by Householder QR: the same solution as the SVD's ``lstsq`` on an
+    independent problem (with the constant or ``extra`` columns), and the SVD's
+    minimum-norm solution where the columns are dependent (a constant input)."""
+    rng = np.random.default_rng(3)
+    y, u = rng.standard_normal(400), rng.standard_normal(400)
+    n = 3
+    rows = np.arange(n, 400)
+
+    def reference(y, u, extra):
+        Z = np.stack([-y[rows - i] for i in range(1, n + 1)]
+                     + [u[rows - j] for j in range(n + 1)]
+                     + ([np.ones(rows.size)] if extra is None else list(extra[rows].T)), 1)
+        return np.concatenate([[1.0], np.linalg.lstsq(Z, y[rows], rcond=None)[0][:n]])
+
+    extra = rng.standard_normal((400, 2))
+    for columns in (None, extra):
+        np.testing.assert_allclose(arx(y, u, n, columns), reference(y, u, columns),
+                                   rtol=1e-10, atol=1e-12)
+    # a constant input: its lags and the constant are one column, and the y-lags' part of the
+    # minimum-norm solution is that of lstsq
+    flat = np.full(400, 0.7)
+    np.testing.assert_allclose(arx(y, flat, n), reference(y, flat, None), rtol=1e-8,
+                               atol=1e-10)

@@ -27,6 +27,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 
 from aeid_struct.multi import continuous_poles, reflected
@@ -52,7 +53,8 @@ def arx(y: np.ndarray, u: np.ndarray, n: int, extra: np.ndarray | None = None) -
     where n4sid fails).
 
     ``y_k + A_1 y_{k-1} + ... + A_n y_{k-n} = B_0 u_k + ... + B_n u_{k-n} + const``, solved
-    by ``lstsq`` with the columns scaled to unit peak.
+    in least squares with the columns scaled to unit peak (Householder QR; the SVD's
+    minimum-norm solution where the columns are dependent).
 
     Parameters
     ----------
@@ -67,17 +69,42 @@ def arx(y: np.ndarray, u: np.ndarray, n: int, extra: np.ndarray | None = None) -
         ``A`` with ``A[0] = 1`` (the discrete denominator, highest power first).
     """
     N = y.shape[0]
-    rows = np.arange(n, N)
-    cols = [-y[rows - i] for i in range(1, n + 1)] + [u[rows - j] for j in range(n + 1)]
+    k = 2 * n + 1 + (1 if extra is None else extra.shape[1])
+    # the regressors and y as one column-major block: one Householder QR of [Z, y] gives R
+    # and Q^T y together, several times cheaper than the SVD of lstsq, and Steiglitz-McBride
+    # solves up to 50 of these problems per record
+    Z = np.empty((N - n, k + 1), order="F")
+    for i in range(1, n + 1):
+        Z[:, i - 1] = -y[n - i: N - i]
+    for j in range(n + 1):
+        Z[:, n + j] = u[n - j: N - j]
     if extra is None:
-        cols.append(np.ones(rows.shape[0]))
+        Z[:, 2 * n + 1] = 1.0
     else:
-        cols += list(extra[rows].T)
-    Z = np.stack(cols, axis=1)
-    scale = np.abs(Z).max(axis=0)
+        Z[:, 2 * n + 1: k] = extra[n:]
+    Z[:, k] = y[n:]
+    scale = np.abs(Z[:, :k]).max(axis=0)
     scale = np.where(scale > 0, scale, 1.0)
-    z = np.linalg.lstsq(Z / scale, y[rows], rcond=None)[0] / scale
+    Z[:, :k] /= scale
+    z = _least_squares(Z, k) / scale
     return np.concatenate([[1.0], z[:n]])
+
+
+#: A diagonal of the QR's ``R`` below this, relative to its largest, counts as rank deficient:
+#: such a problem is solved by the SVD (``lstsq``'s minimum-norm solution) as it always was.
+RANK_TOL = 1e-9
+
+
+def _least_squares(Zy: np.ndarray, k: int) -> np.ndarray:
+    """The least-squares solution of ``Zy[:, :k] x = Zy[:, k]`` (columns scaled to unit peak):
+    Householder QR where the columns are independent, the SVD otherwise."""
+    if Zy.shape[0] > k:
+        qr, _, _, info = scipy.linalg.lapack.dgeqrf(Zy)
+        R = qr[:k, :k]
+        diag = np.abs(np.diagonal(R))
+        if info == 0 and np.all(np.isfinite(diag)) and diag.min() > RANK_TOL * diag.max():
+            return scipy.linalg.solve_triangular(R, qr[:k, k], check_finite=False)
+    return np.linalg.lstsq(Zy[:, :k], Zy[:, k], rcond=None)[0]
 
 
 class NoEncoder:
@@ -185,15 +212,19 @@ def _iterates(y, u, order: int, delay: int, iterations: int, keep: tuple):
     kept = []
     with np.errstate(all="ignore"):
         a = reflected(arx(yy, uu, order))
-        impulses = np.zeros((N, order + 1))
-        impulses[np.arange(order), np.arange(order)] = 1.0
-        impulses[:, order] = 1.0
+        impulse = np.zeros(N)
+        impulse[0] = 1.0
+        extra = np.zeros((N, order + 1))
         done = 0
         for _ in range(iterations):
             # Filtering from zero initial conditions leaves a transient of 1 / A driven by the
             # first n equation errors and by the constant: its n impulse responses and its step
-            # response are regressors, so the fixed point stays exact on noise-free data.
-            extra = scipy.signal.lfilter([1.0], a, impulses, axis=0)
+            # response are regressors, so the fixed point stays exact on noise-free data. They
+            # are one impulse response, shifted, and its running sum.
+            h = scipy.signal.lfilter([1.0], a, impulse)
+            for j in range(order):
+                extra[j:, j] = h[: N - j]
+            np.cumsum(h, out=extra[:, order])
             a_next = reflected(arx(scipy.signal.lfilter([1.0], a, yy),
                                   scipy.signal.lfilter([1.0], a, uu), order, extra))
             if not np.all(np.isfinite(a_next)):
