@@ -25,14 +25,17 @@ def test_bench_mechanism_cli_trains_measures_and_writes_json(tmp_path, capsys):
     assert unknown["identifiability"]["rank"] == 3 and unknown["identifiability"]["fix"] == ["r"]
     assert "levels" not in unknown
     level = known["levels"][0]
-    assert set(level["errors"]) == {"encoder", "one pass", "refined", "cold grey-box x4", "n4sid"}
+    assert set(level["errors"]) == {"encoder", "one pass", "refined", "refined x4",
+                                    "cold grey-box x4", "n4sid"}
     assert max(level["errors"]["refined"]) < 1e-5
+    assert max(level["errors"]["refined x4"]) < 1e-5
     assert max(level["errors"]["cold grey-box x4"]) < 1e-5
     assert level["ms"]["refined"] > 0 and level["speedup refined vs cold"] > 0
     # noise-free: refined and the cold fit both at the record's optimum (the truth), the one
     # pass's cost above it by round-off at most
     cost = level["cost"]
     assert cost["refined at the best"] == 1.0 and cost["cold at the best"] == 1.0
+    assert cost["refined x4 at the best"] == 1.0 and level["ms"]["refined x4"] > 0
     assert abs(cost["one pass excess median"]) < 1e-3
     assert "cost over refined's" in printed
 

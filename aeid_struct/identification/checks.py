@@ -138,11 +138,17 @@ def cached_provenance(ident) -> Provenance:
     return cached[1]
 
 
-def check_call(ident, dt, refine, errors: str) -> None:
-    """``Identifier.identify``'s options: ``refine``, ``errors``, and a ``dt`` that must be the
-    identifier's."""
+def check_call(ident, dt, refine, errors: str, starts: int = 0) -> None:
+    """``Identifier.identify``'s options: ``refine``, ``errors``, ``starts``, and a ``dt`` that
+    must be the identifier's."""
     if refine not in (True, False, "auto"):
         raise ValueError(f"refine must be True, False or 'auto'; got {refine!r}")
+    if isinstance(starts, bool) or not isinstance(starts, (int, np.integer)) or starts < 0:
+        raise ValueError(f"starts must be an integer >= 0; got {starts!r}")
+    if starts and (refine is not True or type_of(ident.structure) != "Physical"):
+        raise ValueError(f"starts={starts} needs refine=True and a physical structure (the "
+                         f"starts are points of its parameters' box); got refine={refine!r} "
+                         f"and a {type_of(ident.structure)} structure")
     if errors not in ERROR_MODES:
         raise ValueError(f"errors must be one of {ERROR_MODES}; got {errors!r}")
     if dt is not None and not same_dt(dt, ident._dts):

@@ -31,7 +31,7 @@ from aeid_struct.identification.checks import (
     set_format,
     thetas,
 )
-from aeid_struct.identification.head import Head, HeadSlot, converges_to_optimum
+from aeid_struct.identification.head import Head, HeadSlot
 from aeid_struct.identification.identifier_files import IdentifierFiles
 from aeid_struct.records import arrays_of, check_record
 
@@ -231,7 +231,8 @@ class Identifier(IdentifierFiles):
 
     # -- public identification -----------------------------------------------------------------
     def identify(self, y, u=None, *, dt: float | None = None,
-                 refine: bool | str = False, errors: str = "raise") -> Estimate:
+                 refine: bool | str = False, errors: str = "raise",
+                 starts: int = 0) -> Estimate:
         """Identify the system behind a record in one encoder pass.
 
         Records are normalised (Eq. 15) per record in float64 before the encoder's float32,
@@ -266,6 +267,9 @@ class Identifier(IdentifierFiles):
             the bad ones NaN model rows and their reasons in ``Estimate.errors`` (flagged
             ``outside`` where the range is known). A malformed argument (wrong shape, complex,
             no records) raises in both modes.
+        starts : int, >= 0
+            With ``refine=True`` in a physical structure: also fit from this many fixed points
+            of the box, keeping each record's lowest cost (``identification.multistart``).
 
         Returns
         -------
@@ -275,16 +279,7 @@ class Identifier(IdentifierFiles):
         start = time.perf_counter()
         y, u, dt = arrays_of(y, u, dt, what="Identifier.identify", records=self.records,
                              channels=getattr(self.structure, "channels", None))
-        check_call(self, dt, refine, errors)
-        provenance = self.provenance
+        check_call(self, dt, refine, errors, starts)
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
-        if refine is True and self.head is not None and converges_to_optimum(self):
-            return one_pass.refine_with_head(self, record, start, errors,
-                                             self.head.converged(), provenance)
-        est = one_pass.identify_record(self, record, start, errors, provenance=provenance)
-        if not refine:
-            return est
-        from aeid_struct.identification.polish import polish
-
-        return polish(est, refine)
+        return one_pass.identified(self, record, start, errors, refine, starts)
 

@@ -1,0 +1,176 @@
+r"""``identify(refine=True, starts=k)`` for a physical structure: the refined estimate set
+beside the output-error fits in the parameters from ``k`` fixed points of the box, and the
+lowest cost kept, record by record.
+
+Why: at noise the output-error cost of a mechanism can hold several optima of nearly equal
+cost far apart in an ill-conditioned parameter (a drive train's motor inertia, a two-mass
+system's springs), and the refinement is local: it converges to the optimum of the one pass's
+basin. A cold grey-box fit (``greyest`` from guesses) meets the same landscape with the same
+remedy, several starts; here the one pass is one of them, so ``k`` extra starts make
+``k + 1``.
+
+The points are the first ``k`` of a scrambled Halton sequence of the box (``scipy.stats.qmc``,
+seed :data:`SEED`): the same for every record and call, so an estimate does not depend on a
+random state, and spread over the box as ``k`` random draws are only on average. Each start is
+fitted by ``refinement.fit_joint`` (the output-error fit in the parameters within the box, the
+records' initial states projected out where they are fitted: the cost the joint refinement
+minimises, one record or several), all records and starts as one batch; the refined estimate's
+own cost is that fit's at its parameters, so the costs compare like with like.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from aeid_struct.estimates import Estimate
+from aeid_struct.identification.physical_errors import parameter_errors, parameters_of
+from aeid_struct.identification.physical_head import physical_head
+
+__all__ = ["SEED", "best_of_starts", "box_points", "from_starts"]
+
+#: The seed of the scrambled Halton sequence of the box.
+SEED = 0
+#: A start replaces the refined estimate only where its cost is lower by more than this,
+#: relative, and by more than :data:`FLOOR`: the same optimum reached twice differs in the last
+#: digits, and the costs of noise-free records are round-off.
+BETTER = 1e-9
+#: Costs closer than this are equal (a normalised mean square: round-off is ~1e-30).
+FLOOR = 1e-24
+
+
+def box_points(lower: np.ndarray, upper: np.ndarray, count: int) -> np.ndarray:
+    """The first ``count`` points of the scrambled Halton sequence of the box (module
+    docstring).
+
+    Parameters
+    ----------
+    lower, upper : (q,) arrays
+    count : int, >= 0
+
+    Returns
+    -------
+    (count, q) array
+    """
+    from scipy.stats import qmc
+
+    lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    unit = qmc.Halton(d=lower.size, scramble=True, seed=SEED).random(count)
+    return lower + (upper - lower) * unit
+
+
+def best_of_starts(ph, P: np.ndarray, ys: list, us: list, dts: tuple, initial: bool,
+                   starts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each row's parameters or the output-error fit from :func:`box_points`, whichever costs
+    less (module docstring).
+
+    Parameters
+    ----------
+    ph : PhysicalHead
+        The structure's systems and box.
+    P : (B, q) array
+        The refined parameters, finite.
+    ys, us : lists of R (B, steps_r) arrays
+    dts : tuple of R floats
+    initial : bool
+        The records' initial states projected out.
+    starts : int, >= 1
+
+    Returns
+    -------
+    P : (B, q) array
+    cost : (B,) array
+        ``refinement.fit_joint``'s cost at ``P``.
+    start : (B,) int array
+        0 where the refined parameters were kept, ``j`` where the fit from point ``j``
+        (1-based) replaced them.
+    """
+    from aeid_struct.refinement import fit_joint
+
+    B = P.shape[0]
+    points = box_points(ph.lo, ph.hi, starts)
+    kw = dict(lower=ph.lo, upper=ph.hi, initial=initial)
+    own = fit_joint(ph.at, P, ys, us, dts, max_iter=0, **kw).cost
+    # rows are (record, start), record-major
+    fit = fit_joint(ph.at, np.tile(points, (B, 1)), [np.repeat(y, starts, 0) for y in ys],
+                    [np.repeat(u, starts, 0) for u in us], dts, **kw)
+    cost = np.where(np.isfinite(fit.cost), fit.cost, math.inf).reshape(B, starts)
+    best = np.argmin(cost, axis=1)
+    found = cost[np.arange(B), best]
+    better = found < np.where(np.isfinite(own), own, math.inf) * (1.0 - BETTER) - FLOOR
+    out = P.copy()
+    out[better] = fit.p.reshape(B, starts, -1)[np.flatnonzero(better), best[better]]
+    return out, np.where(better, found, own), np.where(better, best + 1, 0)
+
+
+def from_starts(est: Estimate, starts: int) -> Estimate:
+    """A refined physical estimate, each record's parameters replaced by the best fit from
+    ``starts`` points of the box where that costs less (module docstring); the systems and
+    standard errors of the replaced records follow their new parameters.
+
+    Parameters
+    ----------
+    est : Estimate
+        ``identify(refine=True)`` of a physical structure.
+    starts : int, >= 1
+
+    Returns
+    -------
+    Estimate
+        ``info["start"]``: per record 0 (the refinement's optimum kept) or the 1-based box
+        point whose fit replaced it; ``info["cost"]``: the output-error cost
+        (``refinement.fit_joint``'s) at the returned parameters; ``info["starts"]``:
+        ``starts``. Records set aside (``errors="collect"``) or without finite parameters
+        are kept as they are (start 0, cost NaN).
+    """
+    t0 = time.perf_counter()
+    structure, record = est.structure, est.record
+    initial = est.initial == "fitted"
+    ph = physical_head(structure, initial)
+    P = parameters_of(est)
+    rows = np.isfinite(P).all(axis=1)
+    if est._good is not None:
+        rows &= est._good
+    rows = np.flatnonzero(rows)
+    start = np.zeros(P.shape[0], dtype=int)
+    cost = np.full(P.shape[0], math.nan)
+    R = ph.records
+    A, b, c, d = (np.array(np.atleast_1d(v) if est.batched else np.asarray(v)[None],
+                           dtype=np.float64, copy=True) for v in (est.A, est.b, est.c, est.d))
+    std = {k: np.atleast_1d(np.array(v, dtype=np.float64))
+           for k, v in est.info.get("std", {}).items()}
+    if rows.size:
+        ys = [y[rows] for y in record.y]
+        us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
+        found, cost[rows], start[rows] = best_of_starts(ph, P[rows], ys, us, record.dt, initial,
+                                                        starts)
+        names = structure.element_names
+        for i in np.flatnonzero(start[rows]):
+            row, p = rows[i], found[i]
+            P[row] = p
+            for r, (Ar, br, cr, dr, _) in enumerate(ph.systems(p)):
+                if R == 1:
+                    A[row], b[row], c[row], d[row] = Ar, br, cr, dr
+                else:
+                    A[row, r], b[row, r], c[row, r], d[row, r] = Ar, br, cr, dr
+            if std:
+                errors = parameter_errors(ph, p, [y[i] for y in ys], [u[i] for u in us],
+                                          record.dt, initial)
+                for j, k in enumerate(names):
+                    std[k][row] = errors[j]
+    if est.batched:
+        elements = {k: P[:, j] for j, k in enumerate(structure.element_names)}
+        info = {"start": start, "cost": cost}
+    else:
+        A, b, c, d = A[0], b[0], c[0], d[0]
+        elements = {k: float(P[0, j]) for j, k in enumerate(structure.element_names)}
+        info = {"start": int(start[0]), "cost": float(cost[0])}
+        std = {k: float(v[0]) for k, v in std.items()}
+    if std:
+        info["std"] = std
+    return dataclasses.replace(est, A=A, b=b, c=c, d=d, elements=elements,
+                               seconds=est.seconds + time.perf_counter() - t0,
+                               info={**est.info, **info, "starts": int(starts)})
