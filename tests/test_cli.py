@@ -370,6 +370,9 @@ IDENTIFY_ERRORS = [
     (["--y", "{good.csv}", "--refine", "maybe"], r"identify: argument --refine: invalid choice: "
                                                  r"'maybe'"),
     (["--y", "{good.csv}", "--json", "{good.csv}/x.json"], r"--json '.*/x.json': cannot write"),
+    (["--y", "{good.csv}", "--starts", "2"], r"starts=2 needs refine=True and a physical "
+                                             r"structure"),
+    (["--y", "{good.csv}", "--starts", "two"], r"argument --starts: invalid int value: 'two'"),
     ([], r"identify: the following arguments are required: --y \(see 'aeid-struct identify "
          r"--help'\)"),
 ]
@@ -658,3 +661,13 @@ def test_identify_a_shipped_mechanism_from_one_file_per_channel(tmp_path, capsys
     for k in ("M", "m", "l", "b"):
         assert printed[k] == pytest.approx(est.physical[k], abs=1e-6)
         assert errors[k] == pytest.approx(est.info["std"][k], abs=1e-6)
+    # with more starts: the estimate of identify(..., starts=2), and which start won
+    assert main(["identify", "cart-pole", "--y", files[0], files[1], "--u", files[2],
+                 files[2], "--refine", "--starts", "2"]) == 0
+    out = capsys.readouterr().out
+    printed = ast.literal_eval(out.split("physical: ", 1)[1].splitlines()[0])
+    est = ident.identify((rec.y[0][0], rec.y[1][0]), (rec.u[0][0], rec.u[1][0]), refine=True,
+                         starts=2)
+    assert f"(0: the refinement's own optimum) {est.info['start']}" in out
+    for k in ("M", "m", "l", "b"):
+        assert printed[k] == pytest.approx(est.physical[k], abs=1e-6)

@@ -190,6 +190,8 @@ GENERIC_ERRORS = [
     (["{lab.csv}", "--order", "2", "--refine", "--allow-outside"], r"identify: --refine, "
                                                                    r"--allow-outside apply to "
                                                                    r"an identifier MODEL"),
+    (["{lab.csv}", "--order", "2", "--starts", "3"], r"identify: --starts applies to an "
+                                                     r"identifier MODEL"),
     (["{lab.csv}", "--order", "2", "--u", "{y.csv}"], r"--u '.*y.csv' and the u column of "
                                                       r"RECORD '.*lab.csv': give the input once"),
     (["{y.csv}", "--order", "2", "--dt", "0.05", "--u", "{u2.csv}"],

@@ -178,7 +178,7 @@ def run_identify(args: argparse.Namespace) -> int:
     u = inputs[0] if R == 1 else (None if all(v is None for v in inputs) else inputs)
     refine = {"no": False, "yes": True, "auto": "auto"}[args.refine]
     try:
-        est = ident.identify(y, u, refine=refine)
+        est = ident.identify(y, u, refine=refine, starts=args.starts)
     except ValueError as err:   # the record's content (all zero, non-finite, a varying u, ...)
         raise InputError(f"identify {', '.join(args.y)} with {args.model}: {err}") from None
 
@@ -198,6 +198,10 @@ def run_identify(args: argparse.Namespace) -> int:
         if "std" in est.info:
             print("standard errors:", {k: np.round(v, 6).tolist()
                                        for k, v in est.info["std"].items()})
+        if "starts" in est.info:
+            print(f"from {est.info['starts']} more starts in the box: the lowest cost from "
+                  "start (0: the refinement's own optimum)",
+                  np.asarray(est.info["start"]).tolist())
     flagged = _self_check(est)
     if args.json:
         write_json(args.json, _estimate_json(est, args.model, repr(ident)))

@@ -110,6 +110,7 @@ def _refuse_model_options(args: argparse.Namespace) -> None:
     """The options of an identifier (MODEL) have no meaning for the generic identifiers."""
     given = [opt for opt, on in (("--y", args.y is not None),
                                  ("--refine", args.refine != "no"),
+                                 ("--starts", args.starts != 0),
                                  ("--allow-outside", args.allow_outside)) if on]
     if given:
         raise InputError(f"identify: {', '.join(given)} "

@@ -250,6 +250,10 @@ def _add_identify(sub, names: str, generic: str) -> None:
                      help="with MODEL: polish with the CasADi NLP: yes (also plain --refine), "
                           "auto (only the estimates flagged outside the training range), no "
                           "(default)")
+    idp.add_argument("--starts", type=int, default=0, metavar="K",
+                     help="with MODEL --refine, a physical structure: also fit from K fixed "
+                          "points of the parameters' box and keep the lowest cost (a "
+                          "mechanism whose cost holds several optima at noise; default 0)")
     idp.add_argument("--allow-outside", action="store_true",
                      help=f"with MODEL: exit 0 even when an estimate is flagged outside the "
                           f"training range (default: exit {EXIT_OUTSIDE}); the WARNING is "
