@@ -124,6 +124,22 @@ def _check_model_use(args: argparse.Namespace) -> None:
                          "'aeid-struct identify --help')")
 
 
+def _print_refinement(est) -> None:
+    """How a refined estimate was refined, its standard errors and the start that won."""
+    how = {"separable": "refined by the head iterated to convergence (the least-squares "
+                        "optimum in its structure)",
+           "joint": "refined by the joint output-error fit of the parameters over every "
+                    "record"}.get(est.info.get("refine"), "refined by the CasADi NLP")
+    print(how + ("" if "refined_rows" not in est.info or not est.batched
+                 else f" (records {np.flatnonzero(est.info['refined_rows']).tolist()})"))
+    if "std" in est.info:
+        print("standard errors:", {k: np.round(v, 6).tolist()
+                                   for k, v in est.info["std"].items()})
+    if "starts" in est.info:
+        print(f"from {est.info['starts']} more starts in the box: the lowest cost from "
+              "start (0: the refinement's own optimum)", np.asarray(est.info["start"]).tolist())
+
+
 def run_identify(args: argparse.Namespace) -> int:
     """The ``identify`` subcommand: read the records, identify, print the model and the
     self-check, write the JSON.
@@ -189,19 +205,7 @@ def run_identify(args: argparse.Namespace) -> int:
     if est.physical:
         print("physical:", {k: np.round(v, 6).tolist() for k, v in est.physical.items()})
     if est.refined:
-        how = {"separable": "refined by the head iterated to convergence (the least-squares "
-                            "optimum in its structure)",
-               "joint": "refined by the joint output-error fit of the parameters over every "
-                        "record"}.get(est.info.get("refine"), "refined by the CasADi NLP")
-        print(how + ("" if "refined_rows" not in est.info or not est.batched
-                     else f" (records {np.flatnonzero(est.info['refined_rows']).tolist()})"))
-        if "std" in est.info:
-            print("standard errors:", {k: np.round(v, 6).tolist()
-                                       for k, v in est.info["std"].items()})
-        if "starts" in est.info:
-            print(f"from {est.info['starts']} more starts in the box: the lowest cost from "
-                  "start (0: the refinement's own optimum)",
-                  np.asarray(est.info["start"]).tolist())
+        _print_refinement(est)
     flagged = _self_check(est)
     if args.json:
         write_json(args.json, _estimate_json(est, args.model, repr(ident)))

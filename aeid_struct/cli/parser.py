@@ -179,6 +179,27 @@ def _order(text: str):
     raise argparse.ArgumentTypeError(f"expected an order 1-8 or auto; got {text!r}")
 
 
+def _add_model_options(idp) -> None:
+    """The options of ``identify MODEL`` (a trained identifier) from ``--refine`` on."""
+    idp.add_argument("--refine", choices=("no", "yes", "auto"), nargs="?", const="yes",
+                     default="no",
+                     help="with MODEL: polish with the CasADi NLP: yes (also plain --refine), "
+                          "auto (only the estimates flagged outside the training range), no "
+                          "(default)")
+    idp.add_argument("--starts", type=int, default=0, metavar="K",
+                     help="with MODEL --refine, a physical structure: also fit from K fixed "
+                          "points of the parameters' box and keep the lowest cost (a "
+                          "mechanism whose cost holds several optima at noise; default 0)")
+    idp.add_argument("--allow-outside", action="store_true",
+                     help=f"with MODEL: exit 0 even when an estimate is flagged outside the "
+                          f"training range (default: exit {EXIT_OUTSIDE}); the WARNING is "
+                          "printed either way")
+    idp.add_argument("--json", default=None,
+                     help="write the estimate as JSON (with MODEL: with fit_percent, excess, "
+                          "outside and the thresholds; with --order: the model, delay, initial "
+                          "state, offset, fit and time)")
+
+
 def _add_identify(sub, names: str, generic: str) -> None:
     generic = generic or "none in this installation (aeid-struct train-generic trains them)"
     idp = sub.add_parser(
@@ -245,21 +266,5 @@ def _add_identify(sub, names: str, generic: str) -> None:
     idp.add_argument("--u", default=None, nargs="+",
                      help="input record file(s), like --y; default: the u column of the --y "
                           "file (with --order: of RECORD), else a unit step")
-    idp.add_argument("--refine", choices=("no", "yes", "auto"), nargs="?", const="yes",
-                     default="no",
-                     help="with MODEL: polish with the CasADi NLP: yes (also plain --refine), "
-                          "auto (only the estimates flagged outside the training range), no "
-                          "(default)")
-    idp.add_argument("--starts", type=int, default=0, metavar="K",
-                     help="with MODEL --refine, a physical structure: also fit from K fixed "
-                          "points of the parameters' box and keep the lowest cost (a "
-                          "mechanism whose cost holds several optima at noise; default 0)")
-    idp.add_argument("--allow-outside", action="store_true",
-                     help=f"with MODEL: exit 0 even when an estimate is flagged outside the "
-                          f"training range (default: exit {EXIT_OUTSIDE}); the WARNING is "
-                          "printed either way")
-    idp.add_argument("--json", default=None,
-                     help="write the estimate as JSON (with MODEL: with fit_percent, excess, "
-                          "outside and the thresholds; with --order: the model, delay, initial "
-                          "state, offset, fit and time)")
+    _add_model_options(idp)
     idp.set_defaults(func=run_identify)

@@ -31,7 +31,7 @@ from aeid_struct.identification.checks import (
     set_format,
     thetas,
 )
-from aeid_struct.identification.head import Head, HeadSlot
+from aeid_struct.identification.head import Head, HeadSlot, converges_to_optimum
 from aeid_struct.identification.identifier_files import IdentifierFiles
 from aeid_struct.records import arrays_of, check_record
 
@@ -252,13 +252,10 @@ class Identifier(IdentifierFiles):
         dt : float or tuple, optional
             The record's sample time, checked against the identifier's.
         refine : {False, True, "auto"}
-            Polish the estimate with a CasADi NLP in the same structure
-            (``aeid_struct.refinement``): True for every record, ``"auto"`` for exactly the
-            records flagged ``outside`` the training range (``info["refined_rows"]``). With a
-            ``head``, True iterates the head to convergence instead (``info["refine"]`` is
-            ``"separable"``): the least-squares optimum in the head's structure, batched
-            (a physical structure whose map shapes more CCF coefficients than it has
-            parameters polishes the head's estimate with the NLP instead).
+            Polish the estimate in the same structure (``aeid_struct.refinement``'s CasADi
+            NLP): every record, or ``"auto"``: those flagged ``outside`` the training range
+            (``info["refined_rows"]``). With a ``head``, True iterates it to convergence
+            (``info["refine"]``: ``"separable"``; ``identification.polish`` says when not).
         errors : {"raise", "collect"}
             A record that cannot be identified (non-finite samples, an all-zero ``y`` or ``u``,
             a varying ``u`` for an identifier that does not read it, ``max|y| / max|u|`` beyond
@@ -268,8 +265,7 @@ class Identifier(IdentifierFiles):
             ``outside`` where the range is known). A malformed argument (wrong shape, complex,
             no records) raises in both modes.
         starts : int, >= 0
-            With ``refine=True`` in a physical structure: also fit from this many fixed points
-            of the box, keeping each record's lowest cost (``identification.multistart``).
+            With ``refine=True``, a physical structure: more starts in its box (``multistart``).
 
         Returns
         -------
@@ -280,6 +276,27 @@ class Identifier(IdentifierFiles):
         y, u, dt = arrays_of(y, u, dt, what="Identifier.identify", records=self.records,
                              channels=getattr(self.structure, "channels", None))
         check_call(self, dt, refine, errors, starts)
+        provenance = self.provenance
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
-        return one_pass.identified(self, record, start, errors, refine, starts)
+        if refine is True and self.head is not None and converges_to_optimum(self):
+            est = one_pass.refine_with_head(self, record, start, errors,
+                                            self.head.converged(), provenance)
+        else:
+            est = one_pass.identify_record(self, record, start, errors, provenance=provenance)
+            est = _polished(est, refine) if refine else est
+        return _from_starts(est, starts) if starts else est
 
+
+def _polished(est: Estimate, refine) -> Estimate:
+    """``identify(refine=...)`` through ``polish.polish`` (imported on first use: it needs the
+    refinement, and an ONNX export read without torch never refines)."""
+    from aeid_struct.identification.polish import polish
+
+    return polish(est, refine)
+
+
+def _from_starts(est: Estimate, starts: int) -> Estimate:
+    """``identify(refine=True, starts=k)``: ``multistart.from_starts``."""
+    from aeid_struct.identification.multistart import from_starts
+
+    return from_starts(est, starts)

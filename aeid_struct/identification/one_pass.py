@@ -12,11 +12,11 @@ import time
 import numpy as np
 
 from aeid_struct.estimates import Estimate
-from aeid_struct.identification.head import apply_head, converges_to_optimum, head_failure
+from aeid_struct.identification.head import apply_head, head_failure
 from aeid_struct.records import RecordBatch, overflow_problem
 from aeid_struct.structures import type_of
 
-__all__ = ["estimate_of", "identified", "identify_record", "refine_with_head"]
+__all__ = ["estimate_of", "identify_record", "refine_with_head"]
 
 
 def identify_record(ident, record: RecordBatch, start: float, errors: str,
@@ -66,43 +66,6 @@ def identify_record(ident, record: RecordBatch, start: float, errors: str,
                 record.raise_first()
     return estimate_of(ident, record, model, start, None if errors == "raise"
                        else record.problems, provenance)
-
-
-def identified(ident, record: RecordBatch, start: float, errors: str, refine,
-               starts: int) -> Estimate:
-    """``Identifier.identify`` after its checks: the one pass, the refinement it asks for (the
-    head iterated to convergence where that is the optimum, else ``polish.polish``) and the
-    extra starts of a physical structure (``multistart.from_starts``).
-
-    Parameters
-    ----------
-    ident : Identifier
-    record : RecordBatch
-    start : float
-        ``time.perf_counter()`` at the call.
-    errors : {"raise", "collect"}
-    refine : {False, True, "auto"}
-    starts : int, >= 0
-        Checked by the caller (``checks.check_call``).
-
-    Returns
-    -------
-    Estimate
-    """
-    if refine is True and ident.head is not None and converges_to_optimum(ident):
-        est = refine_with_head(ident, record, start, errors, ident.head.converged(),
-                               ident.provenance)
-    else:
-        est = identify_record(ident, record, start, errors, provenance=ident.provenance)
-        if refine:
-            from aeid_struct.identification.polish import polish
-
-            est = polish(est, refine)
-    if not starts:
-        return est
-    from aeid_struct.identification.multistart import from_starts
-
-    return from_starts(est, starts)
 
 
 def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
