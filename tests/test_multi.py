@@ -290,3 +290,22 @@ def test_bad_input_is_refused_by_name():
         n4sid([rec, rec], order=2)
     with pytest.raises(ValueError, match="identifier"):
         ae.identify(rec, order=2, identifier="no-such-identifier")
+
+
+def test_the_order_search_stops_after_three_orders_that_improve_nothing():
+    from aeid_struct.multi import ORDER_TOLERANCE, PATIENCE, order_search_done
+
+    assert PATIENCE == 3
+    # validation fits (higher is better, by more than ORDER_TOLERANCE)
+    assert order_search_done([60.0, 90.0, 90.2, 90.1, 90.4], lower=False)
+    assert not order_search_done([60.0, 90.0, 90.2, 90.1, 95.0], lower=False)
+    assert not order_search_done([60.0, 90.0, 90.0, 90.0 + 2 * ORDER_TOLERANCE], lower=False)
+    # a lightly damped pair: an order or two that improve nothing are no reason to stop
+    assert not order_search_done([60.0, 90.0, 90.1, 90.2], lower=False)
+    assert not order_search_done([60.0, 61.0, 61.0], lower=False)
+    # the information criterion (lower is better, by any amount)
+    assert order_search_done([100.0, 50.0, 55.0, 52.0, 51.0], lower=True)
+    assert not order_search_done([100.0, 50.0, 55.0, 52.0, 49.9], lower=True)
+    # a score that is not finite improves nothing; nothing finite before: keep searching
+    assert order_search_done([60.0, np.nan, np.nan, np.inf], lower=False)
+    assert not order_search_done([np.nan, np.nan, np.nan, 50.0], lower=False)

@@ -47,7 +47,8 @@ poles. ``aeid-struct bench-generic`` measures the pass, the encoder's pass alone
 refined model on the same records.
 
 *Order selection* (``order=None``): each available order (``ae.identify``: 1-8, those the
-record has samples for) is identified (refined where
+record has samples for), from the lowest until three orders in a row improve on none before them
+(``multi.order_search_done``), is identified (refined where
 ``refine``: an encoder's error in the poles would otherwise favour a higher order that absorbs
 it) on the first 70 % of the record and validated on the last 30 % (NRMSE fit with the initial
 state and offset fitted, MATLAB's ``compare``); the smallest order whose validation fit is
@@ -90,7 +91,7 @@ from aeid_struct.generic.result import estimate_of, restore
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
-from aeid_struct.multi import ESTIMATION_SHARE, EXACT, MAX_DELAY, ORDER_TOLERANCE
+from aeid_struct.multi import ESTIMATION_SHARE, EXACT, MAX_DELAY, ORDER_TOLERANCE, order_search_done
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
@@ -187,10 +188,14 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
             # noise-free record would prefer the order whose round-off is smallest
             floor = (EXACT * np.std(data.y)) ** 2
             criterion[n] = used * np.log(max(model.cost, floor)) + 3 * n * np.log(used)
+            if order_search_done(list(criterion.values()), lower=True):
+                break
             continue
         fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
                               1.0, delay=min(model.delay, N - cut - 2),
                               intersample=data.intersample).fit
+        if order_search_done(list(fits.values()), lower=False):
+            break
     return fits, criterion
 
 

@@ -16,12 +16,13 @@ The steps (docs/architecture.md, "Several channels, several experiments"):
    delay is walked one sample at a time by projection while that is better, and the fit runs
    again there (up to :data:`RESCANS` rounds).
 
-*Order selection* (``order=None``): as for one channel (``generic.pipeline``): every order the
-records have samples for, fitted on the first 70 % of each record and validated on the rest
-(initial state and offsets fitted); the smallest order within ``ORDER_TOLERANCE`` points of the
-best mean validation fit (over outputs and records). Where the first part holds no variation of
-an input or the rest none of an output, the order of least Bayesian information criterion of
-the whole records' fits.
+*Order selection* (``order=None``): as for one channel (``generic.pipeline``): the orders the
+records have samples for, from the lowest, fitted on the first 70 % of each record and validated
+on the rest (initial state and offsets fitted), until :data:`PATIENCE` orders in a row improve
+on none before them (:func:`order_search_done`); the smallest order within ``ORDER_TOLERANCE``
+points of the best mean validation fit (over outputs and records). Where the first part holds
+no variation of an input or the rest none of an output, the order of least Bayesian
+information criterion of the whole records' fits, searched the same way.
 """
 
 from __future__ import annotations
@@ -38,14 +39,20 @@ from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, start_
 from aeid_struct.records import RecordBatch
 from aeid_struct.threads import one_thread
 
-__all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "fit_from_poles",
-           "identify", "packed", "parameters", "validation_fit"]
+__all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "PATIENCE",
+           "fit_from_poles", "identify", "order_search_done", "packed", "parameters",
+           "validation_fit"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``; the
 #: rule of one channel too: ``generic.pipeline`` reads it from here).
 ORDER_TOLERANCE = 0.5
 #: The estimation part of each record when the order is selected.
 ESTIMATION_SHARE = 0.7
+#: ``order=None`` stops its search after this many orders in a row that improve on none before
+#: them (:func:`order_search_done`): a lightly damped pair adds two orders at once, so an order
+#: or two that improve nothing are no reason to stop, and the orders above the system's (the
+#: dearest to fit, and never chosen) are not fitted.
+PATIENCE = 3
 #: The refinement's iterations at most while the order is selected: an order above the
 #: system's has directions the data do not fix, and its validation fit is settled long before
 #: the iterations stop (order 6 of a 2x2 order-4 record: 100 iterations, 12 s, for a fit that
@@ -291,6 +298,33 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
     return _estimate(fitted, ex, refine, info, time.perf_counter() - began)
 
 
+def order_search_done(scores: list, lower: bool) -> bool:
+    """Whether ``order=None`` may stop searching (the rule of one channel too): each of the
+    last :data:`PATIENCE` orders improved on none of the orders before them, by more than
+    :data:`ORDER_TOLERANCE` points of validation fit (``lower`` False), or by a lower
+    information criterion (``lower`` True); a score that is not finite improves nothing.
+
+    Parameters
+    ----------
+    scores : list of float
+        The fitted orders' scores, in increasing order.
+    lower : bool
+        Whether lower is better (the criterion) or higher (the validation fit).
+
+    Returns
+    -------
+    bool
+    """
+    before = [v for v in scores[:-PATIENCE] if np.isfinite(v)]
+    if len(scores) <= PATIENCE or not before:
+        return False
+    last = np.asarray(scores[-PATIENCE:], dtype=np.float64)
+    last = last[np.isfinite(last)]
+    if lower:
+        return not np.any(last < min(before))
+    return not np.any(last > max(before) + ORDER_TOLERANCE)
+
+
 def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -> tuple:
     """``order=None``: ``(order, order_fits)`` by the hold-out rule (module docstring), or,
     where the estimation part holds no variation of an input or the validation part none of an
@@ -309,6 +343,8 @@ def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -
         fitted, _ = _fit(part, n, top=min(largest, room), most=SELECTION_ITERATIONS, **kw)
         if holdout:
             fits[n] = float(np.mean(validation_fit(fitted, validation, kw["feedthrough"])))
+            if order_search_done(list(fits.values()), lower=False):
+                break
             continue
         fits[n] = float(np.mean(validation_fit(fitted, ex, kw["feedthrough"])))
         # residuals of every output at every fitted sample; the parameters that grow with n:
@@ -317,6 +353,8 @@ def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -
         floor = EXACT ** 2 * float(np.mean([np.var(y, axis=0).mean() for y in ex.Y]))
         criterion[n] = (used * np.log(max(fitted.cost, floor))
                         + n * (1 + ex.inputs + ex.outputs + ex.count) * np.log(used))
+        if order_search_done(list(criterion.values()), lower=True):
+            break
     finite = {n: c for n, c in criterion.items() if np.isfinite(c)}
     if finite:
         return min(finite, key=finite.get), fits
