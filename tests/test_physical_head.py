@@ -54,6 +54,33 @@ def test_the_coefficient_inverse_recovers_the_parameters():
         np.testing.assert_allclose(head.parameters(target, start), p, rtol=1e-10)
 
 
+def test_the_unrolled_newton_inverse_is_the_step_halving_loops():
+    """A small square map's inverse runs as one SX graph of Newton steps; its parameters are
+    the Python loop's, inside the box and where the target lies beyond its image (the graph
+    stops on a bound and the loop goes on); a large map (the two-mass system's) keeps the
+    loop alone."""
+    structure = ae.Physical(mechanisms.lever(), bounds=BOX, known={"r": 1.5})
+    head = physical_head(structure, initial=False)
+    assert head._newton is not None
+    rng = np.random.default_rng(4)
+    lo, hi = np.array([v[0] for v in BOX.values()]), np.array([v[1] for v in BOX.values()])
+    for scale in (1.0, 1.0, 1.0, 3.0, 0.2):            # the last two beyond the box's image
+        p = rng.uniform(lo, hi)
+        target = head.coefficients(p)[0].copy() * scale * (1 + 1e-3 * rng.standard_normal(3))
+        start = rng.uniform(lo, hi)
+        graph = head.parameters(target, start)
+        newton, head._newton = head._newton, None
+        try:
+            loop = head.parameters(target, start)
+        finally:
+            head._newton = newton
+        assert np.all(graph >= lo) and np.all(graph <= hi)
+        np.testing.assert_allclose(graph, loop, rtol=1e-8)
+    two_mass = ae.Physical(mechanisms.two_mass(), bounds={n: (0.5, 2.0) for n in (
+        "m1", "m2", "k1", "k2", "c1", "c2")}, channel=(0, 0))
+    assert physical_head(two_mass, initial=False)._newton is None
+
+
 def test_the_batch1_path_maps_theta_as_the_structure_does(lever):
     # oracle: the structure's own torch maps (elements, then the CasADi op) in float64
     import torch

@@ -100,8 +100,9 @@ class PhysicalHead:
         self.free = np.flatnonzero(~constant)
         k_free = coefficients[self.free.tolist()]
         # dense outputs: the buffer writes nonzeros only, and numpy reads full matrices
-        self.coefficients = Numeric(expanded(casadi.Function("k_free", [p], [
-            casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))])))
+        k_map = expanded(casadi.Function("k_free", [p], [
+            casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))]))
+        self.coefficients = Numeric(k_map)
         # per record: A, B, C, D and the CCF's a
         model = casadi.Function("model", [p], [
             casadi.densify(v) for r, system in enumerate(systems)
@@ -111,6 +112,13 @@ class PhysicalHead:
         self.lo, self.hi, self.n, self.q, self.records = lo, hi, n, q, R
         self.square = self.free.size == q
         self._level = level
+        # a square map's inverse as one SX graph (the Newton iterations unrolled), where the
+        # map expands to SX (a rootfinder's does not) and is small: the graph evaluates it
+        # 4 NEWTON_ITERATIONS + 1 times, and a large one (a two-mass system's) costs more
+        # than the loop it replaces
+        small = (k_map.is_a("SXFunction") and k_map.n_instructions()
+                 * (4 * NEWTON_ITERATIONS + 1) <= NEWTON_SIZE)
+        self._newton = Numeric(_newton(k_map, lo, hi)) if self.square and small else None
 
     def systems(self, p: np.ndarray) -> list[tuple]:
         """``(A (n, n), b (n,), c (n,), d, a (n,))`` of each record at the parameters ``p``.
@@ -227,6 +235,12 @@ class PhysicalHead:
         margin = 1e-9 * (self.hi - self.lo)
         lo, hi = self.lo + margin, self.hi - margin
         p = np.clip(np.asarray(start, dtype=np.float64), lo, hi)
+        if weight is None and self._newton is not None:
+            found, cost = self._newton(np.ascontiguousarray(target, dtype=np.float64), p)
+            if cost[0] <= NEWTON_DONE:
+                return found.copy()
+            if np.isfinite(found).all():
+                p = found.copy()                # near a bound, or slow: the loop goes on
         if weight is None:
             S = np.diag(1.0 / (np.abs(target) + 1e-9 * max(np.abs(target).max(), 1e-300)))
         else:
@@ -256,6 +270,54 @@ class PhysicalHead:
             if done:
                 break
         return p
+
+
+#: Unrolled Newton iterations of a square map's inverse (:func:`_newton`).
+NEWTON_ITERATIONS = 8
+#: The largest unrolled Newton graph, in evaluations of the coefficient map's SX instructions.
+NEWTON_SIZE = 20_000
+#: The relative cost ``||(k(p) - target) / |target| ||^2`` at which the unrolled Newton's
+#: result is taken (relative coefficient errors of 1e-12); above it the step-halving loop of
+#: :meth:`PhysicalHead.parameters` goes on from that result.
+NEWTON_DONE = 1e-24
+
+
+def _newton(k_map: casadi.Function, lo: np.ndarray, hi: np.ndarray) -> casadi.Function:
+    """``(target (k,), p0 (q,)) -> (p (q,), cost)``: :data:`NEWTON_ITERATIONS` Newton steps on
+    ``k(p) = target`` for a square map, relative residual ``(k(p) - target) / |target|``, each
+    step the longest of 1, 1/2, 1/4 and 1/8 of the Newton step that lowers the cost (or none),
+    clipped into the box, as one SX graph.
+
+    Why: the step-halving loop of :meth:`PhysicalHead.parameters` costs a few evaluations of
+    the map and a least-squares solve per iteration in Python, most of a SISO mechanism's
+    one pass; the same iterations as one graph cost one call."""
+    q = k_map.size1_in(0)
+    k = k_map.size1_out(0)
+    target, p0 = casadi.SX.sym("target", k), casadi.SX.sym("p0", q)
+    margin = 1e-9 * (hi - lo)
+    lo, hi = casadi.DM(lo + margin), casadi.DM(hi - margin)
+    scale = 1.0 / (casadi.fabs(target) + 1e-9 * casadi.mmax(casadi.fabs(target)) + 1e-300)
+
+    def at(p):
+        values, J = k_map(p)
+        r = scale * (values - target)
+        return r, casadi.reshape(J, k, q), casadi.sumsqr(r)
+
+    p = casadi.fmin(casadi.fmax(p0, lo), hi)
+    r, J, cost = at(p)
+    for _ in range(NEWTON_ITERATIONS):
+        step = casadi.solve(casadi.diag(scale) @ J, -r)
+        new_p, new_r, new_J, new_cost = p, r, J, cost
+        for h in (0.125, 0.25, 0.5, 1.0):          # the longest step that lowers the cost
+            trial = casadi.fmin(casadi.fmax(p + h * step, lo), hi)
+            tr, tJ, tc = at(trial)
+            better = tc < cost
+            new_p = casadi.if_else(better, trial, new_p)
+            new_r = casadi.if_else(better, tr, new_r)
+            new_J = casadi.if_else(better, tJ, new_J)
+            new_cost = casadi.if_else(better, tc, new_cost)
+        p, r, J, cost = new_p, new_r, new_J, new_cost
+    return casadi.Function("newton", [target, p0], [p, cost])
 
 
 #: PhysicalHead by (structure object, initial): built once per identifier's structure.
