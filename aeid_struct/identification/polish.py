@@ -31,8 +31,8 @@ def polish(est: Estimate, mode) -> Estimate:
         With ``info["refined_rows"]`` for ``"auto"`` or a partial refinement.
     """
     if is_joint(est):
-        # the shared parameters of several records: the joint fit, of every record or of the
-        # flagged ones (records set aside are kept as they are)
+        # a physical structure (one record or several sharing the parameters): the fit in the
+        # parameters, of every record or of the flagged ones (records set aside are kept)
         return refine_joint(est, rows=None if mode is True else _flags(est))
     if mode == "auto":
         return _flagged(est)
@@ -65,12 +65,12 @@ def with_standard_errors(est: Estimate) -> Estimate:
 
 def polish_at_bounds(est: Estimate) -> Estimate:
     """The converged head of a physical structure, with the records whose parameters it left
-    on a bound refined by the NLP.
+    on a bound refined by the joint fit (``joint_refine.refine_joint``).
 
     Why: where the map is square, the head's nearest parameters are the structure's optimum
     only if the CCF optimum lies in the image of the box; a noisy record whose CCF optimum
     does not (an ill-conditioned parameter) is stopped on a bound, and the optimum within the
-    bounds is then the NLP's (``refinement.refine``).
+    bounds is then the output-error fit's in the parameters.
 
     Parameters
     ----------
@@ -80,7 +80,8 @@ def polish_at_bounds(est: Estimate) -> Estimate:
     Returns
     -------
     Estimate
-        With ``info["refined_rows"]``, the records the NLP refined.
+        With ``info["refined_rows"]``, the records the joint fit refined; no standard errors
+        yet (``with_standard_errors`` gives every record's).
     """
     mask = np.zeros(np.shape(est.d)[0] if est.batched else 1, dtype=bool)
     for name, (lo, hi) in est.structure.bounds.items():
@@ -89,12 +90,11 @@ def polish_at_bounds(est: Estimate) -> Estimate:
         mask |= (value <= lo + tol) | (value >= hi - tol)
     if est._good is not None:
         mask &= est._good
-    if not est.batched:
-        if not mask[0]:
-            return dataclasses.replace(est, info={**est.info, "refined_rows": False})
-        out = refine(est)
-        return dataclasses.replace(out, info={**out.info, "refined_rows": True})
-    return _rows(est, mask)
+    if not mask.any():
+        return dataclasses.replace(est, info={**est.info,
+                                              "refined_rows": mask if est.batched else False})
+    out = refine_joint(est, rows=mask)
+    return dataclasses.replace(out, info={k: v for k, v in out.info.items() if k != "std"})
 
 
 def _flags(est: Estimate):
