@@ -11,6 +11,8 @@ docstring gives the operating point and the box the shipped recipes use.
 - :func:`drive_train`: motor and load inertias coupled by a compliant shaft (a rigid-body mode:
   integrating).
 - :func:`cart_pole`: a pole balanced on a cart, linearised upright (unstable, two outputs).
+- :func:`quarter_car`: a vehicle's suspension, body and wheel: parameters whose scales spread
+  over four decades, and more transfer-function coefficients than parameters.
 
 Run ``python -m symbolic.mechanisms`` to print each one's identifiability report.
 """
@@ -23,7 +25,7 @@ from .mechanism import Mechanism
 from .named import named
 from .slip import L0, G
 
-__all__ = ["cart_pole", "drive_train", "leg", "lever", "two_mass", "upright"]
+__all__ = ["cart_pole", "drive_train", "leg", "lever", "quarter_car", "two_mass", "upright"]
 
 
 def _symbols(*names: str) -> dict[str, casadi.SX]:
@@ -144,6 +146,28 @@ def cart_pole() -> Mechanism:
     return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V,
                      dissipation=0.5 * p["b"] * dq[0] ** 2, forces=casadi.vertcat(F, 0),
                      outputs=q, name="cart_pole")
+
+
+def quarter_car() -> Mechanism:
+    """A quarter car: body mass ``ms`` and wheel mass ``mu``, the suspension's spring ``ks`` and
+    damper ``cs`` between them, the tyre's spring ``kt`` from the wheel to the road; an
+    actuator's force between body and wheel in (active suspension), the body's position out.
+    At rest at the origin. ``G = (mu s^2 + kt) / det``: four denominator and three numerator
+    coefficients shaped by five parameters, all identifiable; the benchmark's box, ``ms``
+    200-400 kg, ``mu`` 25-50 kg, ``ks`` 1.5e4-3e4 N/m, ``cs`` 800-2000 N s/m, ``kt`` 1.5e5-2.5e5
+    N/m, spreads over four decades.
+
+    Returns
+    -------
+    Mechanism
+    """
+    q, dq, F = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2), casadi.SX.sym("F")
+    p = _symbols("ms", "mu", "ks", "cs", "kt")
+    T = 0.5 * p["ms"] * dq[0] ** 2 + 0.5 * p["mu"] * dq[1] ** 2
+    V = 0.5 * p["ks"] * (q[0] - q[1]) ** 2 + 0.5 * p["kt"] * q[1] ** 2
+    R = 0.5 * p["cs"] * (dq[0] - dq[1]) ** 2
+    return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V, dissipation=R,
+                     forces=casadi.vertcat(F, -F), outputs=q[0], name="quarter_car")
 
 
 @named("symbolic.mechanisms.drive_train_channels")

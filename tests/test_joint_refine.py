@@ -23,7 +23,11 @@ from aeid_struct.identification import Head
 from aeid_struct.identification.physical_head import physical_head
 from aeid_struct.refinement import joint_residual
 from symbolic import Mechanism, mechanisms
+from symbolic.mechanisms import quarter_car
 
+#: The quarter car's box (``symbolic.mechanisms.quarter_car``): four decades of scales.
+QUARTER = {"ms": (200.0, 400.0), "mu": (25.0, 50.0), "ks": (1.5e4, 3e4), "cs": (800.0, 2000.0),
+           "kt": (1.5e5, 2.5e5)}
 BOX = {"M": (0.5, 2.0), "m": (0.05, 0.5), "l": (0.3, 1.0), "b": (0.05, 1.0)}
 NAMES = ("M", "m", "l", "b")
 GRID = dict(steps=(120, 120), dt=(0.01, 0.01))
@@ -341,30 +345,13 @@ def test_refine_auto_refines_exactly_the_flagged_records(cart_pole):
         np.testing.assert_array_equal(est.physical[k][~flags], one.physical[k][~flags])
 
 
-def _quarter_car() -> Mechanism:
-    """A quarter car: body and wheel masses ``ms, mu``, the suspension's spring ``ks`` and
-    damper ``cs``, the tyre's spring ``kt``; an actuator's force between the masses in, the
-    body's position out. Its parameters' scales spread over four decades."""
-    q, dq, F = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2), casadi.SX.sym("F")
-    p = {k: casadi.SX.sym(k) for k in QUARTER}
-    T = 0.5 * p["ms"] * dq[0] ** 2 + 0.5 * p["mu"] * dq[1] ** 2
-    V = 0.5 * p["ks"] * (q[0] - q[1]) ** 2 + 0.5 * p["kt"] * q[1] ** 2
-    R = 0.5 * p["cs"] * (dq[0] - dq[1]) ** 2
-    return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V, dissipation=R,
-                     forces=casadi.vertcat(F, -F), outputs=q[0], name="quarter_car")
-
-
-QUARTER = {"ms": (200.0, 400.0), "mu": (25.0, 50.0), "ks": (1.5e4, 3e4), "cs": (800.0, 2000.0),
-           "kt": (1.5e5, 2.5e5)}
-
-
 def test_one_record_of_a_badly_scaled_mechanism_is_refined_to_the_optimum():
     # one window cut mid-motion, five parameters over four decades, a map that is not square
     # (four denominator and three numerator coefficients): refine=True fits in the
     # parameters (the joint fit of one record), to scipy's optimum of the python-control
     # residual; the CasADi NLP of the canonical form needed 12 squarings here, stalled at a
     # round-off floor and ran its 100 iterations to a cost up to 4 % above that optimum
-    structure = ae.Physical(_quarter_car(), bounds=QUARTER)
+    structure = ae.Physical(quarter_car(), bounds=QUARTER)
     assert not physical_head(structure, initial=False).square
     family = ae.ParameterFamily(structure)
     ident = ae.train(structure, family, ae.TrainConfig(

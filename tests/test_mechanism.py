@@ -13,6 +13,7 @@ from __future__ import annotations
 import shutil
 
 import casadi
+import control
 import numpy as np
 import pytest
 import scipy.signal
@@ -132,6 +133,21 @@ def test_two_mass_and_cart_pole_equal_their_hand_linearisations():
     lin = cart.linearise(q=[0, 0], known={"g": 9.81})
     for mine, theirs in zip(_numbers(lin, **p), _cart_pole_oracle(**p), strict=True):
         np.testing.assert_allclose(mine, theirs, rtol=1e-13, atol=1e-13)
+
+
+def test_quarter_car_is_its_closed_form_transfer_function():
+    # force between body and wheel, body position out: G = (mu s^2 + kt) / det, det the
+    # determinant of the two masses' coupled second-order equations (python-control's tf)
+    p = {"ms": 320.0, "mu": 41.0, "ks": 2.2e4, "cs": 1300.0, "kt": 1.9e5}
+    A, B, C, D = _numbers(mechanisms.quarter_car().linearise(), **p)
+    body = np.polyadd(np.polymul([p["ms"], p["cs"], p["ks"]],
+                                 [p["mu"], p["cs"], p["ks"] + p["kt"]]),
+                      -np.polymul([p["cs"], p["ks"]], [p["cs"], p["ks"]]))
+    mine = control.ss2tf(A, B, C, D)
+    num, den = np.ravel(mine.num[0][0]), np.ravel(mine.den[0][0])
+    np.testing.assert_allclose(den, body / body[0], rtol=1e-10)
+    np.testing.assert_allclose(np.trim_zeros(num, "f"), np.array([p["mu"], 0.0, p["kt"]])
+                               / body[0], rtol=1e-10, atol=1e-10 * p["kt"] / body[0])
 
 
 def test_linearisation_equals_finite_differences_of_the_dynamics():

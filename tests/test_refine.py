@@ -15,10 +15,12 @@ import casadi
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.optimize
 import torch
 from helpers import rel_max_error
 from problems import inputs, modal_system
 from test_identify import _identifier, _record
+from test_joint_refine import QUARTER, _oracle_residual
 
 import aeid_struct as ae
 from aeid_struct import simulation as S
@@ -33,6 +35,7 @@ from aeid_struct.refinement import (
 from aeid_struct.refinement import nlp as R
 from aeid_struct.refinement.solve import refine_elements
 from symbolic import leg
+from symbolic.mechanisms import quarter_car
 
 # -- records with exact answers ---------------------------------------------------------------
 
@@ -662,3 +665,47 @@ def test_the_nlp_result_stays_in_refinement():
         assert refinement.refine_elements is refine_elements
     with pytest.warns(DeprecationWarning, match="private to refinement"):
         assert refinement.RefineResult is solve.RefineResult
+
+
+# -- a companion form of widely spread coefficients ---------------------------------------------
+def _quarter_windows():
+    """Two windows of a quarter car cut mid-motion (2 % noise), its structure and the truth."""
+    structure = ae.Physical(quarter_car(), bounds=QUARTER)
+    family = ae.ParameterFamily(structure)
+    rec = ae.data.records(family, 2, steps=400, dt=0.002, excitation_kind="prbs", seed=21,
+                          noise=0.02, warmup=200)
+    truth = np.stack([rec.systems.params[k] for k in structure.element_names], 1)
+    return structure, rec, truth
+
+
+def test_the_fitted_initial_state_is_projected_exactly_for_spread_scales():
+    # the quarter car's CCF: free-response columns eight decades apart; the NLP's loss is the
+    # python-control residual with lstsq's initial state (it was 7e-4 off: a ridge relative to
+    # the unscaled normal equations' trace bent the small columns' projection)
+    structure, rec, truth = _quarter_windows()
+    for i in range(2):
+        out = refine_elements(structure, truth[i], rec.y[i], rec.u[i], 0.002,
+                              RefineConfig(max_iter=1), initial="fitted")
+        oracle = _oracle_residual(structure, truth[i], [rec.y[i]], [rec.u[i]], 0.002)
+        assert out.loss_start == pytest.approx(np.sum(oracle ** 2), rel=1e-7)
+
+
+def test_sqpmethod_stops_at_the_round_off_floor_of_its_loss():
+    # the gradient of this loss cannot reach tol (1e-12): sqpmethod ran all 100 iterations at
+    # the optimum; now a chunk of iterations that lowers the loss by less than STALL ends it,
+    # converged, at scipy's optimum of the python-control residual
+    structure, rec, truth = _quarter_windows()
+    lo, hi = (np.array([QUARTER[k][j] for k in structure.element_names]) for j in (0, 1))
+    for i in range(2):
+        ys, us = [rec.y[i]], [rec.u[i]]
+        oracle = scipy.optimize.least_squares(
+            lambda z, ys=ys, us=us: _oracle_residual(structure, z, ys, us, 0.002), truth[i],
+            bounds=(lo, hi), x_scale=hi - lo, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        out = refine_elements(structure, truth[i], rec.y[i], rec.u[i], 0.002, RefineConfig(),
+                              initial="fitted")
+        assert out.success and out.iterations < 100, out.status
+        assert out.loss <= 2 * oracle.cost * (1 + 1e-7)
+        np.testing.assert_allclose(out.elements, oracle.x, rtol=1e-5)
+        capped = refine_elements(structure, truth[i], rec.y[i], rec.u[i], 0.002,
+                                 RefineConfig(max_iter=13), initial="fitted")
+        assert capped.iterations <= 13

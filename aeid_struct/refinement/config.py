@@ -29,7 +29,9 @@ class RefineConfig:
         QP solver, the fastest; docs/architecture.md) or ``"ipopt"`` (interior point, same
         Hessian).
     max_iter : int >= 1
-        At most this many solver iterations per record.
+        At most this many solver iterations per record. ``sqpmethod`` runs them in chunks of
+        ten and stops, converged, after a chunk that lowers the loss by less than ``1e-9`` of
+        itself: the loss's round-off floor, where the gradient cannot reach ``tol``.
     tol : float > 0
         Convergence tolerance on the gradient of ``J`` with respect to relative element
         changes: ``sqpmethod``'s ``tol_du`` and ``tol_pr``, ``ipopt``'s ``tol``.

@@ -24,6 +24,11 @@ _NORM_MARGIN = 8.0
 _MAX_RESOLVES = 3
 #: sqpmethod's status for a step below ``min_step_size`` (``RefineConfig.step_tol``): converged.
 _SMALL_STEP = "Search_Direction_Becomes_Too_Small"
+_MAX_ITERATIONS = "Maximum_Iterations_Exceeded"
+#: Iterations of one call of ``sqpmethod`` (:func:`_iterate`).
+CHUNK = 10
+#: A chunk lowering the loss by less than this, relative, ends the solve (:func:`_iterate`).
+STALL = 1e-9
 
 
 # ---------------------------------------------------------------------------------------------
@@ -151,11 +156,20 @@ def _start(asm, structure, x: np.ndarray, y: np.ndarray, u: np.ndarray):
     return x, scale, p, asm.lo[free] / scale, asm.hi[free] / scale
 
 
-def _iterate(problem, make, squarings: int, z, p, lbz, ubz):
-    """Solve, re-building with more squarings while the iterates leave the exponential's
-    accurate range: ``(z, loss, iterations, status, converged, squarings)``."""
-    iterations, status, converged = 0, "", False
-    for _ in range(_MAX_RESOLVES + 1):
+def _iterate(problem, make, squarings: int, z, p, lbz, ubz, loss_start: float,
+             max_iter: int):
+    """Solve, chunk by chunk (:data:`CHUNK` iterations a call of ``sqpmethod``), re-building
+    with more squarings while the iterates leave the exponential's accurate range: ``(z, loss,
+    iterations, status, converged, squarings)``.
+
+    Why chunks: the solver stops on a gradient (``tol_du``) or a step below its tolerances;
+    where the loss's round-off floor lies above them (a companion form of widely spread
+    coefficients: a quarter car's gradient stalled at 1e-6) it would run all ``max_iter``
+    iterations at the optimum. A chunk that lowers the loss by less than :data:`STALL` of itself
+    ends the solve as converged."""
+    iterations, status, converged, resolves = 0, "", False, 0
+    before = loss_start
+    while True:
         try:
             z_new, its, status, converged = _solve(problem, z, p, lbz, ubz)
         except RuntimeError as err:  # an evaluation failing inside the solver
@@ -165,17 +179,28 @@ def _iterate(problem, make, squarings: int, z, p, lbz, ubz):
         if not np.all(np.isfinite(z_new)):
             return z, math.nan, iterations, status, converged, squarings
         z = np.clip(z_new, lbz, ubz)
-        loss, norm = (v[0] for v in problem.loss(z, p))
+        loss, norm = (float(v[0]) for v in problem.loss(z, p))
         if not math.isfinite(norm):  # overflow far from the start: a failure, keep the start
             return z, math.nan, iterations, status, converged, squarings
-        if nlp.fewest_squarings(norm) <= squarings:
-            return z, float(loss), iterations, status, converged, squarings
-        # The iterates left the exponential's accurate range: rebuild and go on from here.
-        squarings = nlp.fewest_squarings(_NORM_MARGIN * norm)
-        problem = make(squarings)
-    loss = problem.loss(z, p)[0][0]  # with enough squarings at z now
-    status = f"{status}; squarings still too few after re-solves"
-    return z, float(loss), iterations, status, False, squarings
+        if nlp.fewest_squarings(norm) > squarings:
+            # The iterates left the exponential's accurate range: rebuild and go on from here.
+            squarings = nlp.fewest_squarings(_NORM_MARGIN * norm)
+            problem = make(squarings, max(max_iter - iterations, 1))
+            if resolves == _MAX_RESOLVES:
+                loss = problem.loss(z, p)[0][0]  # with enough squarings at z now
+                status = f"{status}; squarings still too few after re-solves"
+                return z, float(loss), iterations, status, False, squarings
+            resolves += 1
+            continue
+        if converged or iterations >= max_iter or status != _MAX_ITERATIONS:
+            return z, loss, iterations, status, converged, squarings
+        if not before - loss > STALL * abs(before):
+            status = (f"Stalled: the loss fell by less than {STALL:g} of itself in {its} "
+                      "iterations (its round-off floor)")
+            return z, loss, iterations, status, True, squarings
+        before = loss
+        if max_iter - iterations < CHUNK:   # the last chunk: exactly the iterations left
+            problem = make(squarings, max_iter - iterations)
 
 
 def _refine_one(structure, key, x, y, u, dt, config, start,
@@ -186,15 +211,19 @@ def _refine_one(structure, key, x, y, u, dt, config, start,
     free = ~asm.fixed
     steps, dt_ = y.shape[0], np.array([dt])
 
-    def make(squarings):
-        return nlp.problem(structure, key, steps, dt, squarings, config, initial)
+    def make(squarings, left=config.max_iter):
+        # sqpmethod runs in chunks (_iterate); ipopt, whose barrier a restart would reset, at
+        # once
+        chunk = (dataclasses.replace(config, max_iter=min(left, CHUNK))
+                 if config.solver == "sqpmethod" else config)
+        return nlp.problem(structure, key, steps, dt, squarings, chunk, initial)
 
     start_squarings = nlp.fewest_squarings(_NORM_MARGIN * asm.system(x, dt_)[4][0])
     problem = make(start_squarings)
     z0 = x[free] / scale
     loss_start = float(problem.loss(z0, p)[0][0])
     z, loss, iterations, status, converged, squarings = _iterate(
-        problem, make, start_squarings, z0, p, lbz, ubz)
+        problem, make, start_squarings, z0, p, lbz, ubz, loss_start, config.max_iter)
     if math.isfinite(loss) and (loss <= loss_start or not math.isfinite(loss_start)):
         x[free] = scale * z
         x = np.clip(x, asm.lo, asm.hi)
