@@ -165,7 +165,8 @@ def add_bench_mechanism(sub) -> None:
     mech.add_argument("--cases", nargs="+", default=None,
                       help="mechanisms by name, as the report prints them (default all: 'lever "
                            "(r known)', 'leg, translation', 'two-mass', 'leg, rotation', "
-                           "'lever (r unknown)')")
+                           "'cart-pole, both outputs', 'drive train, both angles', 'leg, both "
+                           "subsystems', 'quarter car', 'lever (r unknown)')")
     mech.add_argument("--json", default="out/bench_mechanism.json",
                       help="JSON file to write (default out/bench_mechanism.json)")
     mech.add_argument("--quiet", action="store_true", help="no progress lines")
