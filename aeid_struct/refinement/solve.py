@@ -24,6 +24,7 @@ _NORM_MARGIN = 8.0
 _MAX_RESOLVES = 3
 #: sqpmethod's status for a step below ``min_step_size`` (``RefineConfig.step_tol``): converged.
 _SMALL_STEP = "Search_Direction_Becomes_Too_Small"
+#: sqpmethod's status at the end of its ``max_iter``: a chunk of :func:`_iterate` ran out.
 _MAX_ITERATIONS = "Maximum_Iterations_Exceeded"
 #: Iterations of one call of ``sqpmethod`` (:func:`_iterate`).
 CHUNK = 10
