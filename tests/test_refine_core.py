@@ -151,3 +151,24 @@ def test_gradient_rule_stops_at_the_optimum_before_any_trial():
 def test_rules_refuse_bad_values_by_name(field, value):
     with pytest.raises(ValueError, match=field):
         core.Rules(**{"max_iter": 5, field: value})
+
+
+def test_the_gain_ratio_reaches_scipys_optimum_at_large_residuals():
+    # noise half the signal: the Gauss-Newton model misses the residual's own curvature; the
+    # gain-ratio damping (Rules.gain) still ends at scipy's optimum, and a row's path does not
+    # depend on the batch it is in
+    t, y, truth = _records(rows=4, seed=3)
+    y = y + 0.5 * np.random.default_rng(4).standard_normal(y.shape)
+    x0 = truth * 1.3 + 0.1
+    rules = core.Rules(max_iter=200, lambda_max=1e10, cost_tol=1e-14, step_tol=1e-12,
+                       gain=True)
+    out = core.minimise(Exponentials(y, t), x0, rules)
+    assert out.converged.all()
+    for b in range(y.shape[0]):
+        ref = scipy.optimize.least_squares(
+            lambda x, b=b: Exponentials(y[b:b + 1], t).residual(x[None], y[b:b + 1])[0],
+            x0[b], method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        np.testing.assert_allclose(out.x[b], ref.x, rtol=1e-6, atol=1e-7)
+        alone = core.minimise(Exponentials(y[b:b + 1], t), x0[b:b + 1], rules)
+        np.testing.assert_allclose(alone.x[0], out.x[b], rtol=1e-12)
+        assert alone.iterations[0] == out.iterations[b]

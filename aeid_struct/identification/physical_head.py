@@ -431,7 +431,7 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
                                   for y, u in zip(ys, us, strict=True)],
                                  ident._dts, lower=ph.lo, upper=ph.hi,
                                  initial=ident.initial == "fitted",
-                                 max_iter=head.iterations).p
+                                 max_iter=head.iterations, gain=False).p
     for i, row in enumerate(rows):
         if not ok[i]:
             failed[row] = True

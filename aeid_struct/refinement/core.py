@@ -69,6 +69,13 @@ class Rules:
         Apply ``predicted_tol`` before the trial (a row that predicts too little decrease
         stops where it is, one evaluation fewer) instead of after it (the row still takes a
         trial that lowers the cost: the compiled graph's order).
+    gain : bool
+        Damp by the gain ratio ``rho`` (the cost's decrease over the Gauss-Newton model's,
+        Moré 1978): an accepted step with ``rho < 0.25`` raises the damping, one with ``rho >
+        0.75`` lowers it, others keep it. Without it every accepted step lowers it (Marquardt
+        1963), and where the model overshoots along a flat, curved valley (the residual's own
+        curvature, at noise) the damping alternates between a rejected and a barely better
+        step.
     """
 
     max_iter: int
@@ -82,6 +89,7 @@ class Rules:
     step_tol: float | None = None
     exact: float | None = None
     predicted_first: bool = False
+    gain: bool = False
 
     def __post_init__(self):
         if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)) \
@@ -214,7 +222,7 @@ def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, e
         else:
             iterations[active] += 1
         sub = now if whole else _rows(now, active, B)
-        trial, stop, small = _trial(
+        trial, stop, small, expect = _trial(
             rules, x if whole else x[active], sub, lam if whole else lam[active],
             None if scale is None else scale if whole else scale[active],
             None if lower is None else (lower, upper) if whole else (lower[active],
@@ -222,6 +230,7 @@ def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, e
         if stop.any():
             done[active[stop]] = converged[active[stop]] = True
             active, trial, small = active[~stop], trial[~stop], small[~stop]
+            expect = None if expect is None else expect[~stop]
             if active.size == 0:
                 continue
             whole = active.size == B
@@ -229,6 +238,9 @@ def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, e
         new = problem.evaluate(trial, None if whole else active,
                                not lazy and it < rules.max_iter - 1, sub)
         better = new["cost"] < sub["cost"]
+        # before _accept, which may write the accepted rows into ``now`` (``sub``)
+        damped = _damping(rules, lam if whole else lam[active], better, sub["cost"],
+                          new["cost"], expect)
         if stops:
             flat = _flat(rules, sub["cost"], new["cost"], better, small,
                          lam if whole else lam[active],
@@ -241,7 +253,7 @@ def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, e
         if whole and better.all():
             jacobian = lazy and it < rules.max_iter - 1 and not done.all()
             now = _accept(problem, now, new, better, active, lazy, jacobian)
-            x, lam = trial, np.maximum(lam / rules.factor, rules.lambda_min)
+            x, lam = trial, damped
             accepted += 1
         else:
             rows = active[better]
@@ -250,8 +262,7 @@ def minimise(problem, x0, rules: Rules, *, scale=None, lower=None, upper=None, e
                 now = _accept(problem, now, new, better, rows, lazy, jacobian)
                 x[rows] = trial[better]
             accepted[rows] += 1
-            lam[rows] = np.maximum(lam[rows] / rules.factor, rules.lambda_min)
-            lam[active[~better]] *= rules.factor
+            lam[active] = damped
         if progress is not None and B == 1 and better[0]:
             progress(int(iterations[0]), float(now["cost"][0]))
     return Outcome(x=x, evaluation=now, iterations=iterations, accepted=accepted,
@@ -277,9 +288,10 @@ def _step_one(J: np.ndarray, r: np.ndarray, lam: float, frozen):
 
 def _trial(rules: Rules, x, sub: dict, lam, scale, box):
     """The trial points of the active rows at ``x (b, f)`` from their evaluation ``sub``:
-    ``(trial (b, f), stop (b,), small (b,))``, ``stop`` the rows that end before their trial
-    (gradient, step, and the prediction where it comes first), ``small`` those whose predicted
-    decrease is below ``rules.predicted_tol``."""
+    ``(trial (b, f), stop (b,), small (b,), expect)``, ``stop`` the rows that end before their
+    trial (gradient, step, and the prediction where it comes first), ``small`` those whose
+    predicted decrease is below ``rules.predicted_tol``, ``expect (b,)`` that decrease relative
+    to ``||r||^2`` (None where no rule reads it)."""
     if x.shape[0] == 1:
         return _trial_one(rules, x, sub, lam, scale, box)
     J = sub["J"] if scale is None else sub["J"] * scale[:, :, None]
@@ -295,10 +307,13 @@ def _trial(rules: Rules, x, sub: dict, lam, scale, box):
     trial = x + (step if scale is None else scale * step)
     if box is not None:
         trial = np.clip(trial, *box)
-    if rules.predicted_tol is not None:
+    expect = None
+    if rules.predicted_tol is not None or rules.gain:
         rr = np.einsum("bn,bn->b", sub["r"], sub["r"])
         predicted = -(2.0 * np.einsum("bj,bj->b", g, step)
                       + np.einsum("bj,bjk,bk->b", step, H, step))
+        expect = predicted / rr
+    if rules.predicted_tol is not None:
         small = predicted <= rules.predicted_tol * rr
         if rules.predicted_first:
             stop |= small
@@ -306,7 +321,7 @@ def _trial(rules: Rules, x, sub: dict, lam, scale, box):
         # in scaled units: the step itself, or what the box left of it
         moved = step if box is None else (trial - x if scale is None else (trial - x) / scale)
         stop |= np.max(np.abs(moved), axis=1, initial=0.0) <= rules.step_tol
-    return trial, stop, small
+    return trial, stop, small, expect
 
 
 def _trial_one(rules: Rules, x, sub: dict, lam, scale, box):
@@ -326,14 +341,28 @@ def _trial_one(rules: Rules, x, sub: dict, lam, scale, box):
     trial = x1 + (step if scale is None else scale[0] * step)
     if box is not None:
         trial = np.clip(trial, box[0][0], box[1][0])
-    if rules.predicted_tol is not None:
+    expect = None
+    if rules.predicted_tol is not None or rules.gain:
         predicted = -(2.0 * float(g @ step) + float(step @ H @ step))
+        expect = np.array([predicted / float(r @ r)])
+    if rules.predicted_tol is not None:
         small = predicted <= rules.predicted_tol * float(r @ r)
         stop = stop or (small and rules.predicted_first)
     if rules.step_tol is not None:
         moved = step if box is None else (trial - x1 if scale is None else (trial - x1) / scale[0])
         stop = stop or float(np.abs(moved).max(initial=0.0)) <= rules.step_tol
-    return trial[None], np.array([stop]), np.array([small])
+    return trial[None], np.array([stop]), np.array([small]), expect
+
+
+def _damping(rules: Rules, lam, better, cost, trial_cost, expect) -> np.ndarray:
+    """The active rows' next damping: raised where the trial failed; where it was taken,
+    lowered (Marquardt), or by the gain ratio where ``rules.gain`` (:class:`Rules`)."""
+    lowered = np.maximum(lam / rules.factor, rules.lambda_min)
+    if rules.gain and expect is not None:
+        with np.errstate(all="ignore"):
+            rho = (cost - trial_cost) / cost / expect
+        lowered = np.where(rho > 0.75, lowered, np.where(rho < 0.25, lam * rules.factor, lam))
+    return np.where(better, lowered, lam * rules.factor)
 
 
 def _flat(rules: Rules, cost, trial_cost, better, small, lam, energy) -> np.ndarray:

@@ -178,7 +178,7 @@ class JointFit:
 
 def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tuple, *,
               lower: np.ndarray, upper: np.ndarray, initial: bool,
-              max_iter: int = 100) -> JointFit:
+              max_iter: int = 100, gain: bool = True) -> JointFit:
     """The output-error optimum of the parameters of each row's records within the box
     (module docstring).
 
@@ -198,6 +198,9 @@ def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tup
         Each record's initial state projected out.
     max_iter : int
         Iterations per row at most.
+    gain : bool
+        Damp by the gain ratio (``core.Rules.gain``), for a fit to convergence; the one pass's
+        few fixed iterations keep Marquardt's rule (False), as they were measured.
 
     Returns
     -------
@@ -209,8 +212,12 @@ def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tup
     start = np.clip(np.asarray(start, dtype=np.float64), lo + margin, hi - margin)
     z0 = (start - lo) / (hi - lo)
     B = z0.shape[0]
+    # damped by the gain ratio: at noise the cost's valleys in poorly determined parameters
+    # are flat and curved, and Marquardt's rule alternated between a rejected and a barely
+    # better step there (a quarter car at 5 % noise: 90th percentile 38 -> 21 iterations, all
+    # 40 records converged against 37, the same optimum)
     rules = core.Rules(max_iter=int(max_iter), lambda_max=1e12, cost_tol=FLAT,
-                       step_tol=1e-12)
+                       step_tol=1e-12, gain=bool(gain))
     out = core.minimise(problem, z0, rules, lower=np.zeros((B, lo.size)),
                         upper=np.ones((B, lo.size)))
     return JointFit(lo + (hi - lo) * out.x, out.evaluation["cost"], out.iterations,
