@@ -22,12 +22,13 @@ import aeid_struct as ae
 from aeid_struct.identification import Head
 from aeid_struct.identification.physical_head import physical_head
 from aeid_struct.refinement import joint_residual
+from aeid_struct.studies.mechanism_bench import CASES
 from symbolic import Mechanism, mechanisms
 from symbolic.mechanisms import quarter_car
 
-#: The quarter car's box (``symbolic.mechanisms.quarter_car``): four decades of scales.
-QUARTER = {"ms": (200.0, 400.0), "mu": (25.0, 50.0), "ks": (1.5e4, 3e4), "cs": (800.0, 2000.0),
-           "kt": (1.5e5, 2.5e5)}
+#: The quarter car's box (``symbolic.mechanisms.quarter_car``), the benchmark's: four decades
+#: of scales.
+QUARTER = next(case.bounds for case in CASES if case.mechanism == "quarter_car")
 BOX = {"M": (0.5, 2.0), "m": (0.05, 0.5), "l": (0.3, 1.0), "b": (0.05, 1.0)}
 NAMES = ("M", "m", "l", "b")
 GRID = dict(steps=(120, 120), dt=(0.01, 0.01))

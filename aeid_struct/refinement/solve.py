@@ -187,9 +187,10 @@ def _iterate(problem, make, squarings: int, z, p, lbz, ubz, loss_start: float,
             # The iterates left the exponential's accurate range: rebuild and go on from here.
             squarings = nlp.fewest_squarings(_NORM_MARGIN * norm)
             problem = make(squarings, max(max_iter - iterations, 1))
-            if resolves == _MAX_RESOLVES:
+            if resolves == _MAX_RESOLVES or iterations >= max_iter:
                 loss = problem.loss(z, p)[0][0]  # with enough squarings at z now
-                status = f"{status}; squarings still too few after re-solves"
+                status = (f"{status}; squarings still too few after re-solves"
+                          if resolves == _MAX_RESOLVES else status)
                 return z, float(loss), iterations, status, False, squarings
             resolves += 1
             continue
