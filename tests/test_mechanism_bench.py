@@ -38,6 +38,9 @@ def test_bench_mechanism_cli_trains_measures_and_writes_json(tmp_path, capsys):
     assert cost["refined x4 at the best"] == 1.0 and level["ms"]["refined x4"] > 0
     assert abs(cost["one pass excess median"]) < 1e-3
     assert "cost over refined's" in printed
+    # the cold fit iterates from each of its 4 starts (scipy counts a Jacobian per iteration)
+    assert level["iterations"]["cold grey-box x4"] >= 4 and level["iterations"]["refined"] >= 0
+    assert "iterations (median)" in printed
 
 
 def test_bench_mechanism_measures_a_mechanism_of_two_outputs():
@@ -53,3 +56,6 @@ def test_bench_mechanism_measures_a_mechanism_of_two_outputs():
     assert max(level["errors"]["refined"]) < 1e-5
     assert all(e != e for e in level["errors"]["n4sid"])          # NaN: not measured
     assert level["failed"]["n4sid"] == 2 and level["ms"]["cold grey-box x4"] > 0
+    # several channels: refine runs the joint fit from the one pass (at least the iteration
+    # that finds it converged), the cold fit from each of its 4 starts
+    assert level["iterations"]["refined"] >= 1 and level["iterations"]["cold grey-box x4"] >= 4
