@@ -76,6 +76,9 @@ class IdentifiabilityReport:
         The outputs examined.
     points : int
         Points of the box examined.
+    pairs : tuple of (int, int) or None
+        The ``(output, input)`` channels examined where not every output of every input was
+        (separate experiments, one input each: ``identifiability(..., pairs=...)``).
     """
 
     parameters: tuple[str, ...]
@@ -89,6 +92,7 @@ class IdentifiabilityReport:
     inputs: tuple[int, ...] = ()
     outputs: tuple[int, ...] = ()
     points: int = 0
+    pairs: tuple[tuple[int, int], ...] | None = None
 
     @property
     def full(self) -> bool:
@@ -96,8 +100,10 @@ class IdentifiabilityReport:
         return not self.unidentifiable
 
     def __str__(self) -> str:
-        lines = [f"identifiability of {', '.join(self.parameters)} from inputs "
-                 f"{list(self.inputs)} to outputs {list(self.outputs)} "
+        what = (f"inputs {list(self.inputs)} to outputs {list(self.outputs)}"
+                if self.pairs is None else
+                "channels " + ", ".join(f"y[{o}] from u[{i}]" for o, i in self.pairs))
+        lines = [f"identifiability of {', '.join(self.parameters)} from {what} "
                  f"({self.points} points of the box)",
                  f"  rank {self.rank} of {len(self.parameters)}",
                  f"  identifiable: {', '.join(self.identifiable) or 'none'}"]
@@ -117,7 +123,8 @@ class IdentifiabilityReport:
 def identifiability(mechanism, bounds: Mapping[str, tuple[float, float]], *,
                     known: Mapping[str, float] | None = None,
                     inputs: Sequence[int] | None = None, outputs: Sequence[int] | None = None,
-                    points: int = 32, seed: int = 0, **operating) -> IdentifiabilityReport:
+                    pairs: Sequence[tuple[int, int]] | None = None, points: int = 32,
+                    seed: int = 0, **operating) -> IdentifiabilityReport:
     """The identifiability report of ``mechanism`` (module docstring).
 
     Parameters
@@ -129,6 +136,10 @@ def identifiability(mechanism, bounds: Mapping[str, tuple[float, float]], *,
         Parameters whose values are known (not examined).
     inputs, outputs : sequence of int, optional
         The channels a record holds; all by default.
+    pairs : sequence of (output, input), optional
+        The channels measured where they are not every output of every input: records of
+        separate experiments, each moving one input and measuring some outputs. Replaces
+        ``inputs`` and ``outputs`` (given together: a ValueError).
     points : int, >= 1
         Points of the box examined: its centre and ``points - 1`` drawn uniformly (in log where
         the box spans more than a decade of one sign).
@@ -149,8 +160,17 @@ def identifiability(mechanism, bounds: Mapping[str, tuple[float, float]], *,
     names = tuple(lin.name_in())
     low, high = _box(bounds, names)
     n, m, p = mechanism.shape
+    if pairs is not None:
+        if inputs is not None or outputs is not None:
+            raise ValueError("give pairs, or inputs and outputs, not both")
+        pairs = _pairs(pairs, p, m)
+        inputs = sorted({i for _, i in pairs})
+        outputs = sorted({o for o, _ in pairs})
     ins = _channels("inputs", inputs, m)
     outs = _channels("outputs", outputs, p)
+    # the measured channels among outputs x inputs (all of them without pairs)
+    measured = (np.ones((len(outs), len(ins)), dtype=bool) if pairs is None else
+                np.array([[(o, i) in pairs for i in ins] for o in outs]))
     if not (isinstance(points, int) and points >= 1):
         raise ValueError(f"points must be an int >= 1; got {points!r}")
     derivatives = _derivatives(lin)
@@ -162,7 +182,7 @@ def identifiability(mechanism, bounds: Mapping[str, tuple[float, float]], *,
         draw = rng.uniform(size=len(names))
         samples.append(np.where(logged, np.exp(np.log(np.abs(low)) + draw * np.log(
             np.abs(high) / np.abs(low))) * np.sign(high), low + draw * (high - low)))
-    jacobians = [_scaled(derivatives, theta, scale_log, low, high, ins, outs)
+    jacobians = [_scaled(derivatives, theta, scale_log, low, high, ins, outs, measured)
                  for theta in samples]
     kept = [i for i, J in enumerate(jacobians) if np.isfinite(J).all()]
     if not kept:
@@ -187,7 +207,8 @@ def identifiability(mechanism, bounds: Mapping[str, tuple[float, float]], *,
         parameters=names, identifiable=identifiable,
         unidentifiable=tuple(k for k in names if k not in identifiable), rank=rank,
         combinations=_combinations(null, names), fix=_fix(jacobians[best], names),
-        condition=condition, drops=drops, inputs=ins, outputs=outs, points=points)
+        condition=condition, drops=drops, inputs=ins, outputs=outs, points=points,
+        pairs=pairs)
 
 
 def _box(bounds, names) -> tuple[np.ndarray, np.ndarray]:
@@ -221,6 +242,18 @@ def _channels(what: str, value, size: int) -> tuple[int, ...]:
     return out
 
 
+def _pairs(value, p: int, m: int) -> tuple[tuple[int, int], ...]:
+    try:
+        out = tuple((int(o), int(i)) for o, i in value)
+    except (TypeError, ValueError):
+        out = ()
+    if not out or len(set(out)) != len(out) or not all(
+            0 <= o < p and 0 <= i < m for o, i in out):
+        raise ValueError(f"pairs must be distinct (output, input) indices in [0, {p}) x "
+                         f"[0, {m}); got {value!r}")
+    return out
+
+
 def _derivatives(lin: casadi.Function) -> casadi.Function:
     """``theta -> (A, B, C, D, dA, dB, dC, dD)``: the linearisation and its Jacobians with
     respect to the parameters (CasADi's own derivatives), ``dX`` of shape ``(size(X), q)``
@@ -232,9 +265,10 @@ def _derivatives(lin: casadi.Function) -> casadi.Function:
         casadi.jacobian(casadi.vec(X), theta) for X in parts)])
 
 
-def _scaled(derivatives, theta, scale_log, low, high, ins, outs) -> np.ndarray:
+def _scaled(derivatives, theta, scale_log, low, high, ins, outs, measured) -> np.ndarray:
     """The scaled Jacobian at ``theta`` (module docstring): rows ``Re, Im`` of
-    ``d G_ij(j w) / d p / |G_ij(j w)|`` per channel and frequency, columns per parameter."""
+    ``d G_ij(j w) / d p / |G_ij(j w)|`` per measured channel (``measured (p', m')``) and
+    frequency, columns per parameter."""
     A, B, C, D, dA, dB, dC, dD = (np.array(v) for v in derivatives(theta))
     n, m, p, q = A.shape[0], B.shape[1], C.shape[0], theta.size
     if not all(np.isfinite(v).all() for v in (A, B, C, D, dA, dB, dC, dD)):
@@ -256,7 +290,7 @@ def _scaled(derivatives, theta, scale_log, low, high, ins, outs) -> np.ndarray:
     # dG = dC R B + C R dA R B + C R dB + dD                        # (F, p', m', q)
     dG = (np.einsum("ikq,fkj->fijq", dC, RB) + np.einsum("fik,klq,flj->fijq", CR, dA, RB)
           + np.einsum("fik,kjq->fijq", CR, dB) + dD)
-    size = np.abs(G).max(axis=0)                  # (p', m')
+    size = np.abs(G).max(axis=0) * measured       # (p', m'), unmeasured channels 0
     seen = size > 1e-12 * size.max() if size.max() > 0 else np.zeros_like(size, bool)
     scale = np.maximum(np.abs(G), 1e-6 * size)[..., None]
     rows = (dG / np.where(scale > 0, scale, 1.0))[:, seen]      # (F, channels, q)

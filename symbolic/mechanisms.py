@@ -13,6 +13,8 @@ docstring gives the operating point and the box the shipped recipes use.
 - :func:`cart_pole`: a pole balanced on a cart, linearised upright (unstable, two outputs).
 - :func:`quarter_car`: a vehicle's suspension, body and wheel: parameters whose scales spread
   over four decades, and more transfer-function coefficients than parameters.
+- :func:`coupled_masses`: the two masses of :func:`two_mass` with a force on each and both
+  positions measured: coupled inputs, identified from one experiment per input.
 
 Run ``python -m symbolic.mechanisms`` to print each one's identifiability report.
 """
@@ -25,7 +27,8 @@ from .mechanism import Mechanism
 from .named import named
 from .slip import L0, G
 
-__all__ = ["cart_pole", "drive_train", "leg", "lever", "quarter_car", "two_mass", "upright"]
+__all__ = ["cart_pole", "coupled_masses", "drive_train", "leg", "lever", "quarter_car", "two_mass",
+           "upright"]
 
 
 def _symbols(*names: str) -> dict[str, casadi.SX]:
@@ -170,6 +173,27 @@ def quarter_car() -> Mechanism:
                      forces=casadi.vertcat(F, -F), outputs=q[0], name="quarter_car")
 
 
+def coupled_masses() -> Mechanism:
+    """The masses ``m1, m2`` of :func:`two_mass` (spring ``k1`` and damper ``c1`` from the wall
+    to mass 1, ``k2, c2`` between the masses) with a force on each, ``F1`` on mass 1 and
+    ``F2`` on mass 2, and both positions out: each output answers both inputs, so a record
+    of both forces at once cannot be split by channel; one experiment per force
+    (``Physical(..., channels=..., experiments=True)``) identifies all six parameters. At rest
+    at the origin.
+
+    Returns
+    -------
+    Mechanism
+    """
+    q, dq, F = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2), casadi.SX.sym("F", 2)
+    p = _symbols("m1", "m2", "k1", "k2", "c1", "c2")
+    T = 0.5 * p["m1"] * dq[0] ** 2 + 0.5 * p["m2"] * dq[1] ** 2
+    V = 0.5 * p["k1"] * q[0] ** 2 + 0.5 * p["k2"] * (q[1] - q[0]) ** 2
+    R = 0.5 * p["c1"] * dq[0] ** 2 + 0.5 * p["c2"] * (dq[1] - dq[0]) ** 2
+    return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V, dissipation=R,
+                     forces=F, outputs=q, name="coupled_masses")
+
+
 @named("symbolic.mechanisms.drive_train_channels")
 def drive_train_channels() -> casadi.Function:
     """The drive train's two channels of one record (motor and load angle from the motor
@@ -216,3 +240,5 @@ if __name__ == "__main__":
                                           "b": (0.01, 0.1)}, q=[0, 0]))
     print(identifiability(cart_pole(), {"M": (0.5, 2), "m": (0.05, 0.5), "l": (0.2, 1),
                                         "b": (0.05, 1)}, q=[0, 0], known={"g": 9.81}))
+    print(identifiability(coupled_masses(), {n: (0.5, 2.0) for n in coupled_masses().names},
+                          pairs=[(0, 0), (1, 1)]))

@@ -130,6 +130,82 @@ def test_bad_arguments_are_refused_by_name(call, message):
         identifiability(mechanisms.lever(), **call)
 
 
+def _crosstalk() -> Mechanism:
+    """Two masses on their own springs (common damping ``c``), a force on each, the first force
+    reaching the second mass too (crosstalk ``e``); both positions out."""
+    q, dq, F = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2), casadi.SX.sym("F", 2)
+    p = {k: casadi.SX.sym(k) for k in ("m1", "m2", "k1", "k2", "e", "c")}
+    return Mechanism(q=q, dq=dq, u=F, parameters=p,
+                     lagrangian=0.5 * (p["m1"] * dq[0] ** 2 + p["m2"] * dq[1] ** 2)
+                     - 0.5 * (p["k1"] * q[0] ** 2 + p["k2"] * q[1] ** 2),
+                     dissipation=0.5 * p["c"] * (dq[0] ** 2 + dq[1] ** 2),
+                     forces=casadi.vertcat(F[0], F[1] + p["e"] * F[0]), outputs=q,
+                     name="crosstalk")
+
+
+CROSSTALK_BOX = {"m1": (0.5, 2.0), "m2": (0.5, 2.0), "k1": (1.0, 5.0), "k2": (1.0, 5.0),
+                 "e": (0.1, 0.5)}
+
+
+def _crosstalk_oracle_rank(pairs, point) -> int:
+    """Newton's law typed by hand; the rank of the measured channels' transfer-function
+    coefficients in log-parameters (central differences), as :func:`_oracle_rank`."""
+    names = list(point)
+
+    def coefficients(theta):
+        m1, m2, k1, k2, e = np.exp(theta)
+        c = 0.5
+        A = np.array([[0, 1, 0, 0], [-k1 / m1, -c / m1, 0, 0], [0, 0, 0, 1],
+                      [0, 0, -k2 / m2, -c / m2]])
+        B = np.array([[0, 0], [1 / m1, 0], [0, 0], [e / m2, 1 / m2]])
+        C = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+        out = []
+        for o, i in pairs:
+            num, den = scipy.signal.ss2tf(A, B[:, [i]], C[[o]], np.zeros((1, 1)))
+            out += [num.ravel() / den[0], den[1:] / den[0]]
+        return np.concatenate(out)
+
+    theta = np.log(np.array([point[k] for k in names]))
+    h = 1e-5
+    J = np.column_stack([(coefficients(theta + h * e) - coefficients(theta - h * e)) / (2 * h)
+                         for e in np.eye(len(names))])
+    k = np.abs(coefficients(theta))
+    keep = k > 1e-9 * k.max()
+    s = np.linalg.svd(J[keep] / np.maximum(k[keep], 1e-3)[:, None], compute_uv=False)
+    return int(np.sum(s > 1e-6 * s[0]))
+
+
+@pytest.mark.parametrize(("pairs", "hidden"), [
+    ([(0, 0), (1, 1)], ("e",)),            # the crosstalk lives on the channel not measured
+    ([(0, 0), (1, 0)], ()),
+    ([(0, 0), (1, 0), (0, 1), (1, 1)], ()),
+])
+def test_pairs_read_only_the_channels_measured(pairs, hidden):
+    """Records of separate experiments (``pairs``): a parameter seen only on a channel that
+    was not measured is not identifiable, though its input and output appear in others."""
+    mech = _crosstalk()
+    report = identifiability(mech, CROSSTALK_BOX, known={"c": 0.5}, pairs=pairs)
+    rng = np.random.default_rng(5)
+    assert report.rank == max(_crosstalk_oracle_rank(pairs, _draw(CROSSTALK_BOX, rng))
+                              for _ in range(3))
+    assert report.unidentifiable == hidden and report.pairs == tuple(pairs)
+    assert ("e not identifiable" in str(report)) == bool(hidden)
+    assert "y[1] from u[1]" in str(report) or (1, 1) not in pairs
+    # every output of every input: the crosstalk is seen
+    assert identifiability(mech, CROSSTALK_BOX, known={"c": 0.5}).full
+
+
+@pytest.mark.parametrize(("call", "message"), [
+    ({"pairs": [(0, 0), (0, 0)]}, r"pairs must be distinct \(output, input\)"),
+    ({"pairs": [(0, 2)]}, r"pairs must be distinct .* in \[0, 2\) x \[0, 2\)"),
+    ({"pairs": [(0, 0)], "inputs": [0]}, "give pairs, or inputs and outputs, not both"),
+    ({"pairs": "y0u0"}, "pairs must be distinct"),
+])
+def test_bad_pairs_are_refused_by_name(call, message):
+    with pytest.raises(ValueError, match=message):
+        identifiability(_crosstalk(), CROSSTALK_BOX, known={"c": 0.5}, **call)
+
+
 def test_the_mechanism_answers_for_itself():
     lever = mechanisms.lever()
     assert lever.identifiability(LEVER_BOX) == identifiability(lever, LEVER_BOX)

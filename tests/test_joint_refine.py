@@ -1,6 +1,7 @@
 """Tests for ``aeid_struct/identification/joint_refine.py`` and ``refinement/joint.py``, with the
 several-channel physical structures they serve (``Physical(mechanism, channels=...)``,
-``Mechanism.channels``, a record split by channel, one excitation per input in training).
+``Mechanism.channels``, a record split by channel, one excitation per input in training, and
+records of separate experiments of a coupled mechanism, ``experiments=True``).
 
 Oracles: the mechanism's own one-channel maps (``Mechanism.channel``), the true parameters of
 noise-free records, python-control's ``forced_response`` (linear interpolation between
@@ -402,3 +403,66 @@ def test_the_joint_fit_converges_in_flat_valleys_at_noise():
             lambda z, ys=ys, us=us: _oracle_residual(structure, z, ys, us, 0.002), truth[i],
             bounds=(ph.lo, ph.hi), x_scale=ph.hi - ph.lo, xtol=1e-12, ftol=1e-12, gtol=1e-12)
         assert fit.cost[i] <= 2 * oracle.cost * (1 + 1e-7)
+
+
+#: The coupled masses' box, every channel of its two forces (``experiments=True``).
+COUPLED = {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}
+PAIRS = ((0, 0), (1, 0), (0, 1), (1, 1))
+
+
+def test_a_coupled_mechanism_is_refused_as_one_record_and_taken_as_experiments():
+    coupled = mechanisms.coupled_masses()
+    with pytest.raises(ValueError, match=r"y\[0\] also answers u\[1\].*experiments=True"):
+        ae.Physical(coupled, bounds=COUPLED, channels=[(0, 0), (1, 1)])
+    with pytest.raises(ValueError, match="each output once.*experiments=True"):
+        ae.Physical(coupled, bounds=COUPLED, channels=PAIRS)
+    structure = ae.Physical(coupled, bounds=COUPLED, channels=PAIRS, experiments=True)
+    # one record per experiment's channel, passed as a sequence: no record to split, and each
+    # record its own excitation (the experiments' inputs are not one signal)
+    assert structure.records == 4 and structure.channels is None
+    assert ae.ParameterFamily(structure).shared_inputs is None
+    # each record's map is the mechanism's own channel
+    point = {k: 0.7 + 0.2 * i for i, k in enumerate(COUPLED)}
+    out = structure.function(**point)
+    for r, (o, i) in enumerate(PAIRS, start=1):
+        one = coupled.channel(o, i)(**point)
+        for k in "ABCD":
+            np.testing.assert_allclose(np.array(out[f"{k}{r}"]), np.array(one[k]),
+                                       rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"channels": PAIRS[:2] + PAIRS[:1], "experiments": True},
+     r"each \(output, input\) once"),
+    ({"channel": (0, 0), "experiments": True}, "experiments=True reads a mechanism's channels"),
+    ({"channels": PAIRS, "experiments": 1}, "experiments must be True or False"),
+])
+def test_bad_experiments_are_refused_by_name(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ae.Physical(mechanisms.coupled_masses(), bounds=COUPLED, **kwargs)
+
+
+def test_a_coupled_mechanism_trains_and_is_identified_from_its_experiments(tmp_path):
+    """Two forces on coupled masses, one experiment per force: one identifier reads the four
+    channels and returns the six parameters; noise-free, the refinement reaches the truth,
+    and the file reloads with the map."""
+    structure = ae.Physical(mechanisms.coupled_masses(), bounds=COUPLED, channels=PAIRS,
+                            experiments=True)
+    family = ae.ParameterFamily(structure)
+    grid = dict(steps=(150,) * 4, dt=(0.05,) * 4)
+    ident = ae.train(structure, family, ae.TrainConfig(**grid, epochs=3, count=400,
+                                                       excitation="prbs", progress=False))
+    ident.head = Head(iterations=5)
+    rec = ae.data.records(family, 3, **grid, excitation_kind="prbs", seed=4)
+    names = structure.element_names
+    truth = np.stack([rec.systems.params[k] for k in names], 1)
+    refined = ident.identify(rec.y, rec.u, refine=True)
+    assert refined.info["refine"] == "joint"
+    np.testing.assert_allclose(np.stack([refined.physical[k] for k in names], 1), truth,
+                               rtol=1e-7)
+    again = ae.load(ident.save(tmp_path / "coupled.aeid"),
+                    maps={structure.function.name(): structure.function})
+    again.head = Head(iterations=5)
+    a, b = again.identify(rec.y, rec.u), ident.identify(rec.y, rec.u)
+    for k in names:
+        np.testing.assert_array_equal(a.physical[k], b.physical[k])

@@ -1,6 +1,7 @@
 """A :class:`~symbolic.mechanism.Mechanism` as a physical structure's map: the CCF of one of its
 channels (``Mechanism.channel``), or of several channels of one record (a record with several
-outputs, or a decoupled input per output), as a Function of its free parameters, after an
+outputs, or a decoupled input per output) or of separate experiments (one input moving in
+each: a coupled mechanism of several inputs), as a Function of its free parameters, after an
 identifiability check of those channels over the structure's box, so that a structure whose
 records cannot determine a parameter is refused before any training (docs/architecture.md,
 "Your own mechanism")."""
@@ -12,7 +13,7 @@ from collections.abc import Mapping
 import casadi
 import numpy as np
 
-__all__ = ["channel_specs", "is_mechanism", "mechanism_map"]
+__all__ = ["channel_specs", "is_mechanism", "mechanism_map", "mechanism_structure"]
 
 #: Points of the box at which a channel a split record assumes absent must vanish.
 PROBES = 6
@@ -35,7 +36,40 @@ def is_mechanism(value) -> bool:
     return isinstance(value, Mechanism)
 
 
-def channel_specs(channel, channels) -> tuple[tuple, ...]:
+def mechanism_structure(mechanism, bounds: Mapping, known: Mapping | None, channel, channels,
+                        experiments, operating: dict) -> tuple:
+    """``Physical(mechanism, ...)``'s map and the channels a record of several outputs is
+    split by (None for one channel and for ``experiments``), its arguments checked.
+
+    Parameters
+    ----------
+    mechanism : Mechanism
+    bounds, known, channel, channels, experiments, operating
+        As ``Physical`` takes them.
+
+    Returns
+    -------
+    (casadi.Function, tuple of (output, input) or None)
+
+    Raises
+    ------
+    ValueError
+        ``experiments`` not a bool, or True without a mechanism's ``channels``; and as
+        :func:`channel_specs` and :func:`mechanism_map`.
+    """
+    if not isinstance(experiments, bool):
+        raise ValueError(f"experiments must be True or False; got {experiments!r}")
+    if experiments and (channels is None or not is_mechanism(mechanism)):
+        raise ValueError("experiments=True reads a mechanism's channels=: one record per "
+                         "channel, its input alone moving")
+    specs = channel_specs(channel, channels, experiments)
+    function = mechanism_map(mechanism, bounds, known, specs, operating, experiments)
+    split = (tuple((o, i) for o, i, _ in specs) if channels is not None and not experiments
+             else None)
+    return function, split
+
+
+def channel_specs(channel, channels, experiments: bool = False) -> tuple[tuple, ...]:
     """The channels of ``Physical(mechanism, channel=..., channels=...)``, checked: one
     ``(output, input[, states])`` per record of the structure.
 
@@ -44,7 +78,10 @@ def channel_specs(channel, channels) -> tuple[tuple, ...]:
     channel : tuple or None
         One channel (``(0, 0)`` where both are None).
     channels : sequence of tuples or None
-        Several channels of one record, each output once.
+        Several channels of one record, each output once; or, with ``experiments``, each
+        channel a record of its own, each pair ``(output, input)`` once.
+    experiments : bool
+        Whether the channels are records of separate experiments (outputs may repeat).
 
     Returns
     -------
@@ -54,7 +91,7 @@ def channel_specs(channel, channels) -> tuple[tuple, ...]:
     ------
     ValueError
         Both given, a malformed channel (not a pair or triple, an index that is not a
-        non-negative integer), or an output named twice.
+        non-negative integer), an output named twice (a pair, with ``experiments``).
     """
     if channel is not None and channels is not None:
         raise ValueError("give channel (one) or channels (several), not both")
@@ -82,14 +119,18 @@ def channel_specs(channel, channels) -> tuple[tuple, ...]:
         specs.append((int(output), int(input), tuple(states[0]) if states and
                       states[0] is not None else None))
     outputs = [s[0] for s in specs]
-    if len(set(outputs)) != len(outputs):
+    pairs = [s[:2] for s in specs]
+    if experiments and len(set(pairs)) != len(pairs):
+        raise ValueError(f"channels must name each (output, input) once; got {pairs}")
+    if not experiments and len(set(outputs)) != len(outputs):
         raise ValueError(f"channels must name each output once (a record's output is one "
-                         f"channel's); got outputs {outputs}")
+                         f"channel's; for records of separate experiments, one input moving "
+                         f"in each, pass experiments=True); got outputs {outputs}")
     return tuple(specs)
 
 
 def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tuple,
-                  operating: dict) -> casadi.Function:
+                  operating: dict, experiments: bool = False) -> casadi.Function:
     """The map of ``Physical(mechanism, ...)``: the CCF of each channel in ``specs`` as a
     Function of the parameters not in ``known``, checked identifiable over ``bounds``.
 
@@ -104,6 +145,10 @@ def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tupl
         The channels the records hold (:func:`channel_specs`).
     operating : dict
         ``u``, ``q``, ``guess`` of ``Mechanism.linearise``.
+    experiments : bool
+        Each channel a record of its own experiment, in which its input alone moves: a
+        coupled mechanism's records need no split, and the identifiability check reads the
+        channels measured (``pairs``), not every output of every input.
 
     Returns
     -------
@@ -126,12 +171,16 @@ def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tupl
         given = sorted(bounds) if isinstance(bounds, Mapping) else bounds
         raise ValueError(f"bounds must give every parameter of {mechanism.name} not in known "
                          f"({list(free)}); got {given!r}")
-    if len(specs) > 1:
-        _check_split(mechanism, specs, bounds, known, operating)
-    inputs = sorted({i for _, i, _ in specs})
-    outputs = [o for o, _, _ in specs]
-    report = identifiability(mechanism, bounds, known=known, inputs=inputs, outputs=outputs,
-                             **operating)
+    if experiments:
+        report = identifiability(mechanism, bounds, known=known,
+                                 pairs=[(o, i) for o, i, _ in specs], **operating)
+    else:
+        if len(specs) > 1:
+            _check_split(mechanism, specs, bounds, known, operating)
+        inputs = sorted({i for _, i, _ in specs})
+        outputs = [o for o, _, _ in specs]
+        report = identifiability(mechanism, bounds, known=known, inputs=inputs,
+                                 outputs=outputs, **operating)
     if not report.full:
         what = ", ".join(f"y[{o}] from u[{i}]" for o, i, _ in specs)
         raise ValueError(
@@ -172,4 +221,5 @@ def _check_split(mechanism, specs, bounds, known, operating) -> None:
                         f"channels read inputs {inputs}, but y[{o}] also answers u[{j}] (its "
                         f"Markov parameters do not vanish at {point}): a record of several "
                         "inputs is split by channel only where each output answers its own "
-                        "input alone; identify one input's records at a time")
+                        "input alone; record one input at a time (the others at rest) and "
+                        "pass those records with experiments=True")

@@ -22,7 +22,7 @@ from aeid_struct.structures import maps as named_maps
 from aeid_struct.structures.base import Structure
 from aeid_struct.structures.casadi_torch import CasadiOp
 from aeid_struct.structures.constraints import ElementMap
-from aeid_struct.structures.mechanical import channel_specs, is_mechanism, mechanism_map
+from aeid_struct.structures.mechanical import channel_specs, is_mechanism, mechanism_structure
 from aeid_struct.structures.realisation import ccf_coefficients, ccf_matrices
 from aeid_struct.structures.system import System
 
@@ -67,6 +67,12 @@ class Physical(Structure):
         :class:`~aeid_struct.records.Record` with several outputs is split by them
         (:attr:`channels`). With a Function of ``R`` records (``Mechanism.channels``, a named
         factory), its ``R`` pairs ``(output, input)``.
+    experiments : bool
+        With a mechanism's ``channels``: each channel is a record of its own experiment, in
+        which its input alone moves (the other inputs at their operating values), so outputs
+        may repeat; the way to a coupled mechanism of several inputs, whose record of all
+        inputs at once cannot be split by channel. The records are passed one per channel
+        (a sequence of ``R``), as for the joint leg (:attr:`channels` is None).
     **operating
         A mechanism's operating point: ``q``, ``u``, ``guess`` of ``Mechanism.linearise``.
 
@@ -79,13 +85,11 @@ class Physical(Structure):
 
     def __init__(self, function: casadi.Function, *, bounds: dict, inverse=None,
                  known: dict | None = None, channel=None, channels=None,
-                 **operating) -> None:
+                 experiments: bool = False, **operating) -> None:
         self._channels = None
-        if is_mechanism(function):
-            specs = channel_specs(channel, channels)
-            function = mechanism_map(function, bounds, known, specs, operating)
-            if channels is not None:
-                self._channels = tuple((o, i) for o, i, _ in specs)
+        if is_mechanism(function) or experiments is not False:
+            function, self._channels = mechanism_structure(
+                function, bounds, known, channel, channels, experiments, operating)
         elif known is not None or channel is not None or operating:
             raise ValueError("known, channel and an operating point (q, u, guess) are read "
                              "from a symbolic.Mechanism; a casadi.Function map fixes them itself")

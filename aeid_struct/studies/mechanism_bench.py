@@ -52,6 +52,9 @@ class Case:
         determine every parameter).
     channels : tuple, optional
         Several channels of one record (``Physical(..., channels=...)``).
+    experiments : bool
+        The channels are records of separate experiments, one input moving in each
+        (``Physical(..., experiments=True)``: a coupled mechanism of several inputs).
     """
 
     name: str
@@ -64,6 +67,7 @@ class Case:
     steps: int
     train: bool = True
     channels: tuple | None = None
+    experiments: bool = False
 
     @property
     def specs(self) -> tuple:
@@ -85,7 +89,7 @@ class Case:
         where = ({"channel": self.channel} if self.channels is None
                  else {"channels": self.channels})
         return Physical(mech, bounds=self.bounds, known=self.known or None, **where,
-                        **operating)
+                        experiments=self.experiments, **operating)
 
 
 #: The benchmark's mechanisms.
@@ -111,6 +115,9 @@ CASES = (
     Case("quarter car", "quarter_car",
          {"ms": (200.0, 400.0), "mu": (25.0, 50.0), "ks": (1.5e4, 3e4), "cs": (800.0, 2000.0),
           "kt": (1.5e5, 2.5e5)}, {}, (0, 0), {}, 0.002, 400),
+    Case("coupled masses, one experiment per force", "coupled_masses",
+         {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}, {}, None, {}, 0.05,
+         400, channels=((0, 0), (1, 0), (0, 1), (1, 1)), experiments=True),
     Case("lever (r unknown)", "lever", {"m": (0.5, 2.0), "k": (10.0, 50.0), "d": (0.5, 3.0),
                                         "r": (0.5, 2.0)}, {}, (0, 0), {}, 0.02, 300,
          train=False),
@@ -132,9 +139,10 @@ def _report(case: Case) -> dict:
     from symbolic.identifiability import identifiability
 
     mech, operating = _mechanism(case)
-    rep = identifiability(mech, case.bounds, known=case.known or None,
-                          inputs=sorted({s[1] for s in case.specs}),
-                          outputs=[s[0] for s in case.specs], **operating)
+    channels = ({"pairs": [s[:2] for s in case.specs]} if case.experiments else
+                {"inputs": sorted({s[1] for s in case.specs}),
+                 "outputs": [s[0] for s in case.specs]})
+    rep = identifiability(mech, case.bounds, known=case.known or None, **channels, **operating)
     return {"rank": rep.rank, "parameters": list(rep.parameters),
             "inputs": list(rep.inputs), "outputs": list(rep.outputs),
             "identifiable": list(rep.identifiable), "unidentifiable": list(rep.unidentifiable),
