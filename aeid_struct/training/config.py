@@ -35,8 +35,9 @@ class TrainConfig:
     epochs : int
         At most this many epochs.
     seconds : float or None
-        At most this much wall time (None: no limit); it cannot end the run before
-        ``min_epochs`` epochs.
+        At most this much wall time in the epochs (None: no limit); it cannot end the run
+        before ``min_epochs`` epochs. Simulating the ``count`` records and calibrating come
+        before the epochs and are not counted: the whole call takes longer.
     min_epochs : int
         The fewest epochs a wall-time budget may give, in ``[1, epochs]``. Why: the time an
         epoch takes depends on the machine's load; with a floor the run trains on past
