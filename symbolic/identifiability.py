@@ -244,9 +244,13 @@ def _channels(what: str, value, size: int) -> tuple[int, ...]:
 
 def _pairs(value, p: int, m: int) -> tuple[tuple[int, int], ...]:
     try:
-        out = tuple((int(o), int(i)) for o, i in value)
-    except (TypeError, ValueError):
-        out = ()
+        given = [tuple(pair) for pair in value] if not isinstance(value, (str, bytes)) else []
+    except TypeError:
+        given = []
+    whole = all(len(pair) == 2 and all(isinstance(v, (int, np.integer))
+                                       and not isinstance(v, bool) for v in pair)
+                for pair in given)
+    out = tuple((int(o), int(i)) for o, i in given) if whole else ()
     if not out or len(set(out)) != len(out) or not all(
             0 <= o < p and 0 <= i < m for o, i in out):
         raise ValueError(f"pairs must be distinct (output, input) indices in [0, {p}) x "

@@ -84,13 +84,20 @@ def two_mass() -> Mechanism:
     -------
     Mechanism
     """
-    q, dq, F = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2), casadi.SX.sym("F")
+    F = casadi.SX.sym("F")
+    return _masses_in_series(F, casadi.vertcat(0, F), lambda q: q[0], "two_mass")
+
+
+def _masses_in_series(u, forces, outputs, name: str) -> Mechanism:
+    """The two masses of :func:`two_mass` and :func:`coupled_masses` (one Lagrangian and
+    dissipation), driven by ``forces(u)`` on the coordinates, ``outputs(q)`` measured."""
+    q, dq = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2)
     p = _symbols("m1", "m2", "k1", "k2", "c1", "c2")
     T = 0.5 * p["m1"] * dq[0] ** 2 + 0.5 * p["m2"] * dq[1] ** 2
     V = 0.5 * p["k1"] * q[0] ** 2 + 0.5 * p["k2"] * (q[1] - q[0]) ** 2
     R = 0.5 * p["c1"] * dq[0] ** 2 + 0.5 * p["c2"] * (dq[1] - dq[0]) ** 2
-    return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V, dissipation=R,
-                     forces=casadi.vertcat(0, F), outputs=q[0], name="two_mass")
+    return Mechanism(q=q, dq=dq, u=u, parameters=p, lagrangian=T - V, dissipation=R,
+                     forces=forces, outputs=outputs(q), name=name)
 
 
 def lever() -> Mechanism:
@@ -185,13 +192,8 @@ def coupled_masses() -> Mechanism:
     -------
     Mechanism
     """
-    q, dq, F = casadi.SX.sym("q", 2), casadi.SX.sym("dq", 2), casadi.SX.sym("F", 2)
-    p = _symbols("m1", "m2", "k1", "k2", "c1", "c2")
-    T = 0.5 * p["m1"] * dq[0] ** 2 + 0.5 * p["m2"] * dq[1] ** 2
-    V = 0.5 * p["k1"] * q[0] ** 2 + 0.5 * p["k2"] * (q[1] - q[0]) ** 2
-    R = 0.5 * p["c1"] * dq[0] ** 2 + 0.5 * p["c2"] * (dq[1] - dq[0]) ** 2
-    return Mechanism(q=q, dq=dq, u=F, parameters=p, lagrangian=T - V, dissipation=R,
-                     forces=F, outputs=q, name="coupled_masses")
+    F = casadi.SX.sym("F", 2)
+    return _masses_in_series(F, F, lambda q: q, "coupled_masses")
 
 
 @named("symbolic.mechanisms.drive_train_channels")

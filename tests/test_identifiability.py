@@ -184,6 +184,8 @@ def test_pairs_read_only_the_channels_measured(pairs, hidden):
     ({"pairs": [(0, 2)]}, r"pairs must be distinct .* in \[0, 2\) x \[0, 2\)"),
     ({"pairs": [(0, 0)], "inputs": [0]}, "give pairs, or inputs and outputs, not both"),
     ({"pairs": "y0u0"}, "pairs must be distinct"),
+    ({"pairs": [(0, 0.5)]}, r"pairs must be distinct .* got \[\(0, 0.5\)\]"),
+    ({"pairs": [(0, 0, 1)]}, "pairs must be distinct"),
 ])
 def test_bad_pairs_are_refused_by_name(call, message):
     with pytest.raises(ValueError, match=message):

@@ -8,6 +8,7 @@ reach them), and the closed-form identifiability of a lever of unknown ratio (ra
 from __future__ import annotations
 
 import json
+import math
 
 from aeid_struct.cli import main
 
@@ -39,7 +40,8 @@ def test_bench_mechanism_cli_trains_measures_and_writes_json(tmp_path, capsys):
     assert abs(cost["one pass excess median"]) < 1e-3
     assert "cost over refined's" in printed
     # the cold fit iterates from each of its 4 starts (scipy counts a Jacobian per iteration)
-    assert level["iterations"]["cold grey-box x4"] >= 4 and level["iterations"]["refined"] >= 0
+    assert level["iterations"]["cold grey-box x4"] >= 4
+    assert math.isfinite(level["iterations"]["refined"])  # also where refine ran no fit
     assert "iterations (median)" in printed
 
 
