@@ -16,6 +16,11 @@ It is minimised by the library's one Levenberg-Marquardt (``core.minimise``) in 
 parameters, in units of the box, with a central-difference Jacobian: ``q`` is a handful of
 physical parameters, and ``2 q`` responses of ``R`` short records per iteration cost less than
 building a CasADi graph of every record length.
+
+*Several inputs at once.* Where a record's inputs move together (``Physical(mechanism,
+outputs=..., inputs=...)``), its records are the channels ``(output, input)`` and each output is
+a group: ``yhat_g = sum_{r in g} yhat_r`` and ``Q_g`` spans the group's stacked free responses
+(``groups``; ``simulation.summed_response``), one residual per output.
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ FLAT = 1e-12
 
 
 def joint_residual(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple,
-                   initial: bool) -> np.ndarray:
+                   initial: bool, groups: tuple | None = None) -> np.ndarray:
     """The stacked residual ``r(p)`` of one set of records (module docstring).
 
     Parameters
@@ -50,55 +55,50 @@ def joint_residual(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
     dts : tuple of R floats
     initial : bool
         Project each record's initial state out.
+    groups : tuple of R ints, optional
+        Records of one group are the channels of one output whose inputs move at once (one
+        record of several inputs): the group's output is the sum of its channels' responses,
+        one residual (and one free response) per group, read from its first record's ``y``
+        (``simulation.summed_response``). None: every record its own.
 
     Returns
     -------
-    (sum steps_r,) array
+    (sum steps_g,) array
         NaN where a system's response is not finite.
     """
-    return _residuals(systems, np.asarray(p, dtype=np.float64)[None], ys, us, dts, initial)[0]
+    return _residuals(systems, np.asarray(p, dtype=np.float64)[None], ys, us, dts, initial,
+                      groups)[0]
 
 
 def _residuals(systems: Callable, points: np.ndarray, ys: list, us: list, dts: tuple,
-               initial: bool) -> np.ndarray:
+               initial: bool, groups: tuple | None = None) -> np.ndarray:
     """:func:`joint_residual` at ``points (P, q)``: ``(P, N)``, the points' systems simulated
-    as one batch per record (``simulation.outputs_and_basis``)."""
-    from aeid_struct.simulation import outputs_and_basis
+    as one batch per record (``simulation.summed_response``)."""
+    from aeid_struct.simulation import output_groups, summed_response
 
     models = systems(points)
-    out = np.empty((points.shape[0], sum(y.size for y in ys)))
+    parts = output_groups(groups, len(models))
+    out = np.empty((points.shape[0], sum(ys[g[0]].size for g in parts)))
     start = 0
-    for (A, b, c, d), y, u, dt in zip(models, ys, us, dts, strict=True):
-        d = d[:, None]
-        with np.errstate(all="ignore"):
-            Y, O = outputs_and_basis(A, b, c[:, None], d, u, dt)
-            e = y - Y[:, 0]                                             # (P, steps)
-            if initial:
-                O = O[:, :, 0]                                          # (P, steps, n)
-                bad = ~np.isfinite(O).all(axis=(1, 2))
-                O[bad] = 0.0
-                # an orthonormal basis of the observable part: a channel that does not see
-                # a mode (the pole's angle, the cart's position) has a free response of lower
-                # rank, and a QR basis would project out an arbitrary extra direction
-                U, sv, _ = np.linalg.svd(O, full_matrices=False)
-                keep = sv > max(O.shape[1:]) * np.finfo(float).eps * sv[:, :1]
-                Q = U * keep[:, None, :]
-                e = e - np.einsum("psk,pk->ps", Q, np.einsum("psk,ps->pk", Q, e))
-                e[bad] = math.nan
-        out[:, start: start + y.size] = e * (2.0 / (np.abs(y).max() * math.sqrt(y.size + 1)))
+    for group in parts:
+        y, dt = ys[group[0]], dts[group[0]]
+        y_hat = summed_response([models[r] for r in group], [us[r] for r in group], y, dt,
+                                initial)[0]
+        out[:, start: start + y.size] = (y - y_hat) * (
+            2.0 / (np.abs(y).max() * math.sqrt(y.size + 1)))
         start += y.size
     return out
 
 
 def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tuple,
                    initial: bool, width: np.ndarray, *, residual: bool = False,
-                   central: bool = True):
+                   central: bool = True, groups: tuple | None = None):
     """``dr/dp (q, N)`` by finite differences of :func:`joint_residual` (central by default),
     all points simulated as one batch.
 
     Parameters
     ----------
-    systems, p, ys, us, dts, initial
+    systems, p, ys, us, dts, initial, groups
         As :func:`joint_residual`.
     width : (q,) array
         The box's widths (the steps are :data:`STEP` of them).
@@ -118,11 +118,12 @@ def joint_jacobian(systems: Callable, p: np.ndarray, ys: list, us: list, dts: tu
     steps = np.diag(h)
     q = p.size
     if not central:
-        r = _residuals(systems, np.concatenate([p + steps, p[None]]), ys, us, dts, initial)
+        r = _residuals(systems, np.concatenate([p + steps, p[None]]), ys, us, dts, initial,
+                       groups)
         J = (r[:q] - r[q]) / h[:, None]
         return (J, r[q]) if residual else J
     points = [p + steps, p - steps] + ([p[None]] if residual else [])
-    r = _residuals(systems, np.concatenate(points), ys, us, dts, initial)
+    r = _residuals(systems, np.concatenate(points), ys, us, dts, initial, groups)
     J = (r[:q] - r[q: 2 * q]) / (2 * h[:, None])
     return (J, r[2 * q]) if residual else J
 
@@ -132,9 +133,9 @@ class _Problem:
 
     lazy = True
 
-    def __init__(self, systems, ys, us, dts, initial, lo, hi) -> None:
+    def __init__(self, systems, ys, us, dts, initial, lo, hi, groups) -> None:
         self.systems, self.ys, self.us, self.dts, self.initial = systems, ys, us, dts, initial
-        self.lo, self.width = lo, hi - lo
+        self.lo, self.width, self.groups = lo, hi - lo, groups
 
     def _p(self, z):
         return self.lo + self.width * z
@@ -142,7 +143,8 @@ class _Problem:
     def evaluate(self, z, rows, jacobian, at):
         rows = np.arange(z.shape[0]) if rows is None else rows
         r = np.stack([joint_residual(self.systems, self._p(zi), [y[i] for y in self.ys],
-                                     [u[i] for u in self.us], self.dts, self.initial)
+                                     [u[i] for u in self.us], self.dts, self.initial,
+                                     self.groups)
                       for zi, i in zip(z, rows, strict=True)])
         cost = np.where(np.isfinite(r).all(axis=1), np.sum(r * r, axis=1), math.inf)
         return {"cost": cost, "r": r, "z": z, "rows": rows}
@@ -152,7 +154,8 @@ class _Problem:
         # the fit more iterations near its optimum than they save per iteration
         return np.stack([
             joint_jacobian(self.systems, self._p(zi), [y[i] for y in self.ys],
-                           [u[i] for u in self.us], self.dts, self.initial, self.width)
+                           [u[i] for u in self.us], self.dts, self.initial, self.width,
+                           groups=self.groups)
             * self.width[:, None] for zi, i in zip(e["z"], e["rows"], strict=True)])
 
 
@@ -178,7 +181,8 @@ class JointFit:
 
 def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tuple, *,
               lower: np.ndarray, upper: np.ndarray, initial: bool,
-              max_iter: int = 100, gain: bool = True) -> JointFit:
+              max_iter: int = 100, gain: bool = True,
+              groups: tuple | None = None) -> JointFit:
     """The output-error optimum of the parameters of each row's records within the box
     (module docstring).
 
@@ -201,13 +205,15 @@ def fit_joint(systems: Callable, start: np.ndarray, ys: list, us: list, dts: tup
     gain : bool
         Damp by the gain ratio (``core.Rules.gain``), for a fit to convergence; the one pass's
         few fixed iterations keep Marquardt's rule (False), as they were measured.
+    groups : tuple of R ints, optional
+        Records that are channels of one output, summed (:func:`joint_residual`).
 
     Returns
     -------
     JointFit
     """
     lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
-    problem = _Problem(systems, ys, us, dts, initial, lo, hi)
+    problem = _Problem(systems, ys, us, dts, initial, lo, hi, groups)
     margin = 1e-9 * (hi - lo)
     start = np.clip(np.asarray(start, dtype=np.float64), lo + margin, hi - margin)
     z0 = (start - lo) / (hi - lo)

@@ -33,9 +33,11 @@ from aeid_struct.simulation.numpy_foh import discrete_foh as discrete_foh
 from aeid_struct.simulation.numpy_foh import discrete_inputs as discrete_inputs
 from aeid_struct.simulation.numpy_foh import free_basis as free_basis
 from aeid_struct.simulation.numpy_foh import initial_state_numpy as initial_state_numpy
+from aeid_struct.simulation.numpy_foh import output_groups as output_groups
 from aeid_struct.simulation.numpy_foh import outputs_and_basis as outputs_and_basis
 from aeid_struct.simulation.numpy_foh import simulate_numpy as simulate_numpy
 from aeid_struct.simulation.numpy_foh import simulate_outputs as simulate_outputs
+from aeid_struct.simulation.numpy_foh import summed_response as summed_response
 
 if TYPE_CHECKING:
     from aeid_struct.simulation.checks import check_dt as check_dt
@@ -46,6 +48,7 @@ if TYPE_CHECKING:
     from aeid_struct.simulation.initial import fit_initial_state as fit_initial_state
     from aeid_struct.simulation.initial import free_response as free_response
     from aeid_struct.simulation.initial import initial_state as initial_state
+    from aeid_struct.simulation.initial import least_squares_x0 as least_squares_x0
     from aeid_struct.simulation.kernels import discretise_batch as discretise_batch
     from aeid_struct.simulation.kernels import foh_columns as foh_columns
     from aeid_struct.simulation.kernels import powers as powers
@@ -84,6 +87,7 @@ _LAZY = {
     "states": "foh",
     "fit_initial_state": "initial",
     "free_response": "initial",
+    "least_squares_x0": "initial",
     "initial_state": "initial",
     "discretise_batch": "kernels",
     "foh_columns": "kernels",
@@ -128,6 +132,7 @@ __all__ = [
     "fit_initial_state",
     "foh_columns",
     "free_response",
+    "least_squares_x0",
     "loss_batch",
     "powers",
     "record_scale_batch",
@@ -135,6 +140,8 @@ __all__ = [
     "simulate_batch",
     "simulate_loop",
     "simulate_outputs",
+    "summed_response",
+    "output_groups",
     "outputs_and_basis",
     # numpy, one system or a batch, without torch: an estimate's response and initial state
     "initial_state_numpy",

@@ -3,7 +3,9 @@ matrix exponential (:func:`discrete_foh`), the free response's basis (:func:`fre
 convolution form of the FOH response (:func:`simulate_outputs`, the same coefficients as the
 torch kernels of ``kernels.py``), and a record's response and least-squares initial state for an
 estimate read where torch is not installed (:func:`simulate_numpy`,
-:func:`initial_state_numpy`). No checks: the callers have checked their arrays.
+:func:`initial_state_numpy`); the response of an output that sums the channels of several inputs
+moving at once, with its initial state projected out (:func:`summed_response`). No checks: the
+callers have checked their arrays.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ import numpy as np
 import scipy.linalg
 
 __all__ = ["discrete_foh", "discrete_inputs", "free_basis", "initial_state_numpy",
-           "outputs_and_basis", "simulate_numpy", "simulate_outputs"]
+           "output_groups", "outputs_and_basis", "simulate_numpy", "simulate_outputs",
+           "summed_response"]
 
 
 def simulate_outputs(A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray, u: np.ndarray,
@@ -267,3 +270,84 @@ def initial_state_numpy(A, b, c, d, u, y, dt: float) -> np.ndarray:
         Y, O = _outputs(discrete_foh(A_, b_, dt), c_[None], np.array([d_]), u_)
         out.append(np.linalg.lstsq(O[:, 0, :], y_ - Y[0], rcond=None)[0])
     return np.stack(out) if batched else out[0]
+
+
+def summed_response(models: list, us: list, y: np.ndarray, dt: float, initial: bool,
+                    x0: bool = False):
+    r"""The response of one output to several channels at once, ``y = sum_r G_r u_r`` plus a
+    free response: each channel's exact FOH response from rest (Eq. 10-13) summed and, where
+    ``initial``, the free response of least squares in the span of the channels' observable
+    free responses ``c_r^T Phi_r^k`` (one channel: its own; the fitted states of minimum norm).
+
+    Why an SVD and not a QR: the channels of one output share their poles, so their stacked
+    free responses span at most ``n`` directions of their ``sum n_r`` columns, and a channel that
+    does not see a mode (an output that does not answer an input) has fewer.
+
+    Parameters
+    ----------
+    models : list of R tuples ``(A (P, n, n), b (P, n), c (P, n), d (P,))``
+        The channels of ``P`` points (systems), e.g. the central differences of a Jacobian.
+    us : list of R (steps,) arrays
+        Each channel's input.
+    y : (steps,) or (P, steps) array
+        The measured output (read where ``initial``).
+    dt : float, > 0
+    initial : bool
+        Project the initial state out.
+    x0 : bool
+        Also return each channel's fitted initial state.
+
+    Returns
+    -------
+    y_hat : (P, steps) array
+        NaN rows where a response or a free response is not finite.
+    states : list of R (P, n) arrays, or None
+        Where ``x0`` and ``initial``: ``sum_r c_r^T Phi_r^k x0_r`` is the fitted free response.
+    """
+    Y, bases = 0.0, []
+    with np.errstate(all="ignore"):
+        for (A, b, c, d), u in zip(models, us, strict=True):
+            Yr, O = outputs_and_basis(A, b, c[:, None], d[:, None], u, dt)
+            Y = Y + Yr[:, 0]                                         # (P, steps)
+            bases.append(O[:, :, 0])                                 # (P, steps, n)
+        if not initial:
+            return Y, None
+        O = np.concatenate(bases, axis=2) if len(bases) > 1 else bases[0]
+        bad = ~np.isfinite(O).all(axis=(1, 2)) | ~np.isfinite(Y).all(axis=1)
+        O[bad] = 0.0
+        e = np.where(bad[:, None], 0.0, y - Y)
+        # an orthonormal basis of the observable part: a channel that does not see a mode
+        # (the pole's angle, the cart's position) has a free response of lower rank, and a
+        # QR basis would project out an arbitrary extra direction
+        U, sv, Vt = np.linalg.svd(O, full_matrices=False)
+        keep = sv > max(O.shape[1:]) * np.finfo(float).eps * sv[:, :1]
+        Q = U * keep[:, None, :]
+        z = np.einsum("psk,ps->pk", Q, e)
+        y_hat = Y + np.einsum("psk,pk->ps", Q, z)
+        y_hat[bad] = np.nan
+        if not x0:
+            return y_hat, None
+        inverse = np.divide(keep, sv, out=np.zeros_like(sv), where=keep)
+        x = np.einsum("pkm,pk->pm", Vt, z * inverse)                 # (P, sum n_r)
+        x[bad] = np.nan
+        cuts = np.cumsum([basis.shape[2] for basis in bases])[:-1]
+        return y_hat, np.split(x, cuts, axis=1)
+
+
+def output_groups(groups: tuple | None, R: int) -> list[list[int]]:
+    """The records of each output, in order of their first record, where records are channels
+    summed into outputs (``Physical.groups``: one output index per record); each record its
+    own where ``groups`` is None.
+
+    Parameters
+    ----------
+    groups : tuple of R ints or None
+    R : int
+
+    Returns
+    -------
+    list of lists of record indices
+    """
+    if groups is None:
+        return [[r] for r in range(R)]
+    return [[r for r in range(R) if groups[r] == g] for g in dict.fromkeys(groups)]
