@@ -61,3 +61,13 @@ def test_bench_mechanism_measures_a_mechanism_of_two_outputs():
     # several channels: refine runs the joint fit from the one pass (at least the iteration
     # that finds it converged), the cold fit from each of its 4 starts
     assert level["iterations"]["refined"] >= 1 and level["iterations"]["cold grey-box x4"] >= 4
+
+
+def test_the_help_names_every_case():
+    from aeid_struct.cli.parser import build_parser
+    from aeid_struct.studies.mechanism_bench import CASES
+
+    text = " ".join(build_parser()._subparsers._group_actions[0].choices[
+        "bench-mechanism"].format_help().split())
+    for case in CASES:
+        assert f"'{case.name}'" in text

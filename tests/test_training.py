@@ -366,6 +366,34 @@ def test_joint_training_reads_both_records_and_lowers_the_loss():
         train(structure, fam, _config(), encoder=SMALL)
 
 
+def test_the_loss_of_several_records_decodes_each_with_its_own_system():
+    """Eq. 14 over the joint leg's two records is zero where the encoder returns the true
+    systems (noise-free), and not where the records' systems are swapped: each record is
+    decoded by its own subsystem."""
+    from aeid_struct.training import records
+    from aeid_struct.training.objective import batch_loss
+    from symbolic import leg
+
+    fam = ae.LegFamily(subsystem="joint")
+    structure = ae.Physical(leg.joint_map(), bounds=fam.ranges, inverse=leg.joint_inverse())
+    grid = dict(dt=(0.02, 0.01), steps=(150, 50))
+    ident = train(structure, fam, _config(**grid, count=40, epochs=1, batch=20),
+                  encoder=EncoderConfig(width=4, kernel=3, dense=(16,), pool=(3, 1)))
+    rec = records(fam, 4, **grid, excitation_kind="prbs", seed=6)
+    truth = tuple(torch.tensor(getattr(rec.systems, k)) for k in "Abcd")
+    swapped = tuple(x.flip(1) for x in truth)
+    y = [torch.tensor(v) for v in rec.y]
+    u = [torch.tensor(v) for v in rec.u]
+    yinf = torch.zeros(4, 2, dtype=torch.float64)
+    losses = []
+    for systems in (truth, swapped):
+        ident.forward = lambda y, u, raw=False, systems=systems: (systems, None,
+                                                                  torch.zeros(4, 3))
+        losses.append(float(batch_loss(ident, y, u, yinf, 0.0)))
+    assert losses[0] < 1e-20
+    assert losses[1] > 1e-3
+
+
 def test_windows_mid_motion_train_with_a_fitted_initial_state():
     from aeid_struct.simulation import initial_state
     from aeid_struct.training import records

@@ -166,7 +166,9 @@ def add_bench_mechanism(sub) -> None:
                       help="mechanisms by name, as the report prints them (default all: 'lever "
                            "(r known)', 'leg, translation', 'two-mass', 'leg, rotation', "
                            "'cart-pole, both outputs', 'drive train, both angles', 'leg, both "
-                           "subsystems', 'quarter car', 'lever (r unknown)')")
+                           "subsystems', 'quarter car', 'coupled masses, one experiment per "
+                           "force', 'coupled masses, both forces at once', 'lever (r "
+                           "unknown)')")
     mech.add_argument("--json", default="out/bench_mechanism.json",
                       help="JSON file to write (default out/bench_mechanism.json)")
     mech.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -161,7 +161,11 @@ class Estimate(EstimateFields):
     @cached_property
     @from_info("y_hat")
     def y_hat(self):
-        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``."""
+        """The decoded response of the estimate to ``u`` (Eq. 10-13), shaped like ``y``; where
+        the records are channels summed into outputs (several inputs at once,
+        ``Physical.groups``), each record's is its output's, the sum of its channels."""
+        if self._groups() is not None:
+            return _summed(self)[0]
         return self._per_record(
             lambda A, b, c, d, u, y, x, dt: _decoder()[0](A, b, c, d, u, dt, x0=x),
             lambda r: np.shape(self.y if self.records == 1 else self.y[r]), self._x0())
@@ -175,6 +179,8 @@ class Estimate(EstimateFields):
         x0 = self._x0()
         if x0 is not None:
             return x0
+        if self._groups() is not None:
+            return _summed(self)[1]
         if self.records == 1:
             return np.zeros(np.shape(self.b))                 # (n,) or (batch, n)
         return tuple(np.zeros(np.shape(self.b[..., r, :])) for r in range(self.records))
@@ -295,15 +301,55 @@ class Estimate(EstimateFields):
             self.u[r], self.y[r], None if x0 is None else x0[r], out=shape(r))
             for r in range(self.records))
 
+    def _groups(self):
+        """Per record its output where the records are channels summed into outputs (the
+        structure's ``groups``), else None."""
+        return getattr(self.structure, "groups", None) if self.records > 1 else None
+
     def _x0(self):
         """The fitted initial state(s), or None for records from rest."""
         if self.initial != "fitted":
             return None
+        if self._groups() is not None:
+            return _summed(self)[1]
         if "_x0_fitted" not in self.__dict__:
             self.__dict__["_x0_fitted"] = self._per_record(
                 lambda A, b, c, d, u, y, x, dt: _decoder()[1](A, b, c, d, u, y, dt),
                 lambda r: np.shape(self.b if self.records == 1 else self.b[..., r, :]))
         return self.__dict__["_x0_fitted"]
+
+
+def _summed(est: Estimate) -> tuple:
+    """Per record its output's response and its own initial state (a tuple of ``R`` each) of
+    an estimate whose records are channels summed into outputs: ``simulation.summed_response``
+    row by row (the fitted free response of each output split over its channels, of
+    minimum norm; zeros from rest); NaN for records set aside."""
+    if "_summed_fitted" in est.__dict__:
+        return est.__dict__["_summed_fitted"]
+    from aeid_struct.simulation import output_groups, summed_response
+
+    one = not est.batched
+    A, b, c, d = (np.asarray(v)[None] if one else np.asarray(v)
+                  for v in (est.A, est.b, est.c, est.d))
+    ys = [np.atleast_2d(y) for y in est.y]
+    us = [np.broadcast_to(u, y.shape) for u, y in zip(est.u, ys, strict=True)]
+    initial = est.initial == "fitted"
+    y_hat = [np.full(y.shape, np.nan) for y in ys]
+    x0 = [np.full(b.shape[::2], np.nan if initial else 0.0) for _ in ys]
+    good = np.ones(A.shape[0], dtype=bool) if est._good is None else est._good
+    for i in np.flatnonzero(good):
+        for group in output_groups(est._groups(), est.records):
+            h, states = summed_response(
+                [(A[i, r][None], b[i, r][None], c[i, r][None], d[i, r][None])
+                 for r in group], [us[r][i] for r in group], ys[group[0]][i],
+                est.dt[group[0]], initial, x0=True)
+            for j, r in enumerate(group):
+                y_hat[r][i] = h[0]
+                if states is not None:
+                    x0[r][i] = states[j][0]
+    out = tuple(tuple(v[0] if one else v for v in part) for part in (y_hat, x0))
+    est.__dict__["_summed_fitted"] = out
+    return out
 
 
 def _provenance(provenance: Provenance | None, old: dict) -> Provenance:

@@ -84,7 +84,7 @@ def refine_joint(est: Estimate, rows=None) -> Estimate:
     us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
     initial = est.initial == "fitted"
     fit = fit_joint(ph.at, P[rows], ys, us, record.dt, lower=ph.lo, upper=ph.hi,
-                    initial=initial)
+                    initial=initial, groups=ph.groups)
     one = structure.records == 1          # the system's arrays have no record axis then
     A, b, c, d = (np.array(np.atleast_1d(v) if est.batched else np.asarray(v)[None],
                            dtype=np.float64, copy=True) for v in (est.A, est.b, est.c, est.d))

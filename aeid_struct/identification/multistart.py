@@ -92,7 +92,7 @@ def best_of_starts(ph, P: np.ndarray, ys: list, us: list, dts: tuple, initial: b
 
     B = P.shape[0]
     points = box_points(ph.lo, ph.hi, starts)
-    kw = dict(lower=ph.lo, upper=ph.hi, initial=initial)
+    kw = dict(lower=ph.lo, upper=ph.hi, initial=initial, groups=ph.groups)
     own = fit_joint(ph.at, P, ys, us, dts, max_iter=0, **kw).cost
     # rows are (record, start), record-major
     fit = fit_joint(ph.at, np.tile(points, (B, 1)), [np.repeat(y, starts, 0) for y in ys],

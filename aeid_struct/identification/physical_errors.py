@@ -85,8 +85,10 @@ def parameter_errors(ph: PhysicalHead, p: np.ndarray, ys: list, us: list, dts: t
     from aeid_struct.refinement import joint_jacobian
 
     J, r = joint_jacobian(ph.at, p, ys, us, dts, initial, ph.hi - ph.lo, residual=True,
-                          central=False)
-    dof = r.size - ph.q - (ph.records * ph.n if initial else 0)
+                          central=False, groups=ph.groups)
+    # one initial state per output: a record's own, or one of the channels summed into it
+    outputs = ph.records if ph.groups is None else len(set(ph.groups))
+    dof = r.size - ph.q - (outputs * ph.n if initial else 0)
     JJ = J @ J.T
     if dof <= 0 or not np.isfinite(JJ).all() or np.linalg.matrix_rank(JJ) < ph.q:
         return np.full(ph.q, math.nan)

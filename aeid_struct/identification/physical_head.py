@@ -31,7 +31,13 @@ own poles, and the joint fit reads every record at once from the nearest paramet
 weights count a channel's poorly determined coefficient as much as a sharp one, and start the
 joint fit far from its optimum: ``tests/test_joint_refine.py`` compares the two). Where one
 record has more coefficients than parameters, the head's result is the nearest parameter set,
-an approximation the refinement (``identify(refine=True)``) polishes in the parameters."""
+an approximation the refinement (``identify(refine=True)``) polishes in the parameters.
+
+Where the records are the channels of one record whose inputs move at once
+(``Physical(mechanism, outputs=..., inputs=...)``: each output the sum of its channels), no
+channel can be fitted alone: step 1 fits every channel's CCF at once, their common denominator
+iterated and the numerators projected out per output (``refinement.fit_summed``), then steps 2
+and the joint fit (``groups`` of ``refinement.fit_joint``) as above."""
 
 from __future__ import annotations
 
@@ -110,6 +116,8 @@ class PhysicalHead:
         self.model = Numeric(expanded(model))
         self._model, self._mapped = model, {}
         self.lo, self.hi, self.n, self.q, self.records = lo, hi, n, q, R
+        #: per record its output where the channels of one output sum (``Physical.groups``)
+        self.groups = getattr(structure, "groups", None)
         self.square = self.free.size == q
         self._level = level
         # a square map's inverse as one SX graph (the Newton iterations unrolled), where the
@@ -391,6 +399,10 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
     failed = np.zeros(A.shape[0], dtype=bool)
     if rows.size == 0:
         return (A, b, c, d, el), failed
+    if ph.groups is not None:
+        from aeid_struct.identification.summed_head import summed_head
+
+        return summed_head(ph, ident, head, ys, us, (A, b, c, d, el), rows)
     # the poles of the encoder's parameters, as the head starts from them
     starts = [ph.systems(el[row]) for row in rows]
     fitted, ok = [], np.ones(rows.size, dtype=bool)

@@ -2,7 +2,8 @@
 structure. One Levenberg-Marquardt (``core``) over four problems: the partly fixed CCFs of many
 records at once (``batched``; compiled to C by ``compiled``), the variable projection of a free
 CCF (``projected``, ``separable``), any structure over a CasADi graph with its delay, offset
-and initial state (``record``), and parameters shared by several records (``joint``); and the
+and initial state (``record``), parameters shared by several records (``joint``) and the CCFs
+of channels summed into outputs (``summed``); and the
 CasADi NLP (``nlp``, ``solve``) for the constraints that loop does not know. A fit over a
 record returns an :class:`~aeid_struct.estimates.Estimate`.
 
@@ -40,6 +41,8 @@ if TYPE_CHECKING:
     from aeid_struct.refinement.separable import projected_cost as projected_cost
     from aeid_struct.refinement.separable import refine_separable as refine_separable
     from aeid_struct.refinement.solve import refine as refine
+    from aeid_struct.refinement.summed import SummedFit as SummedFit
+    from aeid_struct.refinement.summed import fit_summed as fit_summed
 
 #: name -> the module (of this package) that defines it, imported on first use
 _LAZY = {
@@ -56,6 +59,8 @@ _LAZY = {
     "projected_cost": "separable",
     "refine_separable": "separable",
     "refine": "solve",
+    "SummedFit": "summed",
+    "fit_summed": "summed",
 }
 
 __all__ = [
@@ -67,12 +72,14 @@ __all__ = [
     "Pattern",
     "RefineConfig",
     "SOLVERS",
+    "SummedFit",
     "cache_info",
     "casadi_simulate",
     "clear_cache",
     "expm",
     "fit_joint",
     "fit_rows",
+    "fit_summed",
     "joint_jacobian",
     "joint_residual",
     "projected_cost",

@@ -1,7 +1,8 @@
 """A :class:`~symbolic.mechanism.Mechanism` as a physical structure's map: the CCF of one of its
 channels (``Mechanism.channel``), or of several channels of one record (a record with several
-outputs, or a decoupled input per output) or of separate experiments (one input moving in
-each: a coupled mechanism of several inputs), as a Function of its free parameters, after an
+outputs, or a decoupled input per output), of one record of several inputs moving at once (each
+output the sum of its channels) or of separate experiments (one input moving in each), as a
+Function of its free parameters, after an
 identifiability check of those channels over the structure's box, so that a structure whose
 records cannot determine a parameter is refused before any training (docs/architecture.md,
 "Your own mechanism")."""
@@ -13,7 +14,7 @@ from collections.abc import Mapping
 import casadi
 import numpy as np
 
-__all__ = ["channel_specs", "is_mechanism", "mechanism_map", "mechanism_structure"]
+__all__ = ["channel_specs", "grid_specs", "is_mechanism", "mechanism_map", "mechanism_structure"]
 
 #: Points of the box at which a channel a split record assumes absent must vanish.
 PROBES = 6
@@ -37,14 +38,14 @@ def is_mechanism(value) -> bool:
 
 
 def mechanism_structure(mechanism, bounds: Mapping, known: Mapping | None, channel, channels,
-                        experiments, operating: dict) -> tuple:
+                        experiments, operating: dict, outputs=None, inputs=None) -> tuple:
     """``Physical(mechanism, ...)``'s map and the channels a record of several outputs is
     split by (None for one channel and for ``experiments``), its arguments checked.
 
     Parameters
     ----------
     mechanism : Mechanism
-    bounds, known, channel, channels, experiments, operating
+    bounds, known, channel, channels, experiments, operating, outputs, inputs
         As ``Physical`` takes them.
 
     Returns
@@ -54,11 +55,24 @@ def mechanism_structure(mechanism, bounds: Mapping, known: Mapping | None, chann
     Raises
     ------
     ValueError
-        ``experiments`` not a bool, or True without a mechanism's ``channels``; and as
-        :func:`channel_specs` and :func:`mechanism_map`.
+        ``experiments`` not a bool, or True without a mechanism's ``channels``; ``outputs``
+        and ``inputs`` not given together, or beside ``channel``, ``channels`` or
+        ``experiments``; and as :func:`channel_specs` and :func:`mechanism_map`.
     """
     if not isinstance(experiments, bool):
         raise ValueError(f"experiments must be True or False; got {experiments!r}")
+    if outputs is not None or inputs is not None:
+        if not is_mechanism(mechanism):
+            raise ValueError("outputs= and inputs= read a symbolic.Mechanism's channels; a "
+                             "casadi.Function map fixes them itself")
+        if outputs is None or inputs is None or channel is not None or channels is not None \
+                or experiments:
+            raise ValueError("a record of several inputs at once is Physical(mechanism, "
+                             "outputs=[...], inputs=[...]): give both, and neither channel, "
+                             "channels nor experiments")
+        specs = grid_specs(outputs, inputs)
+        function = mechanism_map(mechanism, bounds, known, specs, operating, superposed=True)
+        return function, tuple((o, i) for o, i, _ in specs)
     if experiments and (channels is None or not is_mechanism(mechanism)):
         raise ValueError("experiments=True reads a mechanism's channels=: one record per "
                          "channel, its input alone moving")
@@ -67,6 +81,35 @@ def mechanism_structure(mechanism, bounds: Mapping, known: Mapping | None, chann
     split = (tuple((o, i) for o, i, _ in specs) if channels is not None and not experiments
              else None)
     return function, split
+
+
+def grid_specs(outputs, inputs) -> tuple[tuple, ...]:
+    """The channels of one record of several inputs moving at once: every ``(output, input)``
+    of ``outputs x inputs``, output after output (each output a group of ``len(inputs)``
+    records, ``Physical.groups``).
+
+    Parameters
+    ----------
+    outputs, inputs : sequences of distinct non-negative ints
+
+    Returns
+    -------
+    tuple of (output, input, None)
+
+    Raises
+    ------
+    ValueError
+        Not a non-empty sequence of distinct non-negative integers (named).
+    """
+    for name, value in (("outputs", outputs), ("inputs", inputs)):
+        ok = (not isinstance(value, (str, bytes)) and hasattr(value, "__len__")
+              and len(value) >= 1 and all(isinstance(v, (int, np.integer))
+                                          and not isinstance(v, bool) and v >= 0 for v in value)
+              and len(set(int(v) for v in value)) == len(value))
+        if not ok:
+            raise ValueError(f"{name} must be a non-empty sequence of distinct non-negative "
+                             f"integer indices; got {value!r}")
+    return tuple((int(o), int(i), None) for o in outputs for i in inputs)
 
 
 def channel_specs(channel, channels, experiments: bool = False) -> tuple[tuple, ...]:
@@ -124,13 +167,16 @@ def channel_specs(channel, channels, experiments: bool = False) -> tuple[tuple, 
         raise ValueError(f"channels must name each (output, input) once; got {pairs}")
     if not experiments and len(set(outputs)) != len(outputs):
         raise ValueError(f"channels must name each output once (a record's output is one "
-                         f"channel's; for records of separate experiments, one input moving "
-                         f"in each, pass experiments=True); got outputs {outputs}")
+                         f"channel's; for one record of several inputs moving at once pass "
+                         f"outputs=[...], inputs=[...]; for records of separate experiments, "
+                         f"one input moving in each, pass experiments=True); got outputs "
+                         f"{outputs}")
     return tuple(specs)
 
 
 def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tuple,
-                  operating: dict, experiments: bool = False) -> casadi.Function:
+                  operating: dict, experiments: bool = False,
+                  superposed: bool = False) -> casadi.Function:
     """The map of ``Physical(mechanism, ...)``: the CCF of each channel in ``specs`` as a
     Function of the parameters not in ``known``, checked identifiable over ``bounds``.
 
@@ -149,6 +195,9 @@ def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tupl
         Each channel a record of its own experiment, in which its input alone moves: a
         coupled mechanism's records need no split, and the identifiability check reads the
         channels measured (``pairs``), not every output of every input.
+    superposed : bool
+        The channels are every output of every input of one record in which the inputs move
+        at once (:func:`grid_specs`): no split check, as each output is their sum.
 
     Returns
     -------
@@ -175,10 +224,10 @@ def mechanism_map(mechanism, bounds: Mapping, known: Mapping | None, specs: tupl
         report = identifiability(mechanism, bounds, known=known,
                                  pairs=[(o, i) for o, i, _ in specs], **operating)
     else:
-        if len(specs) > 1:
+        if len(specs) > 1 and not superposed:
             _check_split(mechanism, specs, bounds, known, operating)
         inputs = sorted({i for _, i, _ in specs})
-        outputs = [o for o, _, _ in specs]
+        outputs = list(dict.fromkeys(o for o, _, _ in specs))
         report = identifiability(mechanism, bounds, known=known, inputs=inputs,
                                  outputs=outputs, **operating)
     if not report.full:
@@ -221,5 +270,7 @@ def _check_split(mechanism, specs, bounds, known, operating) -> None:
                         f"channels read inputs {inputs}, but y[{o}] also answers u[{j}] (its "
                         f"Markov parameters do not vanish at {point}): a record of several "
                         "inputs is split by channel only where each output answers its own "
-                        "input alone; record one input at a time (the others at rest) and "
-                        "pass those records with experiments=True")
+                        "input alone; for a record of several inputs moving at once pass "
+                        "outputs=[...], inputs=[...] (each output the sum of its channels), "
+                        "or record one input at a time (the others at rest) and pass those "
+                        "records with experiments=True")

@@ -70,9 +70,16 @@ class Physical(Structure):
     experiments : bool
         With a mechanism's ``channels``: each channel is a record of its own experiment, in
         which its input alone moves (the other inputs at their operating values), so outputs
-        may repeat; the way to a coupled mechanism of several inputs, whose record of all
-        inputs at once cannot be split by channel. The records are passed one per channel
+        may repeat (a coupled mechanism recorded one input at a time; a record of all inputs
+        at once is ``outputs=..., inputs=...``). The records are passed one per channel
         (a sequence of ``R``), as for the joint leg (:attr:`channels` is None).
+    outputs, inputs : sequences of int, optional
+        A mechanism's record of these outputs in which these inputs move at once (a coupled
+        mechanism driven by all its actuators together): its records are the channels
+        ``(output, input)``, output after output (:attr:`channels`), and each output is the
+        sum of its channels' responses (:attr:`groups`); checked identifiable from every
+        output of every input. A :class:`~aeid_struct.records.Record` of those outputs and
+        inputs is split into them.
     **operating
         A mechanism's operating point: ``q``, ``u``, ``guess`` of ``Mechanism.linearise``.
 
@@ -85,11 +92,13 @@ class Physical(Structure):
 
     def __init__(self, function: casadi.Function, *, bounds: dict, inverse=None,
                  known: dict | None = None, channel=None, channels=None,
-                 experiments: bool = False, **operating) -> None:
+                 experiments: bool = False, outputs=None, inputs=None, **operating) -> None:
         self._channels = None
-        if is_mechanism(function) or experiments is not False:
+        if is_mechanism(function) or experiments is not False or outputs is not None \
+                or inputs is not None:
             function, self._channels = mechanism_structure(
-                function, bounds, known, channel, channels, experiments, operating)
+                function, bounds, known, channel, channels, experiments, operating,
+                outputs, inputs)
         elif known is not None or channel is not None or operating:
             raise ValueError("known, channel and an operating point (q, u, guess) are read "
                              "from a symbolic.Mechanism; a casadi.Function map fixes them itself")
@@ -169,6 +178,15 @@ class Physical(Structure):
         """``(output, input)`` of each record where the records are channels of one measured
         record (``Physical(mechanism, channels=...)``), else None."""
         return self._channels
+
+    @property
+    def groups(self) -> tuple[int, ...] | None:
+        """Per record its output where the records are channels summed into outputs (one
+        record of several inputs, ``outputs=..., inputs=...``: an output named twice); else None."""
+        channels = self._channels
+        if channels is None or len({o for o, _ in channels}) == len(channels):
+            return None
+        return tuple(o for o, _ in channels)
 
     @property
     def bounds(self) -> dict[str, tuple[float, float]]:
@@ -260,24 +278,30 @@ class Physical(Structure):
         return x
 
     def _check_range(self, x, A, b, c, d, dtype) -> None:
-        # The parameters must rebuild the model: compare transfer functions (CCF coefficients).
-        out = self._op.evaluate(*x.unbind(1))
-        B, n = x.shape[0] * self.records, self.n
-        # the models of each parameter row, record-minor like the given ones
-        An, bn, cn, dn = (np.stack([out[k].reshape(x.shape[0], -1) for k in self._keys[i::4]],
-                                   1).reshape(B, -1) for i in range(4))
-        given = np.concatenate([*ccf_coefficients(A, b, c), d[:, None]], 1)
-        rebuilt = np.concatenate([*ccf_coefficients(An.reshape(B, n, n), bn, cn), dn], 1)
-        err = np.abs(given - rebuilt).max(1) / (1.0 + np.abs(given).max(1))
-        tol = max(1e-6, 10 * math.sqrt(torch.finfo(dtype).eps))
-        if np.any(err > tol):
-            i = int(np.argmax(err))
-            r = i // self.records
-            raise ValueError(
-                f"the model (row {r}) is not in the range of {self!r}: the transfer function "
-                f"rebuilt from the recovered parameters differs by {err[i]:.3g} (relative) "
-                f"in its CCF coefficients {np.round(given[i], 6)} vs {np.round(rebuilt[i], 6)}"
-            )
+        _check_rebuilt(self, x, A, b, c, d, dtype)
+
+
+def _check_rebuilt(structure: Physical, x, A, b, c, d, dtype) -> None:
+    """``Physical._check_range``: the parameters ``x`` must rebuild the models ``A, b, c, d``
+    (their transfer functions, by CCF coefficients, to ``1e-6`` relative)."""
+    # The parameters must rebuild the model: compare transfer functions (CCF coefficients).
+    out = structure._op.evaluate(*x.unbind(1))
+    B, n = x.shape[0] * structure.records, structure.n
+    # the models of each parameter row, record-minor like the given ones
+    An, bn, cn, dn = (np.stack([out[k].reshape(x.shape[0], -1) for k in structure._keys[i::4]],
+                               1).reshape(B, -1) for i in range(4))
+    given = np.concatenate([*ccf_coefficients(A, b, c), d[:, None]], 1)
+    rebuilt = np.concatenate([*ccf_coefficients(An.reshape(B, n, n), bn, cn), dn], 1)
+    err = np.abs(given - rebuilt).max(1) / (1.0 + np.abs(given).max(1))
+    tol = max(1e-6, 10 * math.sqrt(torch.finfo(dtype).eps))
+    if np.any(err > tol):
+        i = int(np.argmax(err))
+        r = i // structure.records
+        raise ValueError(
+            f"the model (row {r}) is not in the range of {structure!r}: the transfer function "
+            f"rebuilt from the recovered parameters differs by {err[i]:.3g} (relative) "
+            f"in its CCF coefficients {np.round(given[i], 6)} vs {np.round(rebuilt[i], 6)}"
+        )
 
 
 def _check_inverse(inverse, shapes, names, fname) -> None:

@@ -55,6 +55,9 @@ class Case:
     experiments : bool
         The channels are records of separate experiments, one input moving in each
         (``Physical(..., experiments=True)``: a coupled mechanism of several inputs).
+    together : bool
+        The channels are every output of every input of one record in which the inputs move
+        at once (``Physical(..., outputs=..., inputs=...)``: each output their sum).
     """
 
     name: str
@@ -68,6 +71,7 @@ class Case:
     train: bool = True
     channels: tuple | None = None
     experiments: bool = False
+    together: bool = False
 
     @property
     def specs(self) -> tuple:
@@ -86,10 +90,14 @@ class Case:
         from aeid_struct.structures import Physical
 
         mech, operating = _mechanism(self)
-        where = ({"channel": self.channel} if self.channels is None
-                 else {"channels": self.channels})
+        if self.together:
+            where = {"outputs": list(dict.fromkeys(s[0] for s in self.specs)),
+                     "inputs": list(dict.fromkeys(s[1] for s in self.specs))}
+        else:
+            where = ({"channel": self.channel} if self.channels is None
+                     else {"channels": self.channels}) | {"experiments": self.experiments}
         return Physical(mech, bounds=self.bounds, known=self.known or None, **where,
-                        experiments=self.experiments, **operating)
+                        **operating)
 
 
 #: The benchmark's mechanisms.
@@ -118,6 +126,9 @@ CASES = (
     Case("coupled masses, one experiment per force", "coupled_masses",
          {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}, {}, None, {}, 0.05,
          400, channels=((0, 0), (1, 0), (0, 1), (1, 1)), experiments=True),
+    Case("coupled masses, both forces at once", "coupled_masses",
+         {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}, {}, None, {}, 0.05,
+         400, channels=((0, 0), (0, 1), (1, 0), (1, 1)), together=True),
     Case("lever (r unknown)", "lever", {"m": (0.5, 2.0), "k": (10.0, 50.0), "d": (0.5, 3.0),
                                         "r": (0.5, 2.0)}, {}, (0, 0), {}, 0.02, 300,
          train=False),
@@ -141,7 +152,7 @@ def _report(case: Case) -> dict:
     mech, operating = _mechanism(case)
     channels = ({"pairs": [s[:2] for s in case.specs]} if case.experiments else
                 {"inputs": sorted({s[1] for s in case.specs}),
-                 "outputs": [s[0] for s in case.specs]})
+                 "outputs": list(dict.fromkeys(s[0] for s in case.specs))})
     rep = identifiability(mech, case.bounds, known=case.known or None, **channels, **operating)
     return {"rank": rep.rank, "parameters": list(rep.parameters),
             "inputs": list(rep.inputs), "outputs": list(rep.outputs),
@@ -189,7 +200,7 @@ def _cold_joint(ph, ys, us, dts, rng) -> tuple[np.ndarray, float, int]:
     starts = rng.uniform(ph.lo, ph.hi, (4, ph.q))
     fit = fit_joint(ph.at, starts, [np.repeat(y[None], 4, 0) for y in ys],
                     [np.repeat(u[None], 4, 0) for u in us], dts, lower=ph.lo, upper=ph.hi,
-                    initial=False)
+                    initial=False, groups=ph.groups)
     seconds = time.perf_counter() - t0
     cost = np.where(np.isfinite(fit.cost), fit.cost, np.inf)
     best = int(np.argmin(cost))
@@ -302,7 +313,8 @@ def _costs(ph, P: np.ndarray, rec, several: bool) -> np.ndarray:
     out = np.full(P.shape[0], math.nan)
     if ok.any():
         out[ok] = fit_joint(ph.at, P[ok], [y[ok] for y in ys], [u[ok] for u in us], dts,
-                            lower=ph.lo, upper=ph.hi, initial=False, max_iter=0).cost
+                            lower=ph.lo, upper=ph.hi, initial=False, max_iter=0,
+                            groups=ph.groups).cost
     return out
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from aeid_struct.identification import FLAG_FALSE_RATE, Identifier, excess
 from aeid_struct.training.datasets import Records, holdout_split, records
-from aeid_struct.training.objective import true_elements
+from aeid_struct.training.objective import one_per_output, true_elements
 
 
 def recalibrate(ident: Identifier, family) -> Identifier:
@@ -88,8 +88,9 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
     rng = np.random.default_rng(seed)
     several = ident.records > 1
     ys, us = (rec.y_clean, rec.u) if several else ((rec.y_clean,), (rec.u,))
-    y = tuple(v[held] + noise * np.abs(v[held]).max(axis=1, keepdims=True)
-              * rng.normal(size=v[held].shape) for v in ys)
+    y = tuple(one_per_output([v[held] + noise * np.abs(v[held]).max(axis=1, keepdims=True)
+                              * rng.normal(size=v[held].shape) for v in ys],
+                             getattr(ident.structure, "groups", None)))
     u = tuple(v[held] for v in us)
     est = ident.identify(y, u) if several else ident.identify(y[0], u[0])
     out: dict[str, dict] = {"elements": {}, "physical": {}}

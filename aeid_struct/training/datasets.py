@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.simulation import simulate, states
+from aeid_struct.simulation import output_groups, simulate, states
 from aeid_struct.training.checks import count as counted
 from aeid_struct.training.checks import value_range
 from aeid_struct.training.excitation import EXCITATIONS, excitation
@@ -235,6 +235,33 @@ def excitations(family, grid, kind: str, count: int, warmup: int,
     return u
 
 
+def summed_outputs(family, ys: list) -> list:
+    """The records' outputs where the family's records are channels of outputs whose inputs
+    move at once (its ``shared_outputs``, ``Physical.groups``): each record holds the sum of its
+    output's channels (one array per output); ``ys`` as it is otherwise.
+
+    Parameters
+    ----------
+    family : object
+        Its optional ``shared_outputs``.
+    ys : list of R (count, steps) arrays
+        Each channel's response.
+
+    Returns
+    -------
+    list of R arrays
+    """
+    groups = getattr(family, "shared_outputs", None)
+    if groups is None:
+        return ys
+    out = list(ys)
+    for group in output_groups(groups, len(ys)):
+        total = sum(ys[r] for r in group)
+        for r in group:
+            out[r] = total
+    return out
+
+
 def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
             noise=0.0, seed: int = 0, warmup: int = 0) -> Records:
     """Sample ``count`` systems from ``family``, excite and simulate them exactly (Eq. 10-13).
@@ -244,7 +271,10 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
     family : LegFamily, PoleFamily or any object with ``sample(count, rng) -> Systems``
         The true systems; its ``records`` (default 1) is the records per system, and its
         ``shared_inputs`` (optional, one input index per record) marks records that are channels
-        of one experiment: records of one input share its excitation.
+        of one experiment: records of one input share its excitation; its ``shared_outputs``
+        (optional, one output index per record) marks channels of one output whose inputs move
+        at once: their responses sum into that output, measured (noise drawn) once, and each
+        of its records holds it.
     count : int
         Records (systems), positive.
     steps : int or tuple of int
@@ -290,15 +320,20 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
     # a range is drawn per record, after the excitations (the order fixes what a seed gives)
     level = (np.full(count, noise) if isinstance(noise, float)
              else rng.uniform(*noise, size=count))
-    parts, x0 = [], []
+    clean, x0 = [], []
     for r, (_, dt_r) in enumerate(grid):
         s = systems.record(r)
-        y_clean = simulate(s.A, s.b, s.c, s.d, u[r], dt_r)[:, warmup:]
+        clean.append(simulate(s.A, s.b, s.c, s.d, u[r], dt_r)[:, warmup:])
         if warmup:
             x0.append(states(s.A, s.b, u[r][:, : warmup + 1], dt_r)[:, warmup])
-        scale = level * np.max(np.abs(y_clean), axis=1)
-        parts.append((u[r][:, warmup:], y_clean + scale[:, None] * rng.normal(size=y_clean.shape),
-                      y_clean))
+    clean = summed_outputs(family, clean)
+    parts, noisy = [], {}
+    for r in range(R):
+        # the channels of one output (its inputs moving at once) are measured once
+        if id(clean[r]) not in noisy:
+            scale = level * np.max(np.abs(clean[r]), axis=1)
+            noisy[id(clean[r])] = clean[r] + scale[:, None] * rng.normal(size=clean[r].shape)
+        parts.append((u[r][:, warmup:], noisy[id(clean[r])], clean[r]))
     if R == 1:
         return Records(*parts[0], systems, grid[0][1], level, x0[0] if x0 else None)
     u, y, y_clean = (tuple(p[i] for p in parts) for i in range(3))

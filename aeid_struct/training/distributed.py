@@ -29,7 +29,7 @@ import torch.distributed as dist
 
 from aeid_struct.generic import normalise_windows
 from aeid_struct.simulation import simulate
-from aeid_struct.training.datasets import Records, excitations
+from aeid_struct.training.datasets import Records, excitations, summed_outputs
 from aeid_struct.training.families import Systems
 
 #: ``TrainConfig.device``'s values.
@@ -339,6 +339,7 @@ def row_records(family, config, epoch: int, rows) -> Records:
         u_r = np.concatenate([row[r] for row in inputs])
         y.append(simulate(s.A, s.b, s.c, s.d, u_r, dt)[:, warmup:])
         u.append(u_r[:, warmup:])
+    y = summed_outputs(family, y)
     if len(grid) == 1:
         return Records(u[0], y[0], y[0], systems, grid[0][1], np.zeros(len(systems)))
     return Records(tuple(u), tuple(y), tuple(y), systems, tuple(g[1] for g in grid),

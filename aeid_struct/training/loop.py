@@ -34,7 +34,7 @@ from aeid_struct.structures import Structure
 from aeid_struct.training import checkpoints, distributed
 from aeid_struct.training.calibration import training_range
 from aeid_struct.training.config import TrainConfig, config_dict
-from aeid_struct.training.objective import add_noise, batch_loss
+from aeid_struct.training.objective import add_noise, batch_loss, one_per_output
 from aeid_struct.training.progress import (
     UndertrainedWarning,
     learning_rate,
@@ -277,6 +277,7 @@ def _epoch(run: _Run, start: float) -> tuple[float, float, list[float], int]:
             [part[ctx.share(len(part))].numpy() for part in perm.split(config.batch)]))
     params = [p for group in run.opt.param_groups for p in group["params"]]
     lo, hi = config.noise_range
+    groups = getattr(run.structure, "groups", None)
     running, skipped, norms, lr = 0.0, 0, [], config.lr
     encoder, run.ident.encoder = run.ident.encoder, run.model     # DDP's forward, when wrapped
     try:
@@ -287,8 +288,8 @@ def _epoch(run: _Run, start: float) -> tuple[float, float, list[float], int]:
                 group["lr"] = lr
             idx = perm[j * config.batch: (j + 1) * config.batch]
             mine = ctx.share(len(idx))
-            ys = [add_noise(y[idx], data.scale[idx, r], lo, hi, generator)[mine]
-                  for r, y in enumerate(data.y)]
+            ys = one_per_output([add_noise(y[idx], data.scale[idx, r], lo, hi, generator)[mine]
+                                 for r, y in enumerate(data.y)], groups)
             y_, u_, yinf_, z_ = _on(ctx.device, data.batch(idx[mine], ys))
             loss = batch_loss(run.ident, y_, u_, yinf_, config.stationary_weight, z_,
                               config.supervised * max(0.0, 1.0 - progress))
@@ -350,6 +351,7 @@ def _holdout_loss(run: _Run) -> float:
                 ys = [y + (level * data.scale[idx, r])[:, None] * torch.randn(
                     y.shape, generator=run.generators["held_generator"])
                     for r, y in enumerate(ys)]
+                ys = one_per_output(ys, getattr(run.structure, "groups", None))
             mine = ctx.share(len(idx))
             if mine.stop == mine.start:
                 continue

@@ -21,8 +21,11 @@ from aeid_struct.identification import Identifier
 # (the batch is skipped), not recomputed and warned about as the public simulate() does.
 from aeid_struct.simulation import (
     fit_initial_state,
+    free_response,
+    least_squares_x0,
     loss,
     normalise,
+    output_groups,
     record_scale,
     simulate_batch,
     stationary_value_batch,
@@ -67,27 +70,96 @@ def batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
     dts = ident.dt if R > 1 else (ident.dt,)
     sys, _, raw = ident.forward(y, u, raw=True)
     ys, us = (y, u) if R > 1 else ((y,), (u,))
+    parts = [tuple(x[:, r] for x in sys) if R > 1 else tuple(sys) for r in range(R)]
+    groups = output_groups(getattr(ident.structure, "groups", None), R)
     total = 0.0
-    for r in range(R):
-        A, b, c, d = (x[:, r] for x in sys) if R > 1 else sys
-        if ident.initial == "fitted":
-            y_hat = fit_initial_state(A, b, c, d, us[r], ys[r], dts[r])[1]
-        else:
-            y_hat = simulate_batch(A, b, c, d, us[r], dts[r], None)
-        yinf_hat = stationary_value_batch(A, b, c, d) if gamma > 0 else None
+    for group in groups:
+        first = group[0]
+        y_hat, yinf_hat = decoded_output([parts[r] for r in group],
+                                         [us[r] for r in group], ys[first], dts[first],
+                                         initial=ident.initial == "fitted", gamma=gamma)
         if not bool(torch.isfinite(y_hat).all()) or (
                 yinf_hat is not None and not bool(torch.isfinite(yinf_hat).all())):
             # overflowed: a skipped batch
             return torch.full((), math.nan, dtype=y_hat.dtype, device=y_hat.device)
-        y_bar = record_scale(ys[r])
-        yinf_r = yinf[:, r] if R > 1 else yinf
-        total = total + loss(normalise(y_hat, y_bar), normalise(ys[r], y_bar),
+        y_bar = record_scale(ys[first])
+        yinf_g = (sum(yinf[:, r] for r in group) if R > 1 else yinf) \
+            if yinf_hat is not None else None
+        total = total + loss(normalise(y_hat, y_bar), normalise(ys[first], y_bar),
                              None if yinf_hat is None else normalise(yinf_hat, y_bar),
-                             None if yinf_hat is None else normalise(yinf_r, y_bar), gamma=gamma)
-    total = total / R
+                             None if yinf_hat is None else normalise(yinf_g, y_bar), gamma=gamma)
+    total = total / len(groups)
     if weight > 0:
         total = total + weight * torch.mean((raw - z.to(raw.dtype)) ** 2)
     return total
+
+
+def decoded_output(systems: list, us: list, y, dt: float, *, initial: bool,
+                   gamma: float = 0.0) -> tuple:
+    """The decoded response of one output (Eq. 10-13) and its stationary value (Eq. 4): one
+    record's system, or the channels of an output whose inputs move at once, summed
+    (``Physical.groups``), from rest or from the least-squares initial state; unchecked and
+    differentiable.
+
+    Why the free response of a sum in the span of ``e_1^T e^{A k dt}``: the channels of one
+    output share the poles (one companion ``A``, paper Eq. 5), whose first state is observable,
+    so these ``n`` columns span every free response of the output, and a QR of the channels'
+    stacked free responses (rank ``n`` of ``n R``) would be singular.
+
+    Parameters
+    ----------
+    systems : list of tuples ``(A (batch, n, n), b (batch, n), c (batch, n), d (batch,))``
+        One per channel of the output (one for a record of its own).
+    us : list of (batch, steps) tensors
+        Each channel's input.
+    y : (batch, steps) tensor
+        The measured output (read where ``initial``).
+    dt : float
+    initial : bool
+        Fit the initial state (``Identifier.initial == "fitted"``).
+    gamma : float
+        The stationary value's weight: None is returned for it where 0.
+
+    Returns
+    -------
+    y_hat : (batch, steps) tensor
+    yinf_hat : (batch,) tensor or None
+    """
+    if len(systems) == 1:
+        A, b, c, d = systems[0]
+        if initial:
+            y_hat = fit_initial_state(A, b, c, d, us[0], y, dt)[1]
+        else:
+            y_hat = simulate_batch(A, b, c, d, us[0], dt, None)
+        return y_hat, stationary_value_batch(A, b, c, d) if gamma > 0 else None
+    y_hat = sum(simulate_batch(A, b, c, d, u, dt, None)
+                for (A, b, c, d), u in zip(systems, us, strict=True))
+    if initial:
+        A = systems[0][0]
+        e1 = torch.zeros(A.shape[:-1], dtype=A.dtype, device=A.device)
+        e1[:, 0] = 1.0
+        y_hat = y_hat + least_squares_x0(free_response(A, e1, dt, y.shape[1]), y - y_hat)[1]
+    yinf_hat = sum(stationary_value_batch(*system) for system in systems) if gamma > 0 else None
+    return y_hat, yinf_hat
+
+
+def one_per_output(ys: list, groups: tuple | None) -> list:
+    """Records that are channels of one output hold one measurement of it: each record's
+    ``y`` replaced by its group's first (``Physical.groups``; ``ys`` itself where None), so
+    that noise drawn per record is drawn once per output.
+
+    Parameters
+    ----------
+    ys : list of R arrays or tensors
+    groups : tuple of R ints or None
+
+    Returns
+    -------
+    list of R arrays or tensors
+    """
+    if groups is None:
+        return ys
+    return [ys[groups.index(g)] for g in groups]
 
 
 def add_noise(y: torch.Tensor, y_bar: torch.Tensor, lo: float, hi: float,

@@ -81,6 +81,14 @@ class ParameterFamily:
         channels = getattr(self.structure, "channels", None)
         return None if channels is None else tuple(i for _, i in channels)
 
+    @property
+    def shared_outputs(self) -> tuple[int, ...] | None:
+        """Per record, the output it adds to where the records are the channels of one record
+        whose inputs move at once (``Physical(mechanism, outputs=..., inputs=...)``,
+        ``Physical.groups``): records of one output are simulated each from its input and
+        summed into one measured output; None: each record its own output."""
+        return getattr(self.structure, "groups", None)
+
     def __repr__(self) -> str:
         return (f"ParameterFamily({self.structure!r}, bounds={self.bounds}, "
                 f"log={self.log})")
