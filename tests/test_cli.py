@@ -639,6 +639,33 @@ def test_demo_figure_labels_and_curves(tmp_path, monkeypatch):
                                atol=1e-14)
 
 
+def test_identify_a_shipped_mechanism_from_one_file_of_numbered_columns(tmp_path, capsys):
+    # the cart-pole's record as one CSV of columns u1, y1, y2: split by the identifier's
+    # channels, the same estimate as the arrays; a file of one output, or of the wrong length,
+    # is refused by name
+    import aeid_struct as ae
+
+    ident = ae.load_pretrained("cart-pole")
+    rec = ae.data.records(ae.ParameterFamily(ident.structure), 1, steps=ident.steps,
+                          dt=ident.dt, excitation_kind="prbs", seed=3, noise=0.01)
+    table = np.stack([rec.u[0][0], rec.y[0][0], rec.y[1][0]], 1)
+    np.savetxt(tmp_path / "rec.csv", table, delimiter=",", header="u1,y1,y2", comments="")
+    assert main(["identify", "cart-pole", "--y", str(tmp_path / "rec.csv"), "--refine"]) == 0
+    out = capsys.readouterr().out
+    printed = ast.literal_eval(out.split("physical: ", 1)[1].splitlines()[0])
+    est = ident.identify((rec.y[0][0], rec.y[1][0]), (rec.u[0][0], rec.u[0][0]), refine=True)
+    for k in ("M", "m", "l", "b"):
+        assert printed[k] == pytest.approx(est.physical[k], abs=1e-6)
+    np.savetxt(tmp_path / "one.csv", table[:, :2], delimiter=",", header="u,y", comments="")
+    with pytest.raises(SystemExit, match=r"give one file of numbered columns \(y1, y2, \.\., "
+                                         r"u1, \.\.\) or one --y file per channel \(2\)"):
+        main(["identify", "cart-pole", "--y", str(tmp_path / "one.csv")])
+    np.savetxt(tmp_path / "short.csv", table[:50], delimiter=",", header="u1,y1,y2",
+               comments="")
+    with pytest.raises(SystemExit, match="holds a record of 50 samples"):
+        main(["identify", "cart-pole", "--y", str(tmp_path / "short.csv")])
+
+
 def test_identify_a_shipped_mechanism_from_one_file_per_channel(tmp_path, capsys):
     # the cart-pole's two channels, one file each (their common input twice): the printed
     # parameters are the refined estimate's, with their standard errors

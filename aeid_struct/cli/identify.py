@@ -167,6 +167,9 @@ def run_identify(args: argparse.Namespace) -> int:
     _check_model_use(args)
     ident = load_identifier(args.model, "model")
     R = ident.records
+    channels = getattr(ident.structure, "channels", None)
+    if channels is not None and len(args.y) == 1:
+        return _report(args, ident, _identify(args, ident, *_channel_record(args, ident)))
     steps = ident.steps if R > 1 else (ident.steps,)
     dts = ident.dt if R > 1 else (ident.dt,)
     grids = ", ".join(f"{s} samples at dt = {t:g} s" for s, t in zip(steps, dts, strict=True))
@@ -192,12 +195,55 @@ def run_identify(args: argparse.Namespace) -> int:
     inputs = [ys[r].u if us[r] is None else us[r].values for r in range(R)]
     y = ys[0].values if R == 1 else [rec.values for rec in ys]
     u = inputs[0] if R == 1 else (None if all(v is None for v in inputs) else inputs)
+    return _report(args, ident, _identify(args, ident, y, u))
+
+
+def _identify(args, ident, y, u):
+    """``ident.identify`` of the read record(s) with the command's refinement options."""
     refine = {"no": False, "yes": True, "auto": "auto"}[args.refine]
     try:
-        est = ident.identify(y, u, refine=refine, starts=args.starts)
+        return ident.identify(y, u, refine=refine, starts=args.starts)
     except ValueError as err:   # the record's content (all zero, non-finite, a varying u, ...)
         raise InputError(f"identify {', '.join(args.y)} with {args.model}: {err}") from None
 
+
+def _channel_record(args, ident) -> tuple:
+    """One record file of several outputs (and inputs) for an identifier of the channels of one
+    record (``Physical(mechanism, channels=...)`` or ``outputs=..., inputs=...``): numbered
+    columns ``u1, .., y1, ..`` (or ``--u`` for the inputs), read as one ``Record`` that the
+    identifier splits by its channels."""
+    from aeid_struct.records import Record
+
+    steps, dt = ident.steps[0], ident.dt[0]
+    if args.u is not None and len(args.u) != 1:
+        raise InputError(f"--u: give one input file beside the one --y file; got {len(args.u)}")
+    rec = read_record(args.y[0], "--y", "y")
+    if not rec.several:
+        raise InputError(
+            f"--y: this identifier reads the channels {list(ident.structure.channels)} (output, "
+            f"input) of one record: give one file of numbered columns (y1, y2, .., u1, ..) or "
+            f"one --y file per channel ({ident.records}); {rec.path!r} holds one output")
+    on_grid(rec, "--y", steps, dt)
+    u = rec.u
+    if args.u is not None:
+        if u is not None:
+            raise InputError(f"--u {args.u[0]!r} and the u columns of --y {rec.path!r}: give "
+                             "the inputs once")
+        inputs = read_record(args.u[0], "--u", "u")
+        on_grid(inputs, "--u", steps, dt)
+        u = inputs.values
+    if u is None:
+        raise InputError(f"--y {rec.path!r}: this identifier reads the channels "
+                         f"{list(ident.structure.channels)} (output, input) of one record; "
+                         "give its inputs as u columns (u1, u2, ..) or with --u")
+    try:
+        return Record(y=rec.values, u=u, dt=dt), None
+    except ValueError as err:
+        raise InputError(f"--y {rec.path!r}: {err}") from None
+
+
+def _report(args, ident, est) -> int:
+    """Print the estimate, its refinement and self-check; write JSON; the exit status."""
     np.set_printoptions(precision=6, suppress=False)
     print(f"{ident!r}")
     print("A =\n", est.A)

@@ -262,7 +262,9 @@ def _add_identify(sub, names: str, generic: str) -> None:
                           "compare, initial state and offset fitted) as a PNG file")
     idp.add_argument("--y", default=None, nargs="+",
                      help="with MODEL: output record file(s), .npy or .csv (layouts below); one "
-                          "file per record (subsystem) for a joint identifier")
+                          "file per record (subsystem) for a joint identifier; for an "
+                          "identifier of a record's channels, one file of numbered columns "
+                          "(y1, y2, .., u1, ..) or one file per channel")
     idp.add_argument("--u", default=None, nargs="+",
                      help="input record file(s), like --y; default: the u column of the --y "
                           "file (with --order: of RECORD), else a unit step")

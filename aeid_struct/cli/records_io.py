@@ -58,6 +58,12 @@ def on_grid(rec: RecordFile, option: str, steps: int, dt: float) -> None:
     grid = f"records of {steps} samples at dt = {dt:g} s"
     check_dt(rec, option, dt, grid)
     v = rec.values
+    if rec.several:
+        # numbered columns: one record of several channels, (steps, p)
+        if v.shape[0] != steps:
+            raise InputError(f"{option} file {rec.path!r} holds a record of {v.shape[0]} "
+                             f"samples; this identifier reads {grid}")
+        return
     if v.shape[-1] == steps:
         return
     if rec.columns or v.ndim == 1:
