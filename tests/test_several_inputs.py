@@ -333,19 +333,24 @@ def test_a_stream_of_both_forces_is_tracked_window_by_window(trained):
 
 
 def test_the_head_states_are_the_decoders(coupled):
-    """``refinement.summed.forced`` (Markov parameters and one FFT) against the decoder's
+    """``refinement.summed.Kernel`` (Markov parameters and one FFT) against the decoder's
     exact response from rest (``simulation.simulate_numpy``): each channel's output is its
-    numerator over those states."""
-    from aeid_struct.refinement.summed import forced
+    numerator over those states; its free response against ``e_1^T expm(A k dt)``."""
+    from aeid_struct.refinement.summed import Kernel
 
     rng = np.random.default_rng(15)
     u = rng.normal(size=STEPS)
     models = physical_head(coupled, False).at(np.stack([POINT, POINT[::-1]]))
     for A, b, c, d in models:
-        X = forced(A, b, u, DT)
+        kernel = Kernel(A, b, DT, STEPS)
+        X = kernel.forced(u)
         for k in range(2):
             y = simulate_numpy(A[k], b[k], c[k], float(d[k]), u, DT)
             np.testing.assert_allclose(X[k] @ c[k] + d[k] * u, y, atol=1e-12 * np.abs(y).max())
+            for step in (0, 1, 57, STEPS - 1):
+                np.testing.assert_allclose(kernel.free[k, step],
+                                           scipy.linalg.expm(A[k] * DT * step)[0], rtol=1e-10,
+                                           atol=1e-13)
 
 
 def test_fresh_records_of_a_data_parallel_run_sum_each_output(coupled):

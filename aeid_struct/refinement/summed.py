@@ -4,7 +4,7 @@ once (``Physical(mechanism, outputs=..., inputs=...)``), each output the sum of 
 Every channel's CCF (paper Eq. 5) has the same denominator ``a`` (the mechanism's
 characteristic polynomial), and for a given ``a`` each output is linear in the rest: with
 ``X_r (steps, n)`` the states of the CCF ``(A(a), e_n)`` driven by channel ``r``'s input from
-rest (Eq. 10-12, ``simulation.forced_states``) and ``O (steps, n)`` the free response
+rest (Eq. 10-12, :class:`Kernel`) and ``O (steps, n)`` the free response
 ``e_1^T Phi^k`` (the first state of a companion is observable, so it spans every free response
 of the output),
 
@@ -29,7 +29,7 @@ import numpy as np
 from aeid_struct.refinement import core
 from aeid_struct.refinement.batched import Pattern
 
-__all__ = ["SummedFit", "fit_summed"]
+__all__ = ["Kernel", "SummedFit", "fit_summed"]
 
 #: Relative step of the forward differences.
 STEP = 1e-7
@@ -96,15 +96,12 @@ class _Problem:
 
 def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
     """:meth:`_Problem.solve` for one row's records at denominators ``a (P, n)``."""
-    from aeid_struct.simulation import discrete_foh, free_basis
     from aeid_struct.structures import ccf_matrices
 
     P, n = a.shape
     A, b, _ = ccf_matrices(a, None)
-    e1 = np.zeros((P, 1, n))
-    e1[:, 0, 0] = 1.0
     R = len(patterns)
-    free = {}
+    kernels = {}
     c_out, d_out = np.full((P, R, n), math.nan), np.full((P, R), math.nan)
     parts, states = [], {}
     with np.errstate(all="ignore"):
@@ -115,8 +112,10 @@ def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
             for r in group:
                 # the channels of one input share their states (one array in memory)
                 key = (us[r].ctypes.data, us[r].strides, us[r].size, dt)
+                if (dt, y.size) not in kernels:
+                    kernels[dt, y.size] = Kernel(A, b, dt, y.size)
                 if key not in states:
-                    states[key] = forced(A, b, us[r], dt)              # (P, steps, n)
+                    states[key] = kernels[dt, y.size].forced(us[r])   # (P, steps, n)
                 X = states[key]
                 pattern = patterns[r]
                 for j, value in enumerate(pattern.c):
@@ -131,9 +130,10 @@ def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
                 elif pattern.d != 0.0:
                     target -= pattern.d * us[r]
             if initial:
-                if dt not in free:
-                    free[dt] = free_basis(discrete_foh(A, b, dt)[0], e1, y.size)[:, :, 0]
-                columns.extend(free[dt][:, :, j] for j in range(n))  # e_1^T Phi^k
+                if (dt, y.size) not in kernels:
+                    kernels[dt, y.size] = Kernel(A, b, dt, y.size)
+                free = kernels[dt, y.size].free                      # e_1^T Phi^k
+                columns.extend(free[:, :, j] for j in range(n))
             M = np.stack(columns, axis=2)                              # (P, steps, k)
             bad = ~np.isfinite(M).all(axis=(1, 2))
             M[bad] = 0.0
@@ -160,42 +160,51 @@ def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
     return np.concatenate(parts, axis=1), c_out, d_out
 
 
-def forced(A: np.ndarray, b: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-    """The states of ``P`` systems driven by ``u`` from rest (Eq. 10-12, the decoder's
-    first-order hold: ``x_{k+1} = Phi x_k + E u_k + gamma2 u_{k+1}``, ``x_0 = 0``), so
-    ``x_k = gamma2 u_k - Phi^k gamma2 u_0 + sum_j Phi^j Bd u_{k-1-j}``: the Markov parameters
-    by doubling and their convolution with ``u`` by one FFT for all.
+class Kernel:
+    """The responses of ``P`` systems on one grid that the separable fit reads: the states
+    driven by an input from rest (:meth:`forced`, Eq. 10-12, the decoder's first-order hold:
+    ``x_{k+1} = Phi x_k + E u_k + gamma2 u_{k+1}``, ``x_0 = 0``, so ``x_k = gamma2 u_k -
+    Phi^k gamma2 u_0 + sum_j Phi^j Bd u_{k-1-j}``) and the free response ``e_1^T Phi^k``
+    (:attr:`free`), from one discretisation and one doubling of the powers for every input.
 
     Why not ``simulation.outputs_and_basis`` or ``forced_states``: the one convolves each
     state's row directly (``O(N^2)``, a loop over points and states) and the other filters
-    point by point; both spent most of the head's time in Python calls, and this step only
-    starts the nearest parameters and the exact joint fit (FFT rounding is relative to a
-    record's largest state, ample for a start).
+    point by point; both spent most of the head's time in Python calls. Here the convolution
+    is one FFT for all points and states (its rounding is relative to a record's largest
+    state, ample for a step that only starts the nearest parameters and the exact joint fit).
 
     Parameters
     ----------
     A : (P, n, n) array
     b : (P, n) array
-    u : (steps,) array
     dt : float, > 0
-
-    Returns
-    -------
-    (P, steps, n) array
+    steps : int
     """
-    from aeid_struct.simulation import discrete_foh, free_basis
 
-    Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
-    Bd = gamma1 - gamma2 + (Phi @ gamma2[..., None])[..., 0]
-    steps = u.shape[0]
-    # rows (Phi^j Bd)^T = Bd^T (Phi^T)^j and (Phi^j gamma2)^T, j < steps
-    powers = free_basis(np.swapaxes(Phi, 1, 2), np.stack([Bd, gamma2], axis=1), steps)
-    size = 2 * steps
-    xi = np.fft.irfft(np.fft.rfft(powers[:, : steps - 1, 0], size, axis=1)
-                      * np.fft.rfft(u, size)[None, :, None], size, axis=1)[:, : steps - 1]
-    out = gamma2[:, None, :] * u[None, :, None] - powers[:, :, 1] * u[0]
-    out[:, 1:] += xi
-    return out
+    def __init__(self, A: np.ndarray, b: np.ndarray, dt: float, steps: int) -> None:
+        from aeid_struct.simulation import discrete_foh, free_basis
+
+        Phi, gamma1, gamma2 = discrete_foh(A, b, dt)
+        Bd = gamma1 - gamma2 + (Phi @ gamma2[..., None])[..., 0]
+        P, n = b.shape
+        e1 = np.zeros((P, 1, n))
+        e1[:, 0, 0] = 1.0
+        #: ``(P, steps, n)``: ``e_1^T Phi^k``
+        self.free = free_basis(Phi, e1, steps)[:, :, 0]
+        # rows (Phi^j Bd)^T = Bd^T (Phi^T)^j and (Phi^j gamma2)^T, j < steps
+        powers = free_basis(np.swapaxes(Phi, 1, 2), np.stack([Bd, gamma2], axis=1), steps)
+        self.size, self.steps, self.gamma2 = 2 * steps, steps, gamma2
+        self.decay = powers[:, :, 1]
+        self.markov = np.fft.rfft(powers[:, : steps - 1, 0], self.size, axis=1)
+
+    def forced(self, u: np.ndarray) -> np.ndarray:
+        """The states driven by ``u (steps,)`` from rest: ``(P, steps, n)``."""
+        steps = self.steps
+        xi = np.fft.irfft(self.markov * np.fft.rfft(u, self.size)[None, :, None], self.size,
+                          axis=1)[:, : steps - 1]
+        out = self.gamma2[:, None, :] * u[None, :, None] - self.decay * u[0]
+        out[:, 1:] += xi
+        return out
 
 
 def fit_summed(patterns: tuple, groups: list, a0: np.ndarray, ys: list, us: list,
