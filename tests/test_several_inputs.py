@@ -366,3 +366,18 @@ def test_fresh_records_of_a_data_parallel_run_sum_each_output(coupled):
         clean = _measured(p, np.stack([rec.u[0][k], rec.u[1][k]]), np.zeros(4))
         for r, o in enumerate((0, 0, 1, 1)):
             np.testing.assert_allclose(rec.y[r][k], clean[o], atol=1e-10 * np.abs(clean[o]).max())
+
+
+def test_a_shared_discretisation_is_reused_only_for_equal_systems(coupled):
+    """``summed_response``'s cache: the channels of one mechanism (equal ``A, b``) share one
+    discretisation, and a system of other parameters is not given it."""
+    rng = np.random.default_rng(16)
+    u = rng.normal(size=STEPS)
+    ph = physical_head(coupled, True)
+    first, other = ph.at(POINT[None]), ph.at(POINT[::-1][None])
+    cache = []
+    shared = [summed_response([m], [u], u, DT, True, cache=cache)[0]
+              for m in (first[0], first[2], other[0])]
+    assert len(cache) == 2
+    for got, m in zip(shared, (first[0], first[2], other[0]), strict=True):
+        np.testing.assert_array_equal(got, summed_response([m], [u], u, DT, True)[0])

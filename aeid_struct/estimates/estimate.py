@@ -338,11 +338,12 @@ def _summed(est: Estimate) -> tuple:
     x0 = [np.full(b.shape[::2], np.nan if initial else 0.0) for _ in ys]
     good = np.ones(A.shape[0], dtype=bool) if est._good is None else est._good
     for i in np.flatnonzero(good):
+        cache = []                # the row's channels share one discretisation (Eq. 10)
         for group in output_groups(est._groups(), est.records):
             h, states = summed_response(
                 [(A[i, r][None], b[i, r][None], c[i, r][None], d[i, r][None])
                  for r in group], [us[r][i] for r in group], ys[group[0]][i],
-                est.dt[group[0]], initial, x0=True)
+                est.dt[group[0]], initial, x0=True, cache=cache)
             for j, r in enumerate(group):
                 y_hat[r][i] = h[0]
                 if states is not None:

@@ -79,11 +79,11 @@ def _residuals(systems: Callable, points: np.ndarray, ys: list, us: list, dts: t
     models = systems(points)
     parts = output_groups(groups, len(models))
     out = np.empty((points.shape[0], sum(ys[g[0]].size for g in parts)))
-    start = 0
+    start, cache = 0, []          # one discretisation for the records of equal (A, b)
     for group in parts:
         y, dt = ys[group[0]], dts[group[0]]
         y_hat = summed_response([models[r] for r in group], [us[r] for r in group], y, dt,
-                                initial)[0]
+                                initial, cache=cache)[0]
         out[:, start: start + y.size] = (y - y_hat) * (
             2.0 / (np.abs(y).max() * math.sqrt(y.size + 1)))
         start += y.size

@@ -273,7 +273,7 @@ def initial_state_numpy(A, b, c, d, u, y, dt: float) -> np.ndarray:
 
 
 def summed_response(models: list, us: list, y: np.ndarray, dt: float, initial: bool,
-                    x0: bool = False):
+                    x0: bool = False, cache: list | None = None):
     r"""The response of one output to several channels at once, ``y = sum_r G_r u_r`` plus a
     free response: each channel's exact FOH response from rest (Eq. 10-13) summed and, where
     ``initial``, the free response of least squares in the span of the channels' observable
@@ -296,6 +296,9 @@ def summed_response(models: list, us: list, y: np.ndarray, dt: float, initial: b
         Project the initial state out.
     x0 : bool
         Also return each channel's fitted initial state.
+    cache : list, optional
+        Discretisations (Eq. 10) already computed, reused for a channel of equal ``A, b`` (the
+        channels of one mechanism share them: one matrix exponential for all); appended to.
 
     Returns
     -------
@@ -305,9 +308,10 @@ def summed_response(models: list, us: list, y: np.ndarray, dt: float, initial: b
         Where ``x0`` and ``initial``: ``sum_r c_r^T Phi_r^k x0_r`` is the fitted free response.
     """
     Y, bases = 0.0, []
+    cache = [] if cache is None else cache
     with np.errstate(all="ignore"):
         for (A, b, c, d), u in zip(models, us, strict=True):
-            Yr, O = outputs_and_basis(A, b, c[:, None], d[:, None], u, dt)
+            Yr, O = _outputs(_discretised(cache, A, b, dt), c[:, None], d[:, None], u)
             Y = Y + Yr[:, 0]                                         # (P, steps)
             bases.append(O[:, :, 0])                                 # (P, steps, n)
         if not initial:
@@ -332,6 +336,18 @@ def summed_response(models: list, us: list, y: np.ndarray, dt: float, initial: b
         x[bad] = np.nan
         cuts = np.cumsum([basis.shape[2] for basis in bases])[:-1]
         return y_hat, np.split(x, cuts, axis=1)
+
+
+def _discretised(cache: list, A: np.ndarray, b: np.ndarray, dt: float) -> tuple:
+    """:func:`discrete_foh` of ``A, b`` at ``dt``, taken from ``cache`` where an entry has equal
+    arrays (compared by value: the channels' maps build separate arrays), else computed and
+    added."""
+    for A_, b_, dt_, discrete in cache:
+        if dt_ == dt and np.array_equal(A_, A) and np.array_equal(b_, b):
+            return discrete
+    discrete = discrete_foh(A, b, dt)
+    cache.append((A, b, dt, discrete))
+    return discrete
 
 
 def output_groups(groups: tuple | None, R: int) -> list[list[int]]:

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from aeid_struct.identification import FLAG_FALSE_RATE, Identifier, excess
-from aeid_struct.training.datasets import Records, holdout_split, records
-from aeid_struct.training.objective import one_per_output, true_elements
+from aeid_struct.training.datasets import Records, holdout_split, one_per_output, records
+from aeid_struct.training.objective import true_elements
 
 
 def recalibrate(ident: Identifier, family) -> Identifier:

@@ -235,6 +235,25 @@ def excitations(family, grid, kind: str, count: int, warmup: int,
     return u
 
 
+def one_per_output(ys: list, groups: tuple | None) -> list:
+    """Records that are channels of one output hold one measurement of it: each record's
+    ``y`` replaced by its group's first (``Physical.groups``; ``ys`` itself where None), so
+    that noise drawn per record is drawn once per output.
+
+    Parameters
+    ----------
+    ys : list of R arrays or tensors
+    groups : tuple of R ints or None
+
+    Returns
+    -------
+    list of R arrays or tensors
+    """
+    if groups is None:
+        return ys
+    return [ys[groups.index(g)] for g in groups]
+
+
 def summed_outputs(family, ys: list) -> list:
     """The records' outputs where the family's records are channels of outputs whose inputs
     move at once (its ``shared_outputs``, ``Physical.groups``): each record holds the sum of its
@@ -327,13 +346,11 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
         if warmup:
             x0.append(states(s.A, s.b, u[r][:, : warmup + 1], dt_r)[:, warmup])
     clean = summed_outputs(family, clean)
-    parts, noisy = [], {}
-    for r in range(R):
-        # the channels of one output (its inputs moving at once) are measured once
-        if id(clean[r]) not in noisy:
-            scale = level * np.max(np.abs(clean[r]), axis=1)
-            noisy[id(clean[r])] = clean[r] + scale[:, None] * rng.normal(size=clean[r].shape)
-        parts.append((u[r][:, warmup:], noisy[id(clean[r])], clean[r]))
+    # the channels of one output (its inputs moving at once) are measured once
+    noisy = one_per_output([y + (level * np.max(np.abs(y), axis=1))[:, None]
+                            * rng.normal(size=y.shape) for y in clean],
+                           getattr(family, "shared_outputs", None))
+    parts = [(u[r][:, warmup:], noisy[r], clean[r]) for r in range(R)]
     if R == 1:
         return Records(*parts[0], systems, grid[0][1], level, x0[0] if x0 else None)
     u, y, y_clean = (tuple(p[i] for p in parts) for i in range(3))

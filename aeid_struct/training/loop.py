@@ -34,7 +34,8 @@ from aeid_struct.structures import Structure
 from aeid_struct.training import checkpoints, distributed
 from aeid_struct.training.calibration import training_range
 from aeid_struct.training.config import TrainConfig, config_dict
-from aeid_struct.training.objective import add_noise, batch_loss, one_per_output
+from aeid_struct.training.datasets import one_per_output
+from aeid_struct.training.objective import add_noise, batch_loss
 from aeid_struct.training.progress import (
     UndertrainedWarning,
     learning_rate,

@@ -83,8 +83,8 @@ def batch_loss(ident: Identifier, y, u, yinf, gamma: float, z=None,
             # overflowed: a skipped batch
             return torch.full((), math.nan, dtype=y_hat.dtype, device=y_hat.device)
         y_bar = record_scale(ys[first])
-        yinf_g = (sum(yinf[:, r] for r in group) if R > 1 else yinf) \
-            if yinf_hat is not None else None
+        yinf_g = None if yinf_hat is None else (
+            yinf if R == 1 else sum(yinf[:, r] for r in group))
         total = total + loss(normalise(y_hat, y_bar), normalise(ys[first], y_bar),
                              None if yinf_hat is None else normalise(yinf_hat, y_bar),
                              None if yinf_hat is None else normalise(yinf_g, y_bar), gamma=gamma)
@@ -141,25 +141,6 @@ def decoded_output(systems: list, us: list, y, dt: float, *, initial: bool,
         y_hat = y_hat + least_squares_x0(free_response(A, e1, dt, y.shape[1]), y - y_hat)[1]
     yinf_hat = sum(stationary_value_batch(*system) for system in systems) if gamma > 0 else None
     return y_hat, yinf_hat
-
-
-def one_per_output(ys: list, groups: tuple | None) -> list:
-    """Records that are channels of one output hold one measurement of it: each record's
-    ``y`` replaced by its group's first (``Physical.groups``; ``ys`` itself where None), so
-    that noise drawn per record is drawn once per output.
-
-    Parameters
-    ----------
-    ys : list of R arrays or tensors
-    groups : tuple of R ints or None
-
-    Returns
-    -------
-    list of R arrays or tensors
-    """
-    if groups is None:
-        return ys
-    return [ys[groups.index(g)] for g in groups]
 
 
 def add_noise(y: torch.Tensor, y_bar: torch.Tensor, lo: float, hi: float,
