@@ -31,7 +31,12 @@ from aeid_struct.identification.checks import (
     set_format,
     thetas,
 )
-from aeid_struct.identification.head import Head, HeadSlot, converges_to_optimum
+from aeid_struct.identification.head import (
+    Head,
+    HeadSlot,
+    converges_to_optimum,
+    starts_from_converged_head,
+)
 from aeid_struct.identification.identifier_files import IdentifierFiles
 from aeid_struct.records import arrays_of, check_record
 
@@ -255,7 +260,9 @@ class Identifier(IdentifierFiles):
             Polish the estimate in the same structure (``aeid_struct.refinement``'s CasADi
             NLP): every record, or ``"auto"``: those flagged ``outside`` the training range
             (``info["refined_rows"]``). With a ``head``, True iterates it to convergence
-            (``info["refine"]``: ``"separable"``; ``identification.polish`` says when not).
+            (``info["refine"]``: ``"separable"``; ``identification.polish`` says when not);
+            a physical structure of one record whose map is not square then fits its
+            parameters from there (``head.starts_from_converged_head``).
         errors : {"raise", "collect"}
             A record that cannot be identified (non-finite samples, an all-zero ``y`` or ``u``,
             a varying ``u`` for an identifier that does not read it, ``max|y| / max|u|`` beyond
@@ -278,13 +285,26 @@ class Identifier(IdentifierFiles):
         check_call(self, dt, refine, errors, starts)
         provenance = self.provenance
         record = check_record(y, u, steps=self.steps, dt=self.dt, reads_u=self.inputs)
-        if refine is True and self.head is not None and converges_to_optimum(self):
-            est = one_pass.refine_with_head(self, record, start, errors,
-                                            self.head.converged(), provenance)
-        else:
-            est = one_pass.identify_record(self, record, start, errors, provenance=provenance)
-            est = _polished(est, refine) if refine else est
+        est = _identified(self, record, start, errors, refine, provenance)
         return _from_starts(est, starts) if starts else est
+
+
+def _identified(ident: Identifier, record, start: float, errors: str, refine,
+                provenance) -> Estimate:
+    """``Identifier.identify`` after its checks: the one pass, and the refinement asked for."""
+    head = ident.head
+    if refine is True and head is not None and converges_to_optimum(ident):
+        return one_pass.refine_with_head(ident, record, start, errors, head.converged(),
+                                         provenance)
+    if refine is True and head is not None and starts_from_converged_head(ident):
+        # the fit in the parameters from the converged head or the one pass, whichever costs
+        # less (head.starts_from_converged_head says why)
+        one = one_pass.identify_record(ident, record, start, errors, provenance=provenance)
+        est = one_pass.identify_record(ident, record, start, errors, head.converged(),
+                                       provenance)
+        return _refined_from(est, one)
+    est = one_pass.identify_record(ident, record, start, errors, provenance=provenance)
+    return _polished(est, refine) if refine else est
 
 
 def _polished(est: Estimate, refine) -> Estimate:
@@ -293,6 +313,15 @@ def _polished(est: Estimate, refine) -> Estimate:
     from aeid_struct.identification.polish import polish
 
     return polish(est, refine)
+
+
+def _refined_from(est: Estimate, one: Estimate) -> Estimate:
+    """``refine=True`` from the converged head's ``est`` and the one pass ``one`` (imported on
+    first use, as :func:`_polished`)."""
+    from aeid_struct.identification.joint_refine import refine_joint
+    from aeid_struct.identification.physical_errors import parameters_of
+
+    return refine_joint(est, also=parameters_of(one))
 
 
 def _from_starts(est: Estimate, starts: int) -> Estimate:
