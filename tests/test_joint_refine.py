@@ -490,7 +490,6 @@ def test_a_map_that_is_not_square_is_refined_from_the_converged_ccf(cart_pole):
     from types import SimpleNamespace
 
     from aeid_struct.identification.head import starts_from_converged_head
-    from aeid_struct.identification.joint_refine import _lower_start
     from aeid_struct.identification.multistart import box_points
     from aeid_struct.refinement import fit_joint, fit_rows
 
@@ -524,12 +523,6 @@ def test_a_map_that_is_not_square_is_refined_from_the_converged_ccf(cart_pole):
                 out.append(np.abs(p / truth[i] - 1).max() <= 1e-5)
     # measured: 6 of 12 from the one pass's nearest parameters, 10 of 12 from the converged
     assert sum(converged) >= sum(direct) + 3
-    # refine=True starts from the lower-cost of the converged head and the one pass, per row
-    ys, us = [rec.y], [rec.u]
-    far = np.tile(starts[:1], (4, 1))
-    for first, second in ((far, truth), (truth, far)):
-        chosen = _lower_start(ph, first, second, ys, us, (0.05,), True)
-        np.testing.assert_array_equal(chosen, truth)
     two_mass = ae.Physical(mechanisms.two_mass(), bounds=COUPLED)
     assert not starts_from_converged_head(SimpleNamespace(structure=two_mass, initial="fitted"))
     assert not starts_from_converged_head(cart_pole[0])      # several records: the joint fit

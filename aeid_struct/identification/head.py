@@ -245,7 +245,7 @@ def starts_from_converged_head(ident) -> bool:
     one pass whose five iterations had not converged, the fit in the parameters of a lightly
     damped sixth-order chain stopped in another basin on 5 of 20 noise-free records (costs
     1e-7 .. 2 against 1e-24), and from the converged CCF's nearest parameters on none of them
-    (``tests/test_joint_refine.py`` keeps such a record).
+    (``tests/test_joint_refine.py`` compares the two starts).
 
     Parameters
     ----------

@@ -297,12 +297,10 @@ def _identified(ident: Identifier, record, start: float, errors: str, refine,
         return one_pass.refine_with_head(ident, record, start, errors, head.converged(),
                                          provenance)
     if refine is True and head is not None and starts_from_converged_head(ident):
-        # the fit in the parameters from the converged head or the one pass, whichever costs
-        # less (head.starts_from_converged_head says why)
-        one = one_pass.identify_record(ident, record, start, errors, provenance=provenance)
+        # the fit in the parameters from the converged head (head.starts_from_converged_head)
         est = one_pass.identify_record(ident, record, start, errors, head.converged(),
                                        provenance)
-        return _refined_from(est, one)
+        return _polished(est, True)
     est = one_pass.identify_record(ident, record, start, errors, provenance=provenance)
     return _polished(est, refine) if refine else est
 
@@ -313,15 +311,6 @@ def _polished(est: Estimate, refine) -> Estimate:
     from aeid_struct.identification.polish import polish
 
     return polish(est, refine)
-
-
-def _refined_from(est: Estimate, one: Estimate) -> Estimate:
-    """``refine=True`` from the converged head's ``est`` and the one pass ``one`` (imported on
-    first use, as :func:`_polished`)."""
-    from aeid_struct.identification.joint_refine import refine_joint
-    from aeid_struct.identification.physical_errors import parameters_of
-
-    return refine_joint(est, also=parameters_of(one))
 
 
 def _from_starts(est: Estimate, starts: int) -> Estimate:

@@ -26,22 +26,6 @@ from aeid_struct.identification.physical_head import physical_head
 __all__ = ["is_joint", "refine_joint"]
 
 
-def _lower_start(ph, first: np.ndarray, second: np.ndarray, ys: list, us: list, dts: tuple,
-                 initial: bool) -> np.ndarray:
-    """Per row the start of lower cost of ``first`` and ``second`` (both ``(B, q)``; a row of
-    ``second`` that is not finite is not taken), each cost one evaluation of the residual."""
-    from aeid_struct.refinement import fit_joint
-
-    take = np.isfinite(second).all(axis=1)
-    if not take.any():
-        return first
-    costs = [fit_joint(ph.at, points, [y[take] for y in ys], [u[take] for u in us], dts,
-                       lower=ph.lo, upper=ph.hi, initial=initial, groups=ph.groups,
-                       max_iter=0).cost for points in (first[take], second[take])]
-    take[take] = costs[1] < costs[0]
-    return np.where(take[:, None], second, first)
-
-
 def is_joint(est) -> bool:
     """Whether ``est`` is in a physical structure (refined here, whatever its records).
 
@@ -58,7 +42,7 @@ def is_joint(est) -> bool:
     return type_of(est.structure) == "Physical"
 
 
-def refine_joint(est: Estimate, rows=None, also: np.ndarray | None = None) -> Estimate:
+def refine_joint(est: Estimate, rows=None) -> Estimate:
     """The estimate's parameters polished to the output-error optimum over all its records,
     within the bounds; records set aside (``errors="collect"``) or without finite parameters
     are kept as they are.
@@ -70,9 +54,6 @@ def refine_joint(est: Estimate, rows=None, also: np.ndarray | None = None) -> Es
     rows : (batch,) bool array, optional
         The records to refine (``refine="auto"``: the flagged ones); the others are kept as
         they are (``info["refined_rows"]``). Default: all.
-    also : (batch, q) array, optional
-        A second start per record (the one pass's parameters where ``est`` is the converged
-        head's: ``Identifier.identify``): the fit starts from whichever costs less.
 
     Returns
     -------
@@ -102,11 +83,7 @@ def refine_joint(est: Estimate, rows=None, also: np.ndarray | None = None) -> Es
     ys = [y[rows] for y in record.y]
     us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
     initial = est.initial == "fitted"
-    start = P[rows]
-    if also is not None:
-        start = _lower_start(ph, start, np.asarray(also, dtype=np.float64)[rows], ys, us,
-                             record.dt, initial)
-    fit = fit_joint(ph.at, start, ys, us, record.dt, lower=ph.lo, upper=ph.hi,
+    fit = fit_joint(ph.at, P[rows], ys, us, record.dt, lower=ph.lo, upper=ph.hi,
                     initial=initial, groups=ph.groups)
     one = structure.records == 1          # the system's arrays have no record axis then
     A, b, c, d = (np.array(np.atleast_1d(v) if est.batched else np.asarray(v)[None],
