@@ -495,6 +495,35 @@ def test_a_head_given_to_train_is_calibrated_with():
         train(structure, family, config, head=5)
 
 
+def test_calibration_identifies_at_most_its_share_of_the_held_out_records(monkeypatch):
+    # the held-out records beyond CALIBRATION_RECORDS are a fixed random subset: the same on
+    # a second call, the whole held-out where it is smaller
+    from aeid_struct.training import calibration
+    from aeid_struct.training.datasets import records
+
+    ident = train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL)
+    rec = records(FAMILY, 60, steps=40, dt=0.05, excitation_kind="step", seed=3)
+    held = np.arange(10, 50)
+    seen = []
+    real = ident.identify
+
+    def spy(y, u=None, **kwargs):
+        seen.append(np.array(y))
+        return real(y, u, **kwargs)
+
+    monkeypatch.setattr(ident, "identify", spy)
+    whole = calibration.training_range(ident, rec, held, 0.0, 5)
+    assert seen[-1].shape[0] == 40
+    monkeypatch.setattr(calibration, "CALIBRATION_RECORDS", 7)
+    first = calibration.training_range(ident, rec, held, 0.0, 5)
+    assert seen[-1].shape[0] == 7
+    assert calibration.training_range(ident, rec, held, 0.0, 5) == first
+    np.testing.assert_array_equal(seen[-1], seen[-2])
+    picked = [int(np.flatnonzero((rec.y_clean == row).all(axis=1))[0]) for row in seen[-1]]
+    assert set(picked) <= set(held.tolist()) and picked == sorted(picked)
+    assert first["elements"]["a0"][:2] == whole["elements"]["a0"][:2]   # the family's range
+
+
 def test_supervised_targets_rebuild_the_true_systems_and_the_term_is_a_mean_square():
     from aeid_struct.training import records
     from aeid_struct.training.objective import batch_loss as _batch_loss
