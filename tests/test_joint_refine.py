@@ -489,7 +489,7 @@ def test_a_map_that_is_not_square_is_refined_from_the_converged_ccf(cart_pole):
     # reaches the truth far more often; refine=True takes that path for such a map only
     from types import SimpleNamespace
 
-    from aeid_struct.identification.head import starts_from_converged_head
+    from aeid_struct.identification.head import refine_route
     from aeid_struct.identification.multistart import box_points
     from aeid_struct.refinement import fit_joint, fit_rows
 
@@ -524,6 +524,7 @@ def test_a_map_that_is_not_square_is_refined_from_the_converged_ccf(cart_pole):
     # measured: 6 of 12 from the one pass's nearest parameters, 10 of 12 from the converged
     assert sum(converged) >= sum(direct) + 3
     two_mass = ae.Physical(mechanisms.two_mass(), bounds=COUPLED)
-    assert not starts_from_converged_head(SimpleNamespace(structure=two_mass, initial="fitted"))
-    assert not starts_from_converged_head(cart_pole[0])      # several records: the joint fit
-    assert starts_from_converged_head(SimpleNamespace(structure=structure, initial="fitted"))
+    assert refine_route(SimpleNamespace(structure=two_mass, initial="fitted")) == "head"
+    assert refine_route(cart_pole[0]) == "one pass"          # several records: the joint fit
+    assert refine_route(SimpleNamespace(structure=structure, initial="fitted")) == \
+        "converged head"

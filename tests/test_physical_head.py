@@ -186,12 +186,12 @@ def test_a_map_of_more_coefficients_than_parameters_is_polished_by_the_nlp():
     # coefficients move with five parameters
     assert head.pattern.a[0] == 0.0 and head.pattern.c[3] == 0.0
     assert head.free.size == 6 and not head.square
-    # so refine=True polishes the head's estimate with the NLP instead of iterating the head
+    # so refine=True fits the parameters from the converged head instead of iterating the head
     from types import SimpleNamespace
 
-    from aeid_struct.identification.head import converges_to_optimum
+    from aeid_struct.identification.head import refine_route
 
-    assert not converges_to_optimum(SimpleNamespace(structure=structure, initial="rest"))
+    assert refine_route(SimpleNamespace(structure=structure, initial="rest")) == "converged head"
 
 
 def test_records_left_on_a_bound_are_polished_by_the_nlp(lever):

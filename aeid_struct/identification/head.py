@@ -21,8 +21,8 @@ from aeid_struct.records import RecordError
 from aeid_struct.refinement import MAX_ITERATIONS, Pattern, fit_rows
 from aeid_struct.structures import type_of
 
-__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "converges_to_optimum",
-           "head_failure", "pattern_of", "starts_from_converged_head"]
+__all__ = ["Head", "HeadSlot", "apply_head", "checked_head", "head_failure", "pattern_of",
+           "refine_route"]
 
 @dataclass(frozen=True)
 class Head:
@@ -210,11 +210,26 @@ def _pattern(ident, head: Head) -> Pattern:
     return hit[1]
 
 
-def converges_to_optimum(ident) -> bool:
-    """Whether the head iterated to convergence is the least-squares optimum in the
-    identifier's structure: always for a CCF; for a physical structure where its free CCF
-    coefficients are as many as its parameters (``physical_head``'s square map), not where
-    several parameters shape more coefficients (then ``refine=True`` polishes with the NLP).
+def refine_route(ident) -> str:
+    """How ``refine=True`` reaches the least-squares optimum of an identifier with a head.
+
+    - ``"head"``: the head iterated to convergence is the optimum in the identifier's
+      structure: always for a CCF; for a physical structure of one record whose free CCF
+      coefficients are as many as its parameters (``physical_head``'s square map).
+    - ``"converged head"``: the output-error fit in the parameters
+      (``joint_refine.refine_joint``) from the head iterated to convergence, for a physical
+      structure of one record whose map is not square (more free coefficients than
+      parameters: a quarter car, a chain of three masses), where the head's result is the
+      parameters nearest the fitted CCF. Why not from the one pass: the separable fit of the
+      CCF (the poles iterated, the numerator projected out) reaches the channel's optimum from
+      much farther than the fit in the parameters does; started from a one pass whose five
+      iterations had not converged, the fit in the parameters of a lightly damped sixth-order
+      chain stopped in another basin on 5 of 20 noise-free records (costs 1e-7 .. 2 against
+      1e-24), and from the converged CCF's nearest parameters on none of them
+      (``tests/test_joint_refine.py`` compares the two starts).
+    - ``"one pass"``: the same fit from the one pass, for several records sharing the
+      parameters (their optimum is the joint fit, not the parameters nearest each record's
+      own; the one pass already ran that fit's first iterations).
 
     Parameters
     ----------
@@ -222,44 +237,16 @@ def converges_to_optimum(ident) -> bool:
 
     Returns
     -------
-    bool
+    str
     """
     if type_of(ident.structure) != "Physical":
-        return True
+        return "head"
+    if ident.structure.records != 1:
+        return "one pass"
     from aeid_struct.identification.physical_head import physical_head
 
-    # several records share the parameters: the optimum is their joint fit, not the nearest
-    # parameters of each record's own optimum
-    return ident.structure.records == 1 and physical_head(
-        ident.structure, ident.initial == "fitted").square
-
-
-def starts_from_converged_head(ident) -> bool:
-    """Whether ``refine=True`` starts the output-error fit in the parameters from the head
-    iterated to convergence rather than from the one pass: a physical structure of one record
-    whose map is not square (more free CCF coefficients than parameters: a quarter car, a chain
-    of three masses), where the head's result is the parameters nearest the fitted CCF.
-
-    Why: the separable fit of the CCF (the poles iterated, the numerator projected out) reaches
-    the channel's optimum from much farther than the fit in the parameters does; started from a
-    one pass whose five iterations had not converged, the fit in the parameters of a lightly
-    damped sixth-order chain stopped in another basin on 5 of 20 noise-free records (costs
-    1e-7 .. 2 against 1e-24), and from the converged CCF's nearest parameters on none of them
-    (``tests/test_joint_refine.py`` compares the two starts).
-
-    Parameters
-    ----------
-    ident : Identifier
-
-    Returns
-    -------
-    bool
-    """
-    if type_of(ident.structure) != "Physical" or ident.structure.records != 1:
-        return False
-    from aeid_struct.identification.physical_head import physical_head
-
-    return not physical_head(ident.structure, ident.initial == "fitted").square
+    square = physical_head(ident.structure, ident.initial == "fitted").square
+    return "head" if square else "converged head"
 
 
 def head_failure(record: int, head: Head) -> RecordError:

@@ -31,12 +31,7 @@ from aeid_struct.identification.checks import (
     set_format,
     thetas,
 )
-from aeid_struct.identification.head import (
-    Head,
-    HeadSlot,
-    converges_to_optimum,
-    starts_from_converged_head,
-)
+from aeid_struct.identification.head import Head, HeadSlot, refine_route
 from aeid_struct.identification.identifier_files import IdentifierFiles
 from aeid_struct.records import arrays_of, check_record
 
@@ -262,7 +257,7 @@ class Identifier(IdentifierFiles):
             (``info["refined_rows"]``). With a ``head``, True iterates it to convergence
             (``info["refine"]``: ``"separable"``; ``identification.polish`` says when not);
             a physical structure of one record whose map is not square then fits its
-            parameters from there (``head.starts_from_converged_head``).
+            parameters from there (``head.refine_route``).
         errors : {"raise", "collect"}
             A record that cannot be identified (non-finite samples, an all-zero ``y`` or ``u``,
             a varying ``u`` for an identifier that does not read it, ``max|y| / max|u|`` beyond
@@ -293,11 +288,11 @@ def _identified(ident: Identifier, record, start: float, errors: str, refine,
                 provenance) -> Estimate:
     """``Identifier.identify`` after its checks: the one pass, and the refinement asked for."""
     head = ident.head
-    if refine is True and head is not None and converges_to_optimum(ident):
+    route = refine_route(ident) if refine is True and head is not None else "one pass"
+    if route == "head":
         return one_pass.refine_with_head(ident, record, start, errors, head.converged(),
                                          provenance)
-    if refine is True and head is not None and starts_from_converged_head(ident):
-        # the fit in the parameters from the converged head (head.starts_from_converged_head)
+    if route == "converged head":
         est = one_pass.identify_record(ident, record, start, errors, head.converged(),
                                        provenance)
         return _polished(est, True)
