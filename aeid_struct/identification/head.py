@@ -222,11 +222,10 @@ def refine_route(ident) -> str:
       parameters: a quarter car, a chain of three masses), where the head's result is the
       parameters nearest the fitted CCF. Why not from the one pass: the separable fit of the
       CCF (the poles iterated, the numerator projected out) reaches the channel's optimum from
-      much farther than the fit in the parameters does; started from a one pass whose five
-      iterations had not converged, the fit in the parameters of a lightly damped sixth-order
-      chain stopped in another basin on 5 of 20 noise-free records (costs 1e-7 .. 2 against
-      1e-24), and from the converged CCF's nearest parameters on none of them
-      (``tests/test_joint_refine.py`` compares the two starts).
+      much farther than the fit in the parameters does: started from a one pass whose few
+      iterations had not converged, the fit in the parameters of a lightly damped
+      sixth-order chain stops in other basins where from the converged CCF's nearest
+      parameters it does not (``tests/test_joint_refine.py`` compares the two starts).
     - ``"one pass"``: the same fit from the one pass, for several records sharing the
       parameters (their optimum is the joint fit, not the parameters nearest each record's
       own; the one pass already ran that fit's first iterations).

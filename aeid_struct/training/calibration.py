@@ -12,9 +12,9 @@ from aeid_struct.training.objective import true_elements
 
 #: Held-out records the calibration identifies at most (a fixed random subset of them).
 #: Why: each is identified with the identifier's head, which for a physical structure of
-#: several channels is tens of milliseconds a record (4,000 held-out records of a double
-#: pendulum took about 140 s after a 200 s training); 1,000 leave 15 records in the 1.5 %
-#: tail the flag thresholds are quantiles of.
+#: several channels costs tens of milliseconds a record, so the whole held-out share of a
+#: large run took minutes after its training budget; 1,000 leave 15 records in the 1.5 % tail
+#: the flag thresholds are quantiles of.
 CALIBRATION_RECORDS = 1000
 
 
