@@ -381,3 +381,23 @@ def test_a_shared_discretisation_is_reused_only_for_equal_systems(coupled):
     assert len(cache) == 2
     for got, m in zip(shared, (first[0], first[2], other[0]), strict=True):
         np.testing.assert_array_equal(got, summed_response([m], [u], u, DT, True)[0])
+
+
+def test_each_output_is_measured_once_and_no_draw_is_thrown_away():
+    """``training.datasets.one_per_output``: ``measure`` runs for each output's first record
+    only, in record order, and the output's other records share its result; without groups
+    every record is measured in turn (the draws of measuring each)."""
+    from aeid_struct.training.datasets import one_per_output
+
+    calls = []
+
+    def measure(r):
+        calls.append(r)
+        return np.full(3, float(r))
+
+    out = one_per_output(measure, 4, (0, 0, 1, 1))
+    assert calls == [0, 2]
+    assert [v[0] for v in out] == [0.0, 0.0, 2.0, 2.0] and out[0] is out[1]
+    calls.clear()
+    out = one_per_output(measure, 3, None)
+    assert calls == [0, 1, 2] and [v[0] for v in out] == [0.0, 1.0, 2.0]

@@ -102,6 +102,13 @@ def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
     A, b, _ = ccf_matrices(a, None)
     R = len(patterns)
     kernels = {}
+
+    def kernel(dt: float, steps: int) -> Kernel:
+        # one per grid, shared by every input and the free response
+        if (dt, steps) not in kernels:
+            kernels[dt, steps] = Kernel(A, b, dt, steps)
+        return kernels[dt, steps]
+
     c_out, d_out = np.full((P, R, n), math.nan), np.full((P, R), math.nan)
     parts, states = [], {}
     with np.errstate(all="ignore"):
@@ -112,10 +119,8 @@ def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
             for r in group:
                 # the channels of one input share their states (one array in memory)
                 key = (us[r].ctypes.data, us[r].strides, us[r].size, dt)
-                if (dt, y.size) not in kernels:
-                    kernels[dt, y.size] = Kernel(A, b, dt, y.size)
                 if key not in states:
-                    states[key] = kernels[dt, y.size].forced(us[r])   # (P, steps, n)
+                    states[key] = kernel(dt, y.size).forced(us[r])    # (P, steps, n)
                 X = states[key]
                 pattern = patterns[r]
                 for j, value in enumerate(pattern.c):
@@ -130,9 +135,7 @@ def _solve(a, patterns, groups, ys, us, dts, initial, coefficients):
                 elif pattern.d != 0.0:
                     target -= pattern.d * us[r]
             if initial:
-                if (dt, y.size) not in kernels:
-                    kernels[dt, y.size] = Kernel(A, b, dt, y.size)
-                free = kernels[dt, y.size].free                      # e_1^T Phi^k
+                free = kernel(dt, y.size).free                       # e_1^T Phi^k
                 columns.extend(free[:, :, j] for j in range(n))
             M = np.stack(columns, axis=2)                              # (P, steps, k)
             bad = ~np.isfinite(M).all(axis=(1, 2))

@@ -99,9 +99,9 @@ def training_range(ident: Identifier, rec: Records, held: np.ndarray, noise: flo
                                                                 replace=False))
     several = ident.records > 1
     ys, us = (rec.y_clean, rec.u) if several else ((rec.y_clean,), (rec.u,))
-    y = tuple(one_per_output([v[held] + noise * np.abs(v[held]).max(axis=1, keepdims=True)
-                              * rng.normal(size=v[held].shape) for v in ys],
-                             getattr(ident.structure, "groups", None)))
+    y = tuple(one_per_output(
+        lambda r: ys[r][held] + noise * np.abs(ys[r][held]).max(axis=1, keepdims=True)
+        * rng.normal(size=ys[r][held].shape), len(ys), getattr(ident.structure, "groups", None)))
     u = tuple(v[held] for v in us)
     est = ident.identify(y, u) if several else ident.identify(y[0], u[0])
     out: dict[str, dict] = {"elements": {}, "physical": {}}

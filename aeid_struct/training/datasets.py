@@ -235,23 +235,31 @@ def excitations(family, grid, kind: str, count: int, warmup: int,
     return u
 
 
-def one_per_output(ys: list, groups: tuple | None) -> list:
-    """Records that are channels of one output hold one measurement of it: each record's
-    ``y`` replaced by its group's first (``Physical.groups``; ``ys`` itself where None), so
-    that noise drawn per record is drawn once per output.
+def one_per_output(measure, R: int, groups: tuple | None) -> list:
+    """Records that are channels of one output hold one measurement of it: ``measure(r)``
+    (the record ``r`` with its measurement noise) for the first record of each output, in
+    record order, shared by the output's other records (``Physical.groups``; every record its
+    own output where None). Noise is so drawn once per output, and no draw is thrown away:
+    where ``groups`` is None the draws are exactly those of measuring every record in turn.
 
     Parameters
     ----------
-    ys : list of R arrays or tensors
+    measure : callable
+        ``r -> array or tensor``.
+    R : int
+        Records.
     groups : tuple of R ints or None
 
     Returns
     -------
     list of R arrays or tensors
     """
-    if groups is None:
-        return ys
-    return [ys[groups.index(g)] for g in groups]
+    keys = range(R) if groups is None else groups
+    measured = {}
+    for r, g in enumerate(keys):
+        if g not in measured:
+            measured[g] = measure(r)
+    return [measured[g] for g in keys]
 
 
 def summed_outputs(family, ys: list) -> list:
@@ -347,9 +355,8 @@ def records(family, count: int, *, steps, dt, excitation_kind: str = "step",
             x0.append(states(s.A, s.b, u[r][:, : warmup + 1], dt_r)[:, warmup])
     clean = summed_outputs(family, clean)
     # the channels of one output (its inputs moving at once) are measured once
-    noisy = one_per_output([y + (level * np.max(np.abs(y), axis=1))[:, None]
-                            * rng.normal(size=y.shape) for y in clean],
-                           getattr(family, "shared_outputs", None))
+    noisy = one_per_output(lambda r: clean[r] + (level * np.max(np.abs(clean[r]), axis=1))[
+        :, None] * rng.normal(size=clean[r].shape), R, getattr(family, "shared_outputs", None))
     parts = [(u[r][:, warmup:], noisy[r], clean[r]) for r in range(R)]
     if R == 1:
         return Records(*parts[0], systems, grid[0][1], level, x0[0] if x0 else None)

@@ -289,8 +289,8 @@ def _epoch(run: _Run, start: float) -> tuple[float, float, list[float], int]:
                 group["lr"] = lr
             idx = perm[j * config.batch: (j + 1) * config.batch]
             mine = ctx.share(len(idx))
-            ys = one_per_output([add_noise(y[idx], data.scale[idx, r], lo, hi, generator)[mine]
-                                 for r, y in enumerate(data.y)], groups)
+            ys = one_per_output(lambda r, idx=idx, mine=mine: add_noise(
+                data.y[r][idx], data.scale[idx, r], lo, hi, generator)[mine], len(data.y), groups)
             y_, u_, yinf_, z_ = _on(ctx.device, data.batch(idx[mine], ys))
             loss = batch_loss(run.ident, y_, u_, yinf_, config.stationary_weight, z_,
                               config.supervised * max(0.0, 1.0 - progress))
@@ -349,10 +349,11 @@ def _holdout_loss(run: _Run) -> float:
             ys = [y[idx] for y in data.y]
             if hi > 0:
                 level = (lo + hi) / 2
-                ys = [y + (level * data.scale[idx, r])[:, None] * torch.randn(
-                    y.shape, generator=run.generators["held_generator"])
-                    for r, y in enumerate(ys)]
-                ys = one_per_output(ys, getattr(run.structure, "groups", None))
+                ys = one_per_output(
+                    lambda r, clean=ys, idx=idx, level=level: clean[r]
+                    + (level * data.scale[idx, r])[:, None] * torch.randn(
+                        clean[r].shape, generator=run.generators["held_generator"]),
+                    len(ys), getattr(run.structure, "groups", None))
             mine = ctx.share(len(idx))
             if mine.stop == mine.start:
                 continue
