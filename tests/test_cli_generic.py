@@ -287,6 +287,32 @@ def test_identify_a_closed_loop_record_says_so(tmp_path, capsys):
     assert json.loads(js.read_text())["feedback"]["detected"] is False
 
 
+def test_identify_says_which_modes_the_record_does_not_determine(tmp_path, capsys):
+    """Order 4 for bench-generic's record of order 3 under a smooth input (tests/
+    test_excitation.py): the printout names the mode (its frequency, from the model's own
+    eigenvalues) and ``--order auto``, the JSON carries it; the lab record's JSON has none."""
+    from aeid_struct.studies import generic_bench as gb
+
+    record = gb._case_records(4, 0.05, 400, 8, 20_261_123 + 4000 + 500 + 400)[7][0]
+    csv = _write_csv(tmp_path / "smooth.csv", "t,u,y",
+                     [record.dt * np.arange(record.steps), record.u, record.y])
+    js = tmp_path / "smooth.json"
+    with pytest.warns(ae.UnexcitedModeWarning):
+        assert main(["identify", csv, "--order", "4", "--json", str(js)]) == 0
+    printed = capsys.readouterr().out
+    assert "not determined by the record" in printed and "--order auto" in printed
+    out = json.loads(js.read_text())
+    assert len(out["unexcited"]) == 1
+    poles = np.linalg.eigvals(np.asarray(out["A"]))
+    assert np.min(np.abs(poles.imag - out["unexcited"][0]["frequency_rad_s"])) < 1e-9
+    assert out["unexcited"][0]["gain"] > 10
+    t, u, y = _record()
+    csv = _write_csv(tmp_path / "lab.csv", "t [s],u [V],y [K]", [t, u, y])
+    assert main(["identify", csv, "--order", "2", "--json", str(js)]) == 0
+    assert "not determined" not in capsys.readouterr().out
+    assert json.loads(js.read_text())["unexcited"] == []
+
+
 def _two_by_two(seed=0, steps=800, dt=0.05):
     """``(t, U (steps, 2), Y (steps, 2), A)`` of a 2x2 order-2 system with 1 % noise, the
     second input one sample late (scipy-expm FOH simulation through ``ae.simulate``)."""
@@ -317,6 +343,7 @@ def test_identify_a_record_of_two_inputs_and_two_outputs(tmp_path, capsys):
     assert result["delay_samples"] == [0, 1]
     np.testing.assert_allclose(result["offset"], [0.3, -1.0], atol=0.02)
     assert min(result["fit_percent"]) > 97.0
+    assert result["unexcited"] == []
     poles = np.sort_complex(np.linalg.eigvals(np.array(result["A"])))
     np.testing.assert_allclose(poles, np.sort_complex(np.linalg.eigvals(A)), rtol=0.02)
     direct = ae.identify(ae.Record(Y, U, 0.05), order=2)

@@ -70,3 +70,26 @@ def test_cli_plants_are_the_benchmarks():
     action = next(a for a in build_parser()._subparsers._group_actions[0].choices[
         "bench-generic"]._actions if a.dest == "plants")
     assert tuple(action.choices) == gb.PLANTS
+
+
+def test_the_table_counts_the_flagged_refined_models():
+    """The lines on modes the record does not determine: the refined models flagged
+    (``Row.unexcited``) and the others, each with the median of refined minus true and the
+    records more than a point below it, from rows built by hand."""
+    def rows(case, refined, true, flagged):
+        return [gb.Row(case, 4, 0.05, 400, "refined", refined, refined, 0.0, 0, "", "stable",
+                       flagged),
+                gb.Row(case, 4, 0.05, 400, "true", true, 100.0, 0.0, 0, "", "stable")]
+
+    table = (rows("4/0", -500.0, 90.0, 1) + rows("4/1", 93.0, 95.0, 2)
+             + rows("4/2", 95.0, 95.2, 0) + rows("4/3", 80.0, 95.0, 0)
+             + rows("4/4", 94.9, 95.0, 0))
+    by_case = {}
+    for r in table:
+        by_case.setdefault((r.plant, r.case, r.noise, r.steps), {})[r.method] = r.fit
+    lines = gb._unexcited_lines(table, by_case)
+    assert lines == [
+        "  refined, flagged for modes the record does not determine: 2 records, refined - true "
+        "median -296.00, more than 1 point below on 2",
+        "  refined, not flagged for modes the record does not determine: 3 records, refined - "
+        "true median -0.20, more than 1 point below on 1"]

@@ -55,11 +55,12 @@ def any_record():
 
 
 @pytest.mark.parametrize(("refine", "stages"), [
-    # the refined model's residuals are tested for feedback before the result
+    # the refined model's residuals are tested for feedback before the result; every model's
+    # lightly damped modes are checked against the record (multi.excitation)
     (True, ["generic.boundary", "generic.delay", "generic.windows", "generic.scoring",
-            "generic.polish", "generic.feedback", "generic.result"]),
+            "generic.polish", "generic.feedback", "multi.excitation", "generic.result"]),
     (False, ["generic.boundary", "generic.delay", "generic.windows", "generic.classical",
-             "generic.scoring", "generic.polish", "generic.result"]),
+             "generic.scoring", "generic.polish", "multi.excitation", "generic.result"]),
 ])
 def test_any_record_walks_check_start_fit_result_once(any_record, refine, stages):
     ae.identify(any_record, order=2, refine=refine)          # warm: loading is not the walk

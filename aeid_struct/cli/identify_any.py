@@ -21,6 +21,8 @@ from aeid_struct.cli.identify_channels import (
     print_channels,
     refinement_line,
     summary_channels,
+    unexcited_line,
+    unexcited_of,
 )
 from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import read_record
@@ -191,7 +193,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
         "x0": est.x0, "offset": est.offset, "fit_percent": float(est.fit),
         "refined": bool(est.refined), "refine": not args.no_refine,
         "seconds": float(est.seconds), "figure": figure,
-        "feedback": est.info.get("feedback"),
+        "feedback": est.info.get("feedback"), "unexcited": unexcited_of(est),
     }
 
 
@@ -218,6 +220,8 @@ def _print(s: dict, est) -> None:
         print(f"closed loop: the residuals are correlated with later inputs (z = "
               f"{found['statistic']:.1f} at lag {found['lag']} > {found['bound']:.2f})"
               + ("; identified without a feedthrough" if "refit" in found else ""))
+    if unexcited_line(s) is not None:
+        print(unexcited_line(s))
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: fit {s['figure']['fit_percent']:.2f} %)")

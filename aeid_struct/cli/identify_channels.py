@@ -10,7 +10,8 @@ import argparse
 
 import numpy as np
 
-__all__ = ["order_and_hold", "print_channels", "refinement_line", "summary_channels"]
+__all__ = ["order_and_hold", "print_channels", "refinement_line", "summary_channels",
+           "unexcited_line", "unexcited_of"]
 
 
 def order_and_hold(s: dict) -> tuple[str, str]:
@@ -45,6 +46,43 @@ def refinement_line(s: dict) -> str:
     return ("refined over the whole record (output error)" if s["refined"] else
             "not refined (--no-refine)" if not s["refine"] else
             "not refined: the refinement did not lower the residual")
+
+
+def unexcited_of(est) -> list[dict]:
+    """``info["unexcited"]`` of an estimate as the JSON carries it (the pole's frequency and
+    real part in rad/s instead of a complex number).
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    list of dict
+    """
+    return [{"frequency_rad_s": float(m["pole"].imag), "real_part": float(m["pole"].real),
+             "damping": m["damping"], "snr": m["snr"], "gain": m["gain"]}
+            for m in est.info.get("unexcited", [])]
+
+
+def unexcited_line(s: dict) -> str | None:
+    """The printout's line on modes the record does not determine (``unexcited`` of a
+    summary), or None where there are none.
+
+    Parameters
+    ----------
+    s : dict
+
+    Returns
+    -------
+    str or None
+    """
+    if not s["unexcited"]:
+        return None
+    return ("not determined by the record (the output holds only noise there; --order auto "
+            "chooses an order by validation): lightly damped modes at " + ", ".join(
+                f"{m['frequency_rad_s']:.4g} rad/s (damping {m['damping']:.3f}, gain "
+                f"{m['gain']:.3g} x the model's where the input is)" for m in s["unexcited"]))
 
 
 def summary_channels(est, record, args: argparse.Namespace, source: str, figure) -> dict:
@@ -82,7 +120,7 @@ def summary_channels(est, record, args: argparse.Namespace, source: str, figure)
         "x0": est.x0, "offset": np.atleast_1d(est.offset).tolist(),
         "fit_percent": fit.tolist(), "fit_overall_percent": float(np.mean(fit)),
         "refined": bool(est.refined), "refine": not args.no_refine,
-        "seconds": float(est.seconds), "figure": figure,
+        "seconds": float(est.seconds), "figure": figure, "unexcited": unexcited_of(est),
     }
 
 
@@ -112,6 +150,8 @@ def print_channels(s: dict, est) -> None:
           + f"; mean {s['fit_overall_percent']:.2f} % (NRMSE, initial state and offsets "
           f"fitted)")
     print(refinement_line(s))
+    if unexcited_line(s) is not None:
+        print(unexcited_line(s))
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: mean fit "

@@ -37,6 +37,7 @@ from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.generic.one_call import identify as identify
 from aeid_struct.generic.one_call import measured as measured
 from aeid_struct.generic.pipeline import StableOnlyWarning as StableOnlyWarning
+from aeid_struct.generic.pipeline import UnexcitedModeWarning as UnexcitedModeWarning
 from aeid_struct.generic.poles import denominator as denominator
 from aeid_struct.generic.poles import factors as factors
 from aeid_struct.generic.poles import poles_of as poles_of
@@ -62,6 +63,7 @@ __all__ = [
     "ORDERS",
     "ORDER_TOLERANCE",
     "StableOnlyWarning",
+    "UnexcitedModeWarning",
     "Windows",
     "arx",
     "arx_delay",

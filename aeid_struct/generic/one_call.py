@@ -30,12 +30,13 @@ from aeid_struct.generic.pipeline import (
     METHODS,
     ORDER_TOLERANCE,
     run,
+    warn_unexcited,
 )
 from aeid_struct.generic.pipeline import measured as measured
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
 from aeid_struct.multi import identify as identify_multi
-from aeid_struct.multi import several
+from aeid_struct.multi import several, unexcited_modes
 from aeid_struct.records import Record as measured_record
 from aeid_struct.threads import one_thread
 
@@ -169,12 +170,13 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
     kw = {"refine": refine, "delay": delay, "max_delay": max_delay, "iterations": iterations,
           "classical": classical, "proposals": proposals, "orders": range(1, MAX_ORDER + 1)}
     est = identify_multi(record, order, **kw)
-    if not refine:      # as for one channel: the one pass's residual carries model error
-        return est
     records = est.record
-    found = feedback_channels([y[0].reshape(y.shape[1], -1) for y in records.y],
-                              _per_record(est.info["y_hat"], records.records),
-                              [u[0].reshape(u.shape[1], -1) for u in records.u])
+    outputs = [y[0].reshape(y.shape[1], -1) for y in records.y]
+    inputs = [u[0].reshape(u.shape[1], -1) for u in records.u]
+    found = None
+    if refine:      # as for one channel: the one pass's residual carries model error
+        found = feedback_channels(outputs, _per_record(est.info["y_hat"], records.records),
+                                  inputs)
     if found is not None and found["detected"]:
         # a free D takes up the noise a controller acting on the samples it measures feeds
         # back through u_k, as d does for one channel (generic.pipeline): the order found
@@ -184,8 +186,16 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
         est.info["order_fits"] = order_fits
         found = found | {"refit": "no feedthrough"}
         warn_feedback(found, True)
-    return dataclasses.replace(est, seconds=time.perf_counter() - began,
-                               info={**est.info, "feedback": found})
+    fitted = _per_record(est.info["y_hat"], records.records)
+    residual = sum(float(np.nansum((y - y_hat) ** 2))
+                   for y, y_hat in zip(outputs, fitted, strict=True))
+    B, C, D = (np.reshape(v, s) for v, s in ((est.b, (est.A.shape[0], -1)),
+                                             (est.c, (-1, est.A.shape[0])),
+                                             (est.d, (len(outputs[0][0]), -1))))
+    unexcited = unexcited_modes(est.A, B, C, D, outputs, inputs, residual, records.dt[0])
+    warn_unexcited(unexcited)
+    info = {**est.info, "unexcited": unexcited} | ({"feedback": found} if refine else {})
+    return dataclasses.replace(est, seconds=time.perf_counter() - began, info=info)
 
 
 def _per_record(y_hat, count: int) -> list:

@@ -26,7 +26,13 @@ identified in normalised time (dt = 1, time in samples) and de-normalised at the
    CasADi (``refinement.refine_record``) with delays ``D - 1, D, D + 1``;
 6. for a refined model, the closed-loop test of its residuals (``generic.feedback``): where it
    finds the input correlated with earlier residuals, a warning, and the default structure
-   identified again without its feedthrough ``d`` (steps 2-5 once more).
+   identified again without its feedthrough ``d`` (steps 2-5 once more);
+7. for every model, refined or not, the lightly damped pairs the record does not determine
+   (``multi.excitation``: the measured output holds only noise near their frequency, and
+   their resonance is far above the model's gain where the input is): ``info["unexcited"]``
+   and an :class:`UnexcitedModeWarning`. The model is returned as fitted (it is the
+   least-squares optimum of its order); what to do is the user's choice (a lower order, or
+   an input that reaches those frequencies).
 
 *The one pass* (``refine=False``): steps 2-4 with classical candidates beside the encoder's,
 the Steiglitz-McBride estimate at the ARX delay after five refits and at its fixed point
@@ -91,13 +97,20 @@ from aeid_struct.generic.result import estimate_of, restore
 from aeid_struct.generic.scoring import select
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
-from aeid_struct.multi import ESTIMATION_SHARE, EXACT, MAX_DELAY, ORDER_TOLERANCE, order_search_done
+from aeid_struct.multi import (
+    ESTIMATION_SHARE,
+    EXACT,
+    MAX_DELAY,
+    ORDER_TOLERANCE,
+    order_search_done,
+    unexcited_modes,
+)
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE",
-           "StableOnlyWarning", "run"]
+           "StableOnlyWarning", "UnexcitedModeWarning", "run", "warn_unexcited"]
 
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
 SHORTLIST = 2
@@ -251,7 +264,8 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
         found = found | {"refit": "no feedthrough"}
     if found is not None and found["detected"]:
         warn_feedback(found, strict)
-    info |= {"order_fits": order_fits, "feedback": found}
+    info |= {"order_fits": order_fits, "feedback": found,
+             "unexcited": _unexcited(model, call.work)}
     est = estimate_of(model, chosen, call.work, time.perf_counter() - start, refined, info)
     return restore(call.units, est, call.data)
 
@@ -277,6 +291,46 @@ def _fit(call, order: int, structure, refine: bool, method: str, iterations: int
     info |= about
     info |= _stable_only(info.pop("unstable", None), model, work.dt)
     return model, structure, refined, info
+
+
+def _unexcited(model: Model, work: Record) -> list[dict]:
+    """Step 7 of the module docstring: the lightly damped pairs of the model (normalised
+    time) that the record does not determine (``multi.excitation``), their poles in the
+    record's time unit, and the :class:`UnexcitedModeWarning` where there are any."""
+    D, N = model.delay, work.steps
+    used = np.isfinite(model.y_hat)
+    residual = float(np.sum((work.y[used] - model.y_hat[used]) ** 2))
+    found = unexcited_modes(model.A, model.b[:, None], model.c[None], np.array([[model.d]]),
+                            [work.y[D:]], [work.u[: N - D]], residual, 1.0)
+    found = [m | {"pole": m["pole"] / work.dt} for m in found]
+    warn_unexcited(found)
+    return found
+
+
+class UnexcitedModeWarning(UserWarning):
+    """The model has a lightly damped mode that its record does not determine: the measured
+    output holds only noise near its frequency, and its gain there, far above the model's gain
+    where the input is, is a guess (``multi.excitation``)."""
+
+
+def warn_unexcited(found: list[dict]) -> None:
+    """The :class:`UnexcitedModeWarning` of ``multi.excitation.unexcited_modes``' pairs (poles
+    in the record's time unit), attributed to the caller; nothing where there are none.
+
+    Parameters
+    ----------
+    found : list of dict
+    """
+    if not found:
+        return
+    modes = ", ".join(f"{m['pole'].imag:.4g} rad per time unit (damping {m['damping']:.3f}, "
+                      f"gain {m['gain']:.3g} times the model's where the input is)"
+                      for m in found)
+    warn_caller(f"the model has lightly damped modes the record does not determine: {modes}; "
+                f"the measured output holds only noise near them, so the model's response to "
+                f"an input that reaches them is a guess (info['unexcited']). Identify with a "
+                f"lower order (order=None selects one by validation) or from an input that "
+                f"excites those frequencies", UnexcitedModeWarning)
 
 
 class StableOnlyWarning(UserWarning):

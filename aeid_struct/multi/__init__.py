@@ -13,6 +13,7 @@ steps, order selection, the Estimate), ``comparison`` (a model's fit per output)
 
 
 from aeid_struct.multi.comparison import compare_channels as compare_channels
+from aeid_struct.multi.excitation import unexcited_modes as unexcited_modes
 from aeid_struct.multi.experiments import Experiments as Experiments
 from aeid_struct.multi.experiments import experiments_of as experiments_of
 from aeid_struct.multi.experiments import several as several
@@ -36,4 +37,4 @@ __all__ = ["ESTIMATION_SHARE", "EXACT", "Experiments", "Layout", "MAX_DELAY", "O
            "PATIENCE",
            "compare_channels", "continuous_poles", "experiments_of", "fit_from_poles",
            "identify", "observer_form", "order_search_done", "packed", "parameters", "project",
-           "reflected", "several"]
+           "reflected", "several", "unexcited_modes"]
