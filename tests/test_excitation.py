@@ -119,8 +119,9 @@ def test_identify_flags_an_order_the_record_cannot_fill():
 
 
 def test_several_channels_carry_the_check():
-    """A record of two inputs and two outputs: the one pass and the refined model carry
-    ``info["unexcited"]`` (nothing to flag on a PRBS record of a well-damped plant)."""
+    """A record of two inputs and two outputs, and two experiments of one of its channels: the
+    one pass and the refined model carry ``info["unexcited"]`` (nothing to flag on a PRBS
+    record of a well-damped plant)."""
     rng = np.random.default_rng(3)
     steps = 600
     plant = control.ss([[-1.0, 0.5], [0.0, -2.0]], [[1.0, 0.0], [0.3, 1.0]],
@@ -128,11 +129,15 @@ def test_several_channels_carry_the_check():
     U = np.repeat(rng.choice([-1.0, 1.0], (steps // 10, 2)), 10, axis=0)
     Y = control.forced_response(plant, np.arange(steps) * DT, U.T).outputs.T
     Y = Y + 0.01 * rng.standard_normal(Y.shape)
+    half = steps // 2
+    experiments = [ae.Record(Y[:half, 0], U[:half, 0], DT), ae.Record(Y[half:, 0], U[half:, 0], DT)]
     with warnings.catch_warnings():
         warnings.simplefilter("error", ae.UnexcitedModeWarning)
         for refine in (False, True):
             est = ae.identify(ae.Record(Y, U, DT), order=2, refine=refine)
             assert est.info["unexcited"] == []
+            # several experiments of one channel: the same check, on both records
+            assert ae.identify(experiments, order=2, refine=refine).info["unexcited"] == []
 
 
 def test_several_channels_flag_a_pair_no_input_reaches():

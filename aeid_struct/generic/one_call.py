@@ -189,9 +189,8 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
     fitted = _per_record(est.info["y_hat"], records.records)
     residual = sum(float(np.nansum((y - y_hat) ** 2))
                    for y, y_hat in zip(outputs, fitted, strict=True))
-    B, C, D = (np.reshape(v, s) for v, s in ((est.b, (est.A.shape[0], -1)),
-                                             (est.c, (-1, est.A.shape[0])),
-                                             (est.d, (len(outputs[0][0]), -1))))
+    n, p = est.A.shape[0], outputs[0].shape[1]      # one channel of several experiments too
+    B, C, D = np.reshape(est.b, (n, -1)), np.reshape(est.c, (p, n)), np.reshape(est.d, (p, -1))
     unexcited = unexcited_modes(est.A, B, C, D, outputs, inputs, residual, records.dt[0])
     warn_unexcited(unexcited)
     info = {**est.info, "unexcited": unexcited} | ({"feedback": found} if refine else {})
