@@ -114,6 +114,10 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         warns (:class:`~aeid_struct.generic.feedback.FeedbackWarning`) and, for the default
         structure, identifies the record again without a feedthrough (``feedback["refit"]``;
         a free ``d`` or ``D`` takes up the noise a controller feeds back in the same sample).
+        ``unexcited``: every estimate's lightly damped pairs that the record does not
+        determine (``multi.excitation.unexcited_modes``: ``pole`` in the record's time unit,
+        ``damping``, ``snr``, ``gain``; empty where there are none); where there are any it
+        warns (:class:`~aeid_struct.generic.pipeline.UnexcitedModeWarning`).
 
     Raises
     ------
