@@ -34,6 +34,13 @@ def _generic(data: list) -> str:
     return "```text\n" + format_tables([Row(**row) for row in data]).rstrip() + "\n```"
 
 
+def _channels(data: dict) -> str:
+    from aeid_struct.studies.channels_bench import ChannelRow, format_channels
+
+    return "```text\n" + format_channels([ChannelRow(**row) for row in data["rows"]]).rstrip() \
+        + "\n```"
+
+
 def _online(data: dict) -> str:
     from aeid_struct.studies.bench_online import format_tables
 
@@ -53,7 +60,8 @@ def _mechanism(data: list) -> str:
 
 
 #: result name -> the formatter of its JSON
-RENDER = {"leg": _leg, "bench-generic": _generic, "bench-online": _online, "onepass": _onepass,
+RENDER = {"leg": _leg, "bench-generic": _generic, "bench-generic-wide": _generic,
+          "bench-channels": _channels, "bench-online": _online, "onepass": _onepass,
           "bench-mechanism": _mechanism}
 
 
