@@ -193,11 +193,10 @@ def test_order_none_passes_over_orders_the_record_cannot_fill():
     assert _chosen_order({}, criterion, set()) == 3
     assert _chosen_order({}, criterion, {3}) == 2
     assert _chosen_order({}, criterion, {1, 2, 3}) == 3
-    fits = {1: 80.0, 2: 95.0, 3: 96.0, 4: 96.2}
-    assert _chosen_order(fits, None, set()) == 3            # within ORDER_TOLERANCE of 96.2
+    fits = {1: 80.0, 2: 95.0, 3: 96.2 - ORDER_TOLERANCE / 2, 4: 96.2}
+    assert _chosen_order(fits, None, set()) == 3            # within ORDER_TOLERANCE of order 4
     assert _chosen_order(fits, None, {3, 4}) == 2
     assert _chosen_order(fits, None, {4}) == 3
-    assert ORDER_TOLERANCE == 0.5
 
 
 def test_order_none_on_a_short_record_keeps_to_the_orders_it_determines():

@@ -297,14 +297,14 @@ def _fit(call, order: int, structure, refine: bool, method: str, iterations: int
 
 def _chosen_order(fits: dict, criterion: dict | None, flagged: set) -> int:
     """The order rule of the module docstring among the orders whose model the record
-    determines (all of them where none is): an order with a mode the record does not
-    determine is one the record cannot fill, whatever its fit."""
+    determines (among all of them where every one is flagged): an order with a mode the record
+    does not determine is one the record cannot fill, whatever its fit."""
     def kept(values: dict) -> dict:
         clear = {n: v for n, v in values.items() if np.isfinite(v) and n not in flagged}
         return clear or {n: v for n, v in values.items() if np.isfinite(v)}
 
-    if criterion is not None and kept(criterion):
-        finite = kept(criterion)
+    finite = kept(criterion or {})
+    if criterion is not None and finite:
         return min(finite, key=finite.get)
     finite = kept(fits)
     best = max(finite.values())
