@@ -105,6 +105,7 @@ from aeid_struct.multi import (
     EXACT,
     MAX_DELAY,
     ORDER_TOLERANCE,
+    chosen_order,
     order_search_done,
     unexcited_modes,
 )
@@ -251,7 +252,7 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
         order_fits, criterion, flagged = _select_order(call.identifiers, call.work,
                                                        call.max_delay, call.feedthrough,
                                                        *fitting)
-        order = _chosen_order(order_fits, criterion, flagged)
+        order = chosen_order(order_fits, criterion, flagged)
     model, chosen, refined, info = _fit(call, order, structure, *fitting)
     # refined models only: the one pass's residual carries model error that the test reads as
     # feedback (measured: 2 false alarms in 59 open-loop records at 0-2 % noise, none refined)
@@ -293,22 +294,6 @@ def _fit(call, order: int, structure, refine: bool, method: str, iterations: int
     info |= about
     info |= _stable_only(info.pop("unstable", None), model, work.dt)
     return model, structure, refined, info
-
-
-def _chosen_order(fits: dict, criterion: dict | None, flagged: set) -> int:
-    """The order rule of the module docstring among the orders whose model the record
-    determines (among all of them where every one is flagged): an order with a mode the record
-    does not determine is one the record cannot fill, whatever its fit."""
-    def kept(values: dict) -> dict:
-        clear = {n: v for n, v in values.items() if np.isfinite(v) and n not in flagged}
-        return clear or {n: v for n, v in values.items() if np.isfinite(v)}
-
-    finite = kept(criterion or {})
-    if criterion is not None and finite:
-        return min(finite, key=finite.get)
-    finite = kept(fits)
-    best = max(finite.values())
-    return min(n for n, f in finite.items() if f >= best - ORDER_TOLERANCE)
 
 
 def _undetermined(model: Model, work: Record) -> list[dict]:

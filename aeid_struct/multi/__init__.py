@@ -22,6 +22,7 @@ from aeid_struct.multi.identify import EXACT as EXACT
 from aeid_struct.multi.identify import MAX_DELAY as MAX_DELAY
 from aeid_struct.multi.identify import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.multi.identify import PATIENCE as PATIENCE
+from aeid_struct.multi.identify import chosen_order as chosen_order
 from aeid_struct.multi.identify import fit_from_poles as fit_from_poles
 from aeid_struct.multi.identify import identify as identify
 from aeid_struct.multi.identify import order_search_done as order_search_done
@@ -34,7 +35,6 @@ from aeid_struct.multi.start import continuous_poles as continuous_poles
 from aeid_struct.multi.start import reflected as reflected
 
 __all__ = ["ESTIMATION_SHARE", "EXACT", "Experiments", "Layout", "MAX_DELAY", "ORDER_TOLERANCE",
-           "PATIENCE",
-           "compare_channels", "continuous_poles", "experiments_of", "fit_from_poles",
-           "identify", "observer_form", "order_search_done", "packed", "parameters", "project",
-           "reflected", "several", "unexcited_modes"]
+           "PATIENCE", "chosen_order", "compare_channels", "continuous_poles", "experiments_of",
+           "fit_from_poles", "identify", "observer_form", "order_search_done", "packed",
+           "parameters", "project", "reflected", "several", "unexcited_modes"]

@@ -22,7 +22,9 @@ on the rest (initial state and offsets fitted), until :data:`PATIENCE` orders in
 on none before them (:func:`order_search_done`); the smallest order within ``ORDER_TOLERANCE``
 points of the best mean validation fit (over outputs and records). Where the first part holds
 no variation of an input or the rest none of an output, the order of least Bayesian
-information criterion of the whole records' fits, searched the same way.
+information criterion of the whole records' fits, searched the same way. Either rule runs among
+the orders whose fit has no lightly damped mode its records do not determine
+(``multi.excitation``; :func:`chosen_order`).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import time
 import numpy as np
 
 from aeid_struct.identification import Estimate, Provenance
+from aeid_struct.multi.excitation import unexcited_modes
 from aeid_struct.multi.experiments import Experiments, experiments_of
 from aeid_struct.multi.fit import Fitted, iterate, physical, rescan
 from aeid_struct.multi.realisation import project
@@ -40,8 +43,8 @@ from aeid_struct.records import RecordBatch
 from aeid_struct.threads import one_thread
 
 __all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "PATIENCE",
-           "fit_from_poles", "identify", "order_search_done", "packed", "parameters",
-           "validation_fit"]
+           "chosen_order", "fit_from_poles", "identify", "order_search_done", "packed",
+           "parameters", "validation_fit"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``; the
 #: rule of one channel too: ``generic.pipeline`` reads it from here).
@@ -334,13 +337,15 @@ def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -
     estimation, validation = ex.cut(ESTIMATION_SHARE)
     holdout = (all(np.all(np.ptp(u, axis=0) > 0) for u in estimation.U)
                and all(np.all(np.ptp(y, axis=0) > 0) for y in validation.Y))
-    fits, criterion = {}, {}
+    fits, criterion, flagged = {}, {}, set()
     for n in wanted:
         part = estimation if holdout else ex
         room = _room(part, n)
         if room < 0:
             continue
         fitted, _ = _fit(part, n, top=min(largest, room), most=SELECTION_ITERATIONS, **kw)
+        if _undetermined(fitted, part):
+            flagged.add(n)
         if holdout:
             fits[n] = float(np.mean(validation_fit(fitted, validation, kw["feedthrough"])))
             if order_search_done(list(fits.values()), lower=False):
@@ -355,12 +360,52 @@ def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -
                         + n * (1 + ex.inputs + ex.outputs + ex.count) * np.log(used))
         if order_search_done(list(criterion.values()), lower=True):
             break
-    finite = {n: c for n, c in criterion.items() if np.isfinite(c)}
+    if not any(np.isfinite(v) for v in (*criterion.values(), *fits.values())):
+        return least, fits
+    return chosen_order(fits, criterion, flagged), fits
+
+
+def chosen_order(fits: dict, criterion: dict | None, flagged: set) -> int:
+    """``order=None``'s choice (the module docstring's rule; one channel's too): the order of
+    least ``criterion`` where there is one, else the smallest order within
+    :data:`ORDER_TOLERANCE` points of the best validation fit, among the orders not
+    ``flagged`` (among all of them where every one is): an order with a mode its record does
+    not determine is one the record cannot fill, whatever its fit.
+
+    Parameters
+    ----------
+    fits : dict order -> float
+        Validation fits (%); not finite: not a candidate.
+    criterion : dict order -> float or None
+        Bayesian information criteria where there is no hold-out (None or empty: ``fits``).
+    flagged : set of int
+
+    Returns
+    -------
+    int
+    """
+    def kept(values: dict) -> dict:
+        clear = {n: v for n, v in values.items() if np.isfinite(v) and n not in flagged}
+        return clear or {n: v for n, v in values.items() if np.isfinite(v)}
+
+    finite = kept(criterion or {})
     if finite:
-        return min(finite, key=finite.get), fits
-    best = max(fits.values(), default=None)
-    return (least if best is None else min(n for n, f in fits.items()
-                                           if f >= best - ORDER_TOLERANCE)), fits
+        return min(finite, key=finite.get)
+    finite = kept(fits)
+    best = max(finite.values())
+    return min(n for n, f in finite.items() if f >= best - ORDER_TOLERANCE)
+
+
+def _undetermined(fitted: Fitted, ex: Experiments) -> bool:
+    """Whether a fit has a lightly damped pair its records do not determine
+    (``multi.excitation``), judged in the user's units as ``ae.identify``'s flag is."""
+    model = physical(fitted, ex)
+    outputs = [Y * ex.y_scale + ex.y_mean for Y in ex.Y]
+    inputs = [U * ex.u_scale for U in ex.U]
+    residual = sum(float(np.nansum((y - y_hat) ** 2))
+                   for y, y_hat in zip(outputs, model["y_hat"], strict=True))
+    return bool(unexcited_modes(model["A"], model["B"], model["C"], model["D"], outputs, inputs,
+                                residual, ex.dt))
 
 
 def _check(order, orders, refine, iterations, classical, max_delay) -> None:
