@@ -102,6 +102,65 @@ def test_projection_recovers_B_D_x0_offsets_exactly(hold):
     np.testing.assert_array_equal(C2, C)
 
 
+@pytest.mark.parametrize("hold", ["foh", "zoh"])
+def test_outputs_with_given_linear_parameters_match_lsim(hold):
+    """``realisation.outputs`` (the Jacobian's simulations): two records, each its own initial
+    state and offset, against scipy's ``lsim``; stacked as the projection's residual."""
+    from aeid_struct.multi.realisation import outputs
+
+    rng = np.random.default_rng(3)
+    n, p, m = 3, 2, 2
+    A = observer_form(np.real(np.poly([-0.5, -0.2 + 1j, -0.2 - 1j]))[1:][::-1])
+    C = np.vstack([np.eye(n)[0], rng.normal(size=n)])
+    B, D = rng.normal(size=(n, m)), rng.normal(size=(p, m))
+    x0s, offsets, parts, expected = [], [], [], []
+    for steps in (300, 170):
+        x0, offset = rng.normal(size=n), rng.normal(size=p)
+        U = rng.normal(size=(steps, m)).cumsum(axis=0) * 0.1
+        _, Y, _ = scipy.signal.lsim((A, B, C, D), U, np.arange(steps) * DT, X0=x0,
+                                    interp=hold == "foh")
+        x0s.append(x0)
+        offsets.append(offset)
+        parts.append((np.zeros((steps, p)), U))
+        expected.append((Y + offset).reshape(-1))
+    got = outputs(A, C, B, D, x0s, offsets, parts, DT, [hold, hold])
+    np.testing.assert_allclose(got, np.concatenate(expected), atol=1e-10)
+
+
+def test_the_jacobian_is_kaufmans_the_gradient_exact():
+    """``multi.fit``'s Jacobian against central differences of the projected residual (the
+    full variable-projection Jacobian ``J``): it equals ``J`` projected off the design's column
+    space (``realisation.basis``), and ``J^T r`` is the exact gradient; at a point off the
+    optimum of a noisy 2x2 record."""
+    from aeid_struct.multi import experiments_of, fit
+    from aeid_struct.multi.realisation import basis
+
+    system = _system(3, 2, 2, 4)
+    ex = experiments_of(_record(system, 5, steps=200, noise=0.05), None)
+    delays = np.zeros(2, dtype=int)
+    parts, holds = ex.aligned(delays), ex.holds
+    layout = Layout(3, 2, 2, 0)
+    rng = np.random.default_rng(6)
+    theta = layout.theta(np.real(np.poly([-0.6, -0.3 + 1.2j, -0.3 - 1.2j]))[1:][::-1],
+                         np.vstack([np.eye(3)[0], rng.normal(size=3)]))
+    residual, jacobian = fit._residual(layout, parts, holds, 1.0 * DT, True,
+                                       np.zeros(400))
+    r = residual(theta)
+    J = jacobian(theta)
+    full = np.empty_like(J)
+    for k in range(theta.shape[0]):
+        e = np.zeros_like(theta)
+        e[k] = 1e-6
+        full[:, k] = (residual(theta + e) - residual(theta - e)) / 2e-6
+    Q = basis(*layout.model(theta), parts, 1.0 * DT, holds)
+    projected = full - Q @ (Q.T @ full)
+    scale = np.abs(full).max()
+    np.testing.assert_allclose(J, projected, atol=1e-5 * scale)
+    np.testing.assert_allclose(J.T @ r, full.T @ r, rtol=1e-5, atol=1e-8 * scale)
+    # the dropped term is not small here: the test compares against more than round-off
+    assert np.abs(full - projected).max() > 1e-2 * scale
+
+
 @pytest.mark.parametrize(("n", "p", "m"), [(3, 2, 2), (4, 2, 1), (3, 1, 3), (2, 3, 3)])
 def test_noise_free_identification_is_exact(n, p, m):
     system = _system(n, p, m, 10 + n + p + m)

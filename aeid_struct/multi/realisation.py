@@ -35,7 +35,8 @@ import scipy.signal
 
 from aeid_struct.simulation import discrete_inputs, free_basis
 
-__all__ = ["Layout", "Projection", "observer_form", "project", "responses"]
+__all__ = ["Layout", "Projection", "basis", "observer_form", "outputs", "project",
+           "responses"]
 
 
 def observer_form(a: np.ndarray) -> np.ndarray:
@@ -206,29 +207,9 @@ def project(A, C, parts, h: float, holds, feedthrough: bool = True, B=None, D=No
     Projection
     """
     n, p, m = A.shape[0], C.shape[0], parts[0][1].shape[1]
-    R_count = len(parts)
     fixed = B is not None
     shared = 0 if fixed else n * m + (p * m if feedthrough else 0)
-    width = shared + R_count * (n + p)
-    blocks, targets, known = [], [], []
-    for r, ((Y, U), hold) in enumerate(zip(parts, holds, strict=True)):
-        Rg, O = responses(A, C, U, h, hold)
-        steps = Y.shape[0]
-        X = np.zeros((steps, p, width))
-        if fixed:
-            known.append(np.einsum("kilj,lj->ki", Rg, B) + U @ np.asarray(D).T)
-        else:
-            X[..., : n * m] = Rg.reshape(steps, p, n * m)
-            if feedthrough:
-                X[..., n * m: shared] = _feedthrough_columns(U, p)
-            known.append(np.zeros((steps, p)))
-        base = shared + r * (n + p)
-        X[..., base: base + n] = O
-        X[..., base + n: base + n + p] = np.eye(p)
-        blocks.append(X.reshape(steps * p, width))
-        targets.append(Y.reshape(-1))
-    X = np.vstack(blocks)
-    target = np.concatenate(targets) - np.concatenate([k.reshape(-1) for k in known])
+    X, target, known = _design(A, C, parts, h, holds, feedthrough, B, D)
     scale = np.sqrt(np.sum(X ** 2, axis=0))
     scale[scale == 0] = 1.0
     beta = scipy.linalg.lstsq(X / scale, target, lapack_driver="gelsy",
@@ -249,6 +230,103 @@ def project(A, C, parts, h: float, holds, feedthrough: bool = True, B=None, D=No
         y_hat.append((fitted[at: at + rows] + known[r].reshape(-1)).reshape(Y.shape))
         at += rows
     return Projection(B, D, tuple(x0), tuple(offset), residual, tuple(y_hat))
+
+
+def _design(A, C, parts, h: float, holds, feedthrough: bool, B=None, D=None):
+    """:func:`project`'s least squares: the design ``X`` (columns ``B`` (n m, unless given),
+    ``D`` (p m, with a feedthrough and unless given), then per record ``x0`` (n) and offset
+    (p)), the target (rows: records, samples, outputs) and per record the given ``B, D``'s
+    part of the output ``(steps, p)``."""
+    n, p, m = A.shape[0], C.shape[0], parts[0][1].shape[1]
+    fixed = B is not None
+    shared = 0 if fixed else n * m + (p * m if feedthrough else 0)
+    width = shared + len(parts) * (n + p)
+    blocks, targets, known = [], [], []
+    for r, ((Y, U), hold) in enumerate(zip(parts, holds, strict=True)):
+        Rg, O = responses(A, C, U, h, hold)
+        steps = Y.shape[0]
+        X = np.zeros((steps, p, width))
+        if fixed:
+            known.append(np.einsum("kilj,lj->ki", Rg, B) + U @ np.asarray(D).T)
+        else:
+            X[..., : n * m] = Rg.reshape(steps, p, n * m)
+            if feedthrough:
+                X[..., n * m: shared] = _feedthrough_columns(U, p)
+            known.append(np.zeros((steps, p)))
+        base = shared + r * (n + p)
+        X[..., base: base + n] = O
+        X[..., base + n: base + n + p] = np.eye(p)
+        blocks.append(X.reshape(steps * p, width))
+        targets.append(Y.reshape(-1))
+    X = np.vstack(blocks)
+    target = np.concatenate(targets) - np.concatenate([k.reshape(-1) for k in known])
+    return X, target, known
+
+
+def basis(A, C, parts, h: float, holds, feedthrough: bool = True) -> np.ndarray:
+    """An orthonormal basis of the column space of :func:`project`'s design (``B`` free):
+    ``(rows, rank)``, rows as :class:`Projection`'s ``residual``; the projection's residual is
+    the target less its part in this space.
+
+    Parameters
+    ----------
+    A, C, parts, h, holds, feedthrough
+        As :func:`project`.
+
+    Returns
+    -------
+    (rows, rank) array
+    """
+    X = _design(A, C, parts, h, holds, feedthrough)[0]
+    scale = np.sqrt(np.sum(X ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    Q, R, _ = scipy.linalg.qr(X / scale, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    # gelsy's rank rule (project's solver): columns below eps times the largest pivot add
+    # nothing to the fit
+    rank = int(np.sum(d > np.finfo(np.float64).eps * max(X.shape) * d[0])) if d.size else 0
+    return Q[:, :rank]
+
+
+def outputs(A, C, B, D, x0s, offsets, parts, h: float, holds) -> np.ndarray:
+    """The model's output on every record with all its linear parameters given, stacked as
+    :class:`Projection`'s ``residual`` is: ``(rows,)``.
+
+    The forced part as :func:`responses`' sums with ``B`` applied first: the Markov
+    parameters ``C Phi^k Bd B`` convolved with the ``m`` inputs, ``p m`` convolutions instead of
+    the regressors' ``p n m``.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    C : (p, n) array
+    B : (n, m) array
+    D : (p, m) array
+    x0s, offsets : sequences of R (n,) and (p,) arrays
+    parts, h, holds
+        As :func:`project`.
+
+    Returns
+    -------
+    (rows,) array
+    """
+    n = A.shape[0]
+    out = []
+    for (Y, U), hold, x0, offset in zip(parts, holds, x0s, offsets, strict=True):
+        steps = Y.shape[0]
+        Phi, G1, G2 = discrete_inputs(A, np.eye(n), h, hold)
+        E = G1 - G2
+        O = free_basis(Phi, C, steps)                                   # (steps, p, n)
+        K = np.empty((steps,) + D.shape)                                # (steps, p, m)
+        K[0] = C @ G2 @ B
+        K[1:] = O[:-1] @ ((E + Phi @ G2) @ B)
+        first = np.zeros((steps, D.shape[0]))
+        first[1:] = O[:-1] @ (E @ B @ U[0])                             # u_0's own term
+        later = U.copy()
+        later[0] = 0.0
+        forced = scipy.signal.fftconvolve(K, later[:, None, :], axes=0)[:steps].sum(axis=2)
+        out.append((first + forced + U @ D.T + O @ x0 + offset).reshape(-1))
+    return np.concatenate(out)
 
 
 def _feedthrough_columns(U: np.ndarray, p: int) -> np.ndarray:
