@@ -56,11 +56,6 @@ ESTIMATION_SHARE = 0.7
 #: or two that improve nothing are no reason to stop, and the orders above the system's (the
 #: dearest to fit, and never chosen) are not fitted.
 PATIENCE = 3
-#: The refinement's iterations at most while the order is selected: an order above the
-#: system's has directions the data do not fix, and its validation fit is settled long before
-#: the iterations stop (order 6 of a 2x2 order-4 record: 100 iterations, 12 s, for a fit that
-#: moved by 0.01 points).
-SELECTION_ITERATIONS = 20
 #: The largest input delay considered by default (capped by what the records leave; the
 #: one-channel pipeline's default too: ``generic.pipeline`` reads it from here).
 MAX_DELAY = 10
@@ -117,11 +112,10 @@ def _poles_of(dens) -> list[np.ndarray]:
 
 
 def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int,
-         classical: bool, proposals, feedthrough: bool,
-         most: int | None = None) -> tuple[Fitted, int]:
+         classical: bool, proposals, feedthrough: bool) -> tuple[Fitted, int]:
     """Steps 2-5 of the module docstring for one order; the fit and the candidates scored
-    (``most``: the refinement's iterations at most, None: ``multi.fit.MAX_ITERATIONS``)."""
-    budget = (most if refine else iterations)
+    (the one pass's bounded iterations, or the refinement's to convergence)."""
+    budget = None if refine else iterations
     delays = ex.delay if ex.delay is not None else arx_delays(ex, order, top)
     parts = ex.aligned(delays)
     found = [(s, "classical") for s in classical_poles(parts, order)] if classical or \
@@ -343,7 +337,7 @@ def _select(ex: Experiments, wanted: list, least: int, largest: int, kw: dict) -
         room = _room(part, n)
         if room < 0:
             continue
-        fitted, _ = _fit(part, n, top=min(largest, room), most=SELECTION_ITERATIONS, **kw)
+        fitted, _ = _fit(part, n, top=min(largest, room), **kw)
         if _undetermined(fitted, part):
             flagged.add(n)
         if holdout:
