@@ -225,15 +225,16 @@ def test_order_none_on_a_short_record_keeps_to_the_orders_it_determines():
 
 def test_order_none_of_several_experiments_keeps_to_the_orders_they_determine():
     """Two 64-sample experiments of an order-2 system (5 % noise): the hold-out fits alone
-    would choose order 4 (91.4 against 90.1 % for order 3), whose model has a mode the records
-    do not determine and validates on a third experiment far below order 3's; ``order=None``
-    chooses 3, with nothing flagged (``multi.chosen_order``, the one-channel rule)."""
+    would choose order 3 (a point above orders 1 and 2), whose model has a mode the records
+    do not determine and validates on a third experiment far below the order chosen;
+    ``order=None`` passes over it, to an estimate with nothing flagged (``multi.chosen_order``,
+    the one-channel rule)."""
     from aeid_struct.multi import ORDER_TOLERANCE
     from aeid_struct.records import Record
     from aeid_struct.training import GenericFamily
 
     family = GenericFamily(order=2, max_delay=3, noise=(0.05, 0.05), offset=0.5)
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(13)
     dt = float(10 ** rng.uniform(-3, 0))
     run = family.records(1, 3 * 64, rng).at(dt)
     first, rest = Record(run.y[0], run.u[0], dt).split(at=64)
@@ -241,15 +242,15 @@ def test_order_none_of_several_experiments_keeps_to_the_orders_they_determine():
     with warnings.catch_warnings():
         warnings.simplefilter("error", ae.UnexcitedModeWarning)
         chosen = ae.identify([first, second], order=None)
-    assert chosen.A.shape == (3, 3) and chosen.info["unexcited"] == []
+    assert chosen.A.shape[0] < 3 and chosen.info["unexcited"] == []
     fits = chosen.info["order_fits"]
-    assert fits[4] > fits[3] + ORDER_TOLERANCE and fits[4] == max(fits.values())
+    assert fits[3] > max(fits[1], fits[2]) + ORDER_TOLERANCE and fits[3] == max(fits.values())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ae.UnexcitedModeWarning)
-        fourth = ae.identify([first, second], order=4)
-    assert fourth.info["unexcited"]
+        third_order = ae.identify([first, second], order=3)
+    assert third_order.info["unexcited"]
 
     def validated(est):
         return float(np.mean(ae.compare(est, third, delay=int(est.delay)).fit))
 
-    assert validated(chosen) > validated(fourth) + 50
+    assert validated(chosen) > validated(third_order) + 50

@@ -137,28 +137,30 @@ def test_the_jacobian_is_kaufmans_the_gradient_exact():
 
     system = _system(3, 2, 2, 4)
     ex = experiments_of(_record(system, 5, steps=200, noise=0.05), None)
-    delays = np.zeros(2, dtype=int)
-    parts, holds = ex.aligned(delays), ex.holds
+    parts, holds = ex.aligned(np.zeros(2, dtype=int)), ex.holds
     layout = Layout(3, 2, 2, 0)
     rng = np.random.default_rng(6)
     theta = layout.theta(np.real(np.poly([-0.6, -0.3 + 1.2j, -0.3 - 1.2j]))[1:][::-1],
                          np.vstack([np.eye(3)[0], rng.normal(size=3)]))
-    residual, jacobian = fit._residual(layout, parts, holds, 1.0 * DT, True,
-                                       np.zeros(400))
-    r = residual(theta)
-    J = jacobian(theta)
+
+    def projected(at):
+        return project(*layout.model(at), parts, DT, holds)
+
+    here = projected(theta)
+    J = fit._kaufman(layout, theta, here, parts, holds, DT, True)
     full = np.empty_like(J)
     for k in range(theta.shape[0]):
         e = np.zeros_like(theta)
         e[k] = 1e-6
-        full[:, k] = (residual(theta + e) - residual(theta - e)) / 2e-6
-    Q = basis(*layout.model(theta), parts, 1.0 * DT, holds)
-    projected = full - Q @ (Q.T @ full)
+        full[:, k] = (projected(theta + e).residual - projected(theta - e).residual) / 2e-6
+    Q = basis(*layout.model(theta), parts, DT, holds)
+    kept = full - Q @ (Q.T @ full)
     scale = np.abs(full).max()
-    np.testing.assert_allclose(J, projected, atol=1e-5 * scale)
+    np.testing.assert_allclose(J, kept, atol=1e-5 * scale)
+    r = here.residual
     np.testing.assert_allclose(J.T @ r, full.T @ r, rtol=1e-5, atol=1e-8 * scale)
     # the dropped term is not small here: the test compares against more than round-off
-    assert np.abs(full - projected).max() > 1e-2 * scale
+    assert np.abs(full - kept).max() > 1e-2 * scale
 
 
 @pytest.mark.parametrize(("n", "p", "m"), [(3, 2, 2), (4, 2, 1), (3, 1, 3), (2, 3, 3)])
@@ -223,30 +225,28 @@ def test_order_none_where_the_inputs_step_after_the_holdouts_cut():
 
 
 def test_the_refinements_cap_counts_iterations(monkeypatch):
-    """MAX_ITERATIONS caps the refinement's Levenberg-Marquardt iterations (Jacobians), whatever
-    scipy counts: with scipy's own differences its evaluations cap allowed len(theta) + 1 times
-    as many (a closed-loop 2x2 record ran 893 Jacobians under a cap of 100)."""
+    """MAX_ITERATIONS caps the refinement's Levenberg-Marquardt iterations (Jacobians): a
+    closed-loop 2x2 record, whose fit ran 893 Jacobians under a cap of 100 when scipy's own
+    differences were counted as evaluations, takes at most the cap's."""
     from problems import pi_loop_2x2
 
     from aeid_struct.multi import fit
 
     runs = []
-    made = fit._residual
+    made = fit._Problem.jacobian
 
-    def counted(*args):
-        residual, jacobian = made(*args)
+    def counted(self, e):
         runs.append(0)
+        return made(self, e)
 
-        def counting(theta):
-            runs[-1] += 1
-            return jacobian(theta)
-        return residual, counting
-
-    monkeypatch.setattr(fit, "_residual", counted)
+    monkeypatch.setattr(fit._Problem, "jacobian", counted)
     monkeypatch.setattr(fit, "MAX_ITERATIONS", 5)
     record, _ = pi_loop_2x2(0.1, 0)
-    ae.multi.identify(record, 4, feedthrough=False)
-    assert runs and max(runs) <= 5 + 1
+    est = ae.multi.identify(record, 4, feedthrough=False)
+    assert runs and est.info["iterations"] <= 5
+    # one Jacobian per accepted step, each fit at most the cap's; delays rescanned at most
+    # multi.identify.RESCANS times, two starts
+    assert len(runs) <= (5 + 1) * 2 * 4
 
 
 def test_several_experiments_one_model_own_initial_states_and_offsets():

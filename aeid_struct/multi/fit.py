@@ -3,24 +3,29 @@ model taken back to the user's units.
 
 Only ``theta = (a, C without its reference row)`` is iterated (``multi.realisation``); at each
 point ``B, D`` and every record's ``x0`` and offset are the least-squares solution, so the
-residual is a function of ``theta`` alone (Golub and Pereyra's variable projection). MINPACK's
-Levenberg-Marquardt iterates it with Kaufman's Jacobian, each column by a forward difference of
-the model's output at fixed linear parameters, projected (:func:`_residual`): ``theta`` has
-``n p`` entries and one simulation costs one matrix exponential and ``p m`` convolutions, so
-differences cost less than an analytic Jacobian would to write and to keep right; in the time
-unit ``h`` (``multi.start.scale_of``) the entries of ``theta`` are of order one, so scipy's
-relative steps suit them all.
+residual is a function of ``theta`` alone (Golub and Pereyra's variable projection). The
+library's one Levenberg-Marquardt (``refinement.core.minimise``) iterates it with Kaufman's
+Jacobian (:func:`_kaufman`): with ``B, D``, the initial states and offsets held at their
+projected values, the model's output moved along each entry of ``theta`` (a forward difference,
+``multi.realisation.outputs``) and projected off the design's column space at ``theta``
+(``multi.realisation.basis``), ``J = -P (dX / dtheta) beta``. It drops a term that lies in the
+design's column space, so ``J^T r`` is the exact gradient and the optima are the full
+Jacobian's; a column costs one simulation (one matrix exponential, ``p m`` convolutions) where
+the full Jacobian's costs a projection (``p n m`` convolutions and a least-squares solve: 32 of
+them per Jacobian of a 4x4 order-8 record, the fit's largest cost), and differences cost less
+than an analytic Jacobian would to write and to keep right. In the time unit ``h``
+(``multi.start.scale_of``) the entries of ``theta`` are of order one, so one relative step
+suits them all.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.optimize
 
 from aeid_struct.multi.realisation import Layout, Projection, basis, outputs, project
+from aeid_struct.refinement import Rules, minimise
 
 __all__ = ["MAX_ITERATIONS", "TOL", "Fitted", "iterate", "physical", "rescan"]
 
@@ -28,8 +33,9 @@ __all__ = ["MAX_ITERATIONS", "TOL", "Fitted", "iterate", "physical", "rescan"]
 #: far less than the noise.
 TOL = 1e-9
 #: Iterations at most to convergence: an order above the system's has directions the data do
-#: not fix, along which MINPACK's default (``100 (k + 1)`` Jacobians for ``k`` parameters) crawled
-#: for minutes (order 8 of a 2x2 order-4 record while the order was selected).
+#: not fix, along which MINPACK's default (``100 (k + 1)`` Jacobians for ``k`` parameters, when
+#: this fit ran on it) crawled for minutes (order 8 of a 2x2 order-4 record while the order was
+#: selected).
 MAX_ITERATIONS = 100
 
 
@@ -46,7 +52,7 @@ class Fitted:
     delays : (m,) int array
     projection : Projection
     iterations : int
-        Residual evaluations of the iterations (0: the start's projection).
+        Levenberg-Marquardt iterations (0: the start's projection).
     converged : bool
     start : str
         ``"encoder"`` or ``"classical"``: where the start's poles came from.
@@ -67,65 +73,52 @@ class Fitted:
         return self.projection.cost
 
 
-def _residual(layout: Layout, parts, holds, h: float, feedthrough: bool, big: np.ndarray):
-    """``(residual, jacobian)`` of the projected output error at ``theta``.
-
-    The Jacobian is Kaufman's for variable projection: with ``B, D``, the initial states and
-    offsets held at their projected values, the model's output moved along each entry of
-    ``theta`` (forward differences, scipy's two-point step; ``multi.realisation.outputs``) and
-    projected off the design's column space at ``theta`` (``multi.realisation.basis``):
-    ``J = -P (dX / dtheta) beta``. It drops a term that lies in the design's column space, so
-    ``J^T r`` is the exact gradient and the optimum is the same; each column costs one
-    simulation with ``p m`` convolutions instead of a projection (``p n m`` convolutions and a
-    least-squares solve), the several-channel fit's largest cost (a 4x4 order-8 record of 4,000
-    samples: 32 projections per Jacobian). The residual at ``theta`` is reused where the last
-    evaluation was there (MINPACK asks for the Jacobian at the point it just accepted).
-
-    Why our own Jacobian at all: with scipy's finite differences (scipy 1.17 hands them to
-    MINPACK as a Jacobian function) ``max_nfev`` counts the residuals of the steps only, not
-    the differences, so the refinement's cap of :data:`MAX_ITERATIONS` iterations, written as
-    that many times ``len(theta) + 1`` evaluations, allowed ``len(theta) + 1`` times as many (a
-    closed-loop 2x2 record: 893 Jacobians, 6 s); with a Jacobian of ours the cap counts
-    iterations whatever scipy's version."""
-    last = {}
-
-    def residual(theta):
-        A, C = layout.model(theta)
-        with np.errstate(all="ignore"):
-            proj = project(A, C, parts, h, holds, feedthrough)
-        finite = bool(np.all(np.isfinite(proj.residual)))
-        # a point whose response overflows (an unstable trial over a long record) is a large
-        # finite residual, so the trust region shrinks instead of failing
-        r = proj.residual if finite else big
-        last["theta"], last["r"], last["proj"] = theta.copy(), r, proj if finite else None
-        return r
-
-    def jacobian(theta):
-        if not np.array_equal(last.get("theta"), theta):
-            residual(theta)
-        proj = last["proj"]
-        if proj is None:        # MINPACK accepts no overflowing point; nothing to follow
-            return np.zeros((big.shape[0], theta.shape[0]))
-        A, C = layout.model(theta)
-        step = _STEP * np.where(theta >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(theta))
-        with np.errstate(all="ignore"):
-            Q = basis(A, C, parts, h, holds, feedthrough)
-            fixed = (proj.B, proj.D, proj.x0, proj.offset, parts, h, holds)
-            y0 = outputs(A, C, *fixed)
-            moves = np.empty((y0.shape[0], theta.shape[0]))
-            for k in range(theta.shape[0]):
-                moved = theta.copy()
-                moved[k] += step[k]
-                moves[:, k] = (outputs(*layout.model(moved), *fixed) - y0) / (moved[k]
-                                                                            - theta[k])
-        moves[~np.isfinite(moves)] = 0.0
-        return -(moves - Q @ (Q.T @ moves))
-
-    return residual, jacobian
-
-
-#: Forward differences' relative step (scipy's two-point one, the square root of float64's eps).
+#: Forward differences' relative step (the square root of float64's eps).
 _STEP = float(np.sqrt(np.finfo(np.float64).eps))
+
+
+class _Problem:
+    """The projected output error as a one-row problem of ``refinement.core.minimise``: the
+    residual by projection, Kaufman's Jacobian (:func:`_kaufman`) at accepted points only."""
+
+    lazy = True
+
+    def __init__(self, layout: Layout, parts, holds, h: float, feedthrough: bool) -> None:
+        self.layout, self.parts, self.holds, self.h = layout, parts, holds, h
+        self.feedthrough = feedthrough
+
+    def evaluate(self, x, rows, jacobian, at):
+        theta = np.asarray(x[0], dtype=np.float64)
+        with np.errstate(all="ignore"):
+            proj = project(*self.layout.model(theta), self.parts, self.h, self.holds,
+                           self.feedthrough)
+        finite = bool(np.all(np.isfinite(proj.residual)))
+        return {"cost": np.array([proj.cost if finite else np.inf]),
+                "r": proj.residual[None] if finite else None,
+                "theta": theta[None], "proj": [proj if finite else None]}
+
+    def jacobian(self, e: dict) -> np.ndarray:
+        J = _kaufman(self.layout, e["theta"][0], e["proj"][0], self.parts, self.holds, self.h,
+                     self.feedthrough)
+        return J.T[None]
+
+
+def _kaufman(layout: Layout, theta, proj: Projection, parts, holds, h: float,
+             feedthrough: bool) -> np.ndarray:
+    """Kaufman's Jacobian ``(rows, n p)`` at ``theta`` with ``proj`` its projection."""
+    A, C = layout.model(theta)
+    step = _STEP * np.where(theta >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(theta))
+    with np.errstate(all="ignore"):
+        Q = basis(A, C, parts, h, holds, feedthrough)
+        fixed = (proj.B, proj.D, proj.x0, proj.offset, parts, h, holds)
+        y0 = outputs(A, C, *fixed)
+        moves = np.empty((y0.shape[0], theta.shape[0]))
+        for k in range(theta.shape[0]):
+            moved = theta.copy()
+            moved[k] += step[k]
+            moves[:, k] = (outputs(*layout.model(moved), *fixed) - y0) / (moved[k] - theta[k])
+    moves[~np.isfinite(moves)] = 0.0
+    return -(moves - Q @ (Q.T @ moves))
 
 
 def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, feedthrough: bool,
@@ -142,10 +135,10 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
     feedthrough : bool
     iterations : int or None
         The one pass's bounded cost: ``iterations (len(theta) + 1)`` Levenberg-Marquardt
-        iterations at most, the residual evaluations of ``iterations`` Jacobians by differences
-        and steps (what the one pass ran and was measured with: exactly ``iterations`` left it
-        4 points below refined on one of five 2x2 records of the channels benchmark); None: to
-        convergence (:data:`TOL`), at most :data:`MAX_ITERATIONS` iterations.
+        iterations at most (the cost of ``iterations`` Jacobians by full projections, what
+        the one pass was measured with: exactly ``iterations`` left it 4 points below refined
+        on one of five 2x2 records of the channels benchmark); None: to convergence
+        (:data:`TOL`), at most :data:`MAX_ITERATIONS` iterations.
     start : str
 
     Returns
@@ -159,25 +152,15 @@ def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, fe
     begin = Fitted(layout, theta, h, np.asarray(delays), first, 0, False, start)
     if iterations == 0 or not np.isfinite(first.cost):
         return begin
-    big = np.full_like(first.residual, 1e3 * (1.0 + np.sqrt(first.cost)))
-    residual, jacobian = _residual(layout, parts, holds, h, feedthrough, big)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        # MINPACK's Levenberg-Marquardt: on 2x2 and 3x3 records it took a third fewer
-        # residuals to the same optimum than the trust-region reflective method; with a
-        # Jacobian of ours it counts the step's residuals only: about one per iteration, and
-        # the first one at theta
-        sol = scipy.optimize.least_squares(
-            residual, theta, jac=jacobian, method="lm",
-            max_nfev=(MAX_ITERATIONS if iterations is None
-                      else iterations * (len(theta) + 1)) + 1,
-            ftol=TOL, xtol=TOL, gtol=TOL)
-    with np.errstate(all="ignore"):
-        proj = project(*layout.model(sol.x), parts, h, holds, feedthrough)
-    if not np.all(np.isfinite(proj.residual)) or proj.cost >= first.cost:
+    cap = MAX_ITERATIONS if iterations is None else iterations * (len(theta) + 1)
+    rules = Rules(max_iter=int(cap), lambda_max=1e12, cost_tol=TOL, predicted_tol=TOL,
+                       step_tol=TOL)
+    out = minimise(_Problem(layout, parts, holds, h, feedthrough), theta[None], rules)
+    proj = out.evaluation["proj"][0]
+    if proj is None or not proj.cost < first.cost:
         return begin
-    return Fitted(layout, sol.x, h, np.asarray(delays), proj, int(sol.nfev),
-                  bool(sol.status > 0), start)
+    return Fitted(layout, out.x[0], h, np.asarray(delays), proj, int(out.iterations[0]),
+                  bool(out.converged[0]), start)
 
 
 def rescan(fitted: Fitted, experiments, top: int, feedthrough: bool) -> np.ndarray:

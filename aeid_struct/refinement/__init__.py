@@ -24,6 +24,8 @@ from aeid_struct.refinement.compiled import MAX_ITERATIONS as MAX_ITERATIONS
 from aeid_struct.refinement.config import SOLVERS as SOLVERS
 from aeid_struct.refinement.config import CacheInfo as CacheInfo
 from aeid_struct.refinement.config import RefineConfig as RefineConfig
+from aeid_struct.refinement.core import Rules as Rules
+from aeid_struct.refinement.core import minimise as minimise
 from aeid_struct.refinement.levenberg import fit_rows as fit_rows
 from aeid_struct.structures import Numeric as Numeric
 
@@ -71,6 +73,7 @@ __all__ = [
     "Numeric",
     "Pattern",
     "RefineConfig",
+    "Rules",
     "SOLVERS",
     "SummedFit",
     "cache_info",
@@ -82,6 +85,7 @@ __all__ = [
     "fit_summed",
     "joint_jacobian",
     "joint_residual",
+    "minimise",
     "projected_cost",
     "refine",
     "refine_record",

@@ -52,13 +52,18 @@ class Rules:
     ----------
     max_iter : int, >= 0
         Iterations per row (a fixed cost without the other rules).
-    lambda0, factor, lambda_min : float
-        The damping's start (relative to ``diag(J J^T)``), its factor and its floor.
+    lambda0 : float
+        The damping's start (relative to ``diag(J J^T)``).
+    factor : float, > 1
+        The damping's factor.
+    lambda_min : float
+        The damping's floor.
     lambda_max : float, optional
         Stop, converged, once the damping exceeds it (no damped step descends).
-    cost_tol, predicted_tol : float, optional
-        Stop once an accepted step, or the Gauss-Newton prediction, lowers the cost by less
-        than this fraction.
+    cost_tol : float, optional
+        Stop once an accepted step lowers the cost by less than this fraction.
+    predicted_tol : float, optional
+        Stop once the Gauss-Newton prediction lowers the cost by less than this fraction.
     gradient_tol : float, optional
         Stop before the step where ``max |J r|`` is below it.
     step_tol : float, optional
