@@ -49,11 +49,11 @@ def _arx(parts, n: int, filt=None):
 
     The least squares ``t_i = Psi_i a + Phi beta_i`` over every output ``i`` (``Psi_i`` the
     output's own lags, ``Phi`` the inputs' lags and each record's extra columns, the same for
-    every output) is solved with ``beta_i`` eliminated: one solve of ``Phi`` against every
-    output's ``[Psi_i, t_i]`` leaves their residuals ``P Psi_i, P t_i`` (``P`` the projection
-    off ``Phi``'s columns), and ``a`` solves ``sum_i ||P t_i - P Psi_i a||^2`` -- the same
-    solution as the whole design's, whose ``p`` copies of ``Phi`` (``n + p (m (n + 1) + R e)``
-    columns) made each solve 15-25 times dearer for 4 outputs and inputs.
+    every output) is solved with ``beta_i`` eliminated: ``a`` solves ``sum_i ||P t_i - P Psi_i
+    a||^2`` (``P`` the projection off ``Phi``'s columns), whose sums of squares one Householder
+    QR of ``[Phi, Psi, t]`` gives in its lower right block -- the same solution as the whole
+    design's, whose ``p`` copies of ``Phi`` (``n + p (m (n + 1) + R e)`` columns) made each
+    solve 15-25 times dearer for 4 outputs and inputs.
     """
     R = len(parts)
     phis, psis, targets = [], [], []
@@ -85,10 +85,10 @@ def _arx(parts, n: int, filt=None):
     # orthogonal factor (what the sums of squares depend on), accurate to round-off of the
     # whole columns however close to Phi's span they lie (a subtraction of Phi's fit from them
     # is not: the Steiglitz-McBride prefilter makes Phi ill-conditioned)
-    R = scipy.linalg.qr(np.concatenate([Phi / scale, Psi.reshape(rows, p * n), t], axis=1),
+    T = scipy.linalg.qr(np.concatenate([Phi / scale, Psi.reshape(rows, p * n), t], axis=1),
                         mode="r", check_finite=False)[0][k:, k:]
-    lhs = np.concatenate([R[:, i * n: (i + 1) * n] for i in range(p)])
-    rhs = np.concatenate([R[:, p * n + i] for i in range(p)])
+    lhs = np.concatenate([T[:, i * n: (i + 1) * n] for i in range(p)])
+    rhs = np.concatenate([T[:, p * n + i] for i in range(p)])
     scale = np.abs(lhs).max(axis=0)
     scale[scale == 0] = 1.0
     a = scipy.linalg.lstsq(lhs / scale, rhs, lapack_driver="gelsy", check_finite=False)[0] / scale
