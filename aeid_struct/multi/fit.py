@@ -4,16 +4,22 @@ model taken back to the user's units.
 Only ``theta = (a, C without its reference row)`` is iterated (``multi.realisation``); at each
 point ``B, D`` and every record's ``x0`` and offset are the least-squares solution, so the
 residual is a function of ``theta`` alone (Golub and Pereyra's variable projection). The
-library's one Levenberg-Marquardt (``refinement.core.minimise``) iterates it with Kaufman's
-Jacobian (:func:`_kaufman`): with ``B, D``, the initial states and offsets held at their
-projected values, the model's output moved along each entry of ``theta`` (a forward difference,
-``multi.realisation.outputs``) and projected off the design's column space at ``theta``
-(``multi.realisation.basis``), ``J = -P (dX / dtheta) beta``. It drops a term that lies in the
-design's column space, so ``J^T r`` is the exact gradient and the optima are the full
-Jacobian's; a column costs one simulation (one matrix exponential, ``p m`` convolutions) where
-the full Jacobian's costs a projection (``p n m`` convolutions and a least-squares solve: 32 of
-them per Jacobian of a 4x4 order-8 record, the fit's largest cost), and differences cost less
-than an analytic Jacobian would to write and to keep right. In the time unit ``h``
+library's one Levenberg-Marquardt (``refinement.core.minimise``) iterates it with Golub and
+Pereyra's Jacobian of ``r = P(theta) t`` (:func:`_jacobian`),
+
+    J = -P (dX / dtheta) beta - (X^+)^T (dX / dtheta)^T r,
+
+each term by forward differences along ``theta`` without a projection per column: the first
+(Kaufman's) is the model's output at fixed ``B, D``, initial states and offsets
+(``multi.realisation.outputs``: one matrix exponential and ``p m`` convolutions) projected off
+the design's column space; the second moves ``X^T r``, which the Markov parameters against the
+residual's correlations with the inputs give without forming ``X``
+(``multi.realisation.transposed``), through the design's QR (``multi.realisation.factor``).
+A projection per column (``p n m`` convolutions and a least-squares solve: 32 of them per
+Jacobian of a 4x4 order-8 record) was the fit's largest cost. Why not Kaufman's term alone
+(it has the exact gradient ``J^T r``): far from the optimum, where ``r`` is large, it is a poor
+model of the residual, and the iterations stalled there (least squares of three 1x1 experiments
+from ARX poles: a cost 700 times the optimum's). In the time unit ``h``
 (``multi.start.scale_of``) the entries of ``theta`` are of order one, so one relative step
 suits them all.
 """
@@ -24,7 +30,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.multi.realisation import Layout, Projection, basis, outputs, project
+from aeid_struct.multi.realisation import (
+    Layout,
+    Projection,
+    correlations,
+    factor,
+    outputs,
+    project,
+    transposed,
+)
 from aeid_struct.refinement import Rules, minimise
 
 __all__ = ["LAMBDA_FACTOR", "MAX_ITERATIONS", "TOL", "Fitted", "iterate", "physical", "rescan"]
@@ -81,7 +95,7 @@ _STEP = float(np.sqrt(np.finfo(np.float64).eps))
 
 class _Problem:
     """The projected output error as a one-row problem of ``refinement.core.minimise``: the
-    residual by projection, Kaufman's Jacobian (:func:`_kaufman`) at accepted points only."""
+    residual by projection, the Jacobian (:func:`_jacobian`) at accepted points only."""
 
     lazy = True
 
@@ -100,27 +114,35 @@ class _Problem:
                 "theta": theta[None], "proj": [proj if finite else None]}
 
     def jacobian(self, e: dict) -> np.ndarray:
-        J = _kaufman(self.layout, e["theta"][0], e["proj"][0], self.parts, self.holds, self.h,
-                     self.feedthrough)
+        J = _jacobian(self.layout, e["theta"][0], e["proj"][0], self.parts, self.holds,
+                      self.h, self.feedthrough)
         return J.T[None]
 
 
-def _kaufman(layout: Layout, theta, proj: Projection, parts, holds, h: float,
-             feedthrough: bool) -> np.ndarray:
-    """Kaufman's Jacobian ``(rows, n p)`` at ``theta`` with ``proj`` its projection."""
+def _jacobian(layout: Layout, theta, proj: Projection, parts, holds, h: float,
+              feedthrough: bool) -> np.ndarray:
+    """Golub and Pereyra's Jacobian ``(rows, n p)`` of the projected residual at ``theta``,
+    ``proj`` its projection (module docstring)."""
     A, C = layout.model(theta)
     step = _STEP * np.where(theta >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(theta))
     with np.errstate(all="ignore"):
-        Q = basis(A, C, parts, h, holds, feedthrough)
+        F = factor(A, C, parts, h, holds, feedthrough)
+        seen = correlations(proj.residual, parts)
         fixed = (proj.B, proj.D, proj.x0, proj.offset, parts, h, holds)
         y0 = outputs(A, C, *fixed)
+        g0 = transposed(A, C, parts, h, holds, feedthrough, seen)
         moves = np.empty((y0.shape[0], theta.shape[0]))
+        turns = np.empty((g0.shape[0], theta.shape[0]))
         for k in range(theta.shape[0]):
             moved = theta.copy()
             moved[k] += step[k]
-            moves[:, k] = (outputs(*layout.model(moved), *fixed) - y0) / (moved[k] - theta[k])
+            A_k, C_k = layout.model(moved)
+            moves[:, k] = (outputs(A_k, C_k, *fixed) - y0) / (moved[k] - theta[k])
+            turns[:, k] = (transposed(A_k, C_k, parts, h, holds, feedthrough, seen)
+                           - g0) / (moved[k] - theta[k])
     moves[~np.isfinite(moves)] = 0.0
-    return -(moves - Q @ (Q.T @ moves))
+    turns[~np.isfinite(turns)] = 0.0
+    return -(moves - F.Q @ (F.Q.T @ moves)) - F.pinv_transposed(turns)
 
 
 def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, feedthrough: bool,

@@ -35,8 +35,8 @@ import scipy.signal
 
 from aeid_struct.simulation import discrete_inputs, free_basis
 
-__all__ = ["Layout", "Projection", "basis", "observer_form", "outputs", "project",
-           "responses"]
+__all__ = ["Factor", "Layout", "Projection", "correlations", "factor", "observer_form",
+           "outputs", "project", "responses", "transposed"]
 
 
 def observer_form(a: np.ndarray) -> np.ndarray:
@@ -139,22 +139,28 @@ def responses(A: np.ndarray, C: np.ndarray, U: np.ndarray, h: float, hold: str):
         ``C Phi^k``.
     """
     steps = U.shape[0]
-    n = A.shape[0]
-    Phi, G1, G2 = discrete_inputs(A, np.eye(n), h, hold)
-    E = G1 - G2
-    Bd = E + Phi @ G2
-    O = free_basis(Phi, C, steps)                                       # (steps, r, n)
-    r = C.shape[0]
-    tk = np.empty((steps, r, n))
-    tk[0] = C @ G2
-    tk[1:] = O[:-1] @ Bd
-    t0 = np.zeros((steps, r, n))
-    t0[1:] = O[:-1] @ E
+    tk, t0, O = _kernels(A, C, steps, h, hold)
     later = U.copy()
     later[0] = 0.0                               # u_0 enters through t0
     R = t0[..., None] * U[0]
     R += scipy.signal.fftconvolve(tk[..., None], later[:, None, None, :], axes=0)[:steps]
     return R, O
+
+
+def _kernels(A: np.ndarray, C: np.ndarray, steps: int, h: float, hold: str):
+    """:func:`responses`' Markov parameters: ``tk (steps, r, n)`` (``C Gamma_2`` at lag 0,
+    ``C Phi^(k-1) Bd`` after), ``t0 (steps, r, n)`` (``C Phi^(k-1) E``, the first sample's own
+    term) and ``O = C Phi^k (steps, r, n)``."""
+    n = A.shape[0]
+    Phi, G1, G2 = discrete_inputs(A, np.eye(n), h, hold)
+    E = G1 - G2
+    O = free_basis(Phi, C, steps)                                       # (steps, r, n)
+    tk = np.empty((steps,) + C.shape)
+    tk[0] = C @ G2
+    tk[1:] = O[:-1] @ (E + Phi @ G2)
+    t0 = np.zeros((steps,) + C.shape)
+    t0[1:] = O[:-1] @ E
+    return tk, t0, O
 
 
 @dataclass(frozen=True)
@@ -263,10 +269,35 @@ def _design(A, C, parts, h: float, holds, feedthrough: bool, B=None, D=None):
     return X, target, known
 
 
-def basis(A, C, parts, h: float, holds, feedthrough: bool = True) -> np.ndarray:
-    """An orthonormal basis of the column space of :func:`project`'s design (``B`` free):
-    ``(rows, rank)``, rows as :class:`Projection`'s ``residual``; the projection's residual is
-    the target less its part in this space.
+@dataclass(frozen=True)
+class Factor:
+    """A rank-revealing QR of :func:`project`'s design ``X`` (``B`` free), its columns scaled:
+    ``X[:, perm] / scale[perm] = Q R`` on the first ``rank`` columns of ``perm``.
+
+    Attributes
+    ----------
+    Q : (rows, rank) array
+        An orthonormal basis of ``X``'s column space (rows as :class:`Projection`'s
+        ``residual``).
+    R : (rank, rank) array
+    perm : (rank,) int array
+    scale : (width,) array
+    """
+
+    Q: np.ndarray
+    R: np.ndarray
+    perm: np.ndarray
+    scale: np.ndarray
+
+    def pinv_transposed(self, g: np.ndarray) -> np.ndarray:
+        """``(X^+)^T g`` for ``g (width, k)``: ``(rows, k)`` (the columns below the rank
+        left out, as the projection's solver leaves them)."""
+        picked = g[self.perm] / self.scale[self.perm, None]
+        return self.Q @ scipy.linalg.solve_triangular(self.R, picked, trans="T")
+
+
+def factor(A, C, parts, h: float, holds, feedthrough: bool = True) -> Factor:
+    """The :class:`Factor` of :func:`project`'s design at ``A, C``.
 
     Parameters
     ----------
@@ -275,17 +306,17 @@ def basis(A, C, parts, h: float, holds, feedthrough: bool = True) -> np.ndarray:
 
     Returns
     -------
-    (rows, rank) array
+    Factor
     """
     X = _design(A, C, parts, h, holds, feedthrough)[0]
     scale = np.sqrt(np.sum(X ** 2, axis=0))
     scale[scale == 0] = 1.0
-    Q, R, _ = scipy.linalg.qr(X / scale, mode="economic", pivoting=True, check_finite=False)
+    Q, R, perm = scipy.linalg.qr(X / scale, mode="economic", pivoting=True, check_finite=False)
     d = np.abs(np.diag(R))
     # gelsy's rank rule (project's solver): columns below eps times the largest pivot add
     # nothing to the fit
     rank = int(np.sum(d > np.finfo(np.float64).eps * max(X.shape) * d[0])) if d.size else 0
-    return Q[:, :rank]
+    return Factor(Q[:, :rank], R[:rank, :rank], perm[:rank], scale)
 
 
 def outputs(A, C, B, D, x0s, offsets, parts, h: float, holds) -> np.ndarray:
@@ -310,23 +341,75 @@ def outputs(A, C, B, D, x0s, offsets, parts, h: float, holds) -> np.ndarray:
     -------
     (rows,) array
     """
-    n = A.shape[0]
     out = []
     for (Y, U), hold, x0, offset in zip(parts, holds, x0s, offsets, strict=True):
         steps = Y.shape[0]
-        Phi, G1, G2 = discrete_inputs(A, np.eye(n), h, hold)
-        E = G1 - G2
-        O = free_basis(Phi, C, steps)                                   # (steps, p, n)
-        K = np.empty((steps,) + D.shape)                                # (steps, p, m)
-        K[0] = C @ G2 @ B
-        K[1:] = O[:-1] @ ((E + Phi @ G2) @ B)
-        first = np.zeros((steps, D.shape[0]))
-        first[1:] = O[:-1] @ (E @ B @ U[0])                             # u_0's own term
+        tk, t0, O = _kernels(A, C, steps, h, hold)
         later = U.copy()
         later[0] = 0.0
-        forced = scipy.signal.fftconvolve(K, later[:, None, :], axes=0)[:steps].sum(axis=2)
-        out.append((first + forced + U @ D.T + O @ x0 + offset).reshape(-1))
+        forced = scipy.signal.fftconvolve(tk @ B, later[:, None, :], axes=0)[:steps]
+        out.append((t0 @ (B @ U[0]) + forced.sum(axis=2) + U @ D.T + O @ x0
+                    + offset).reshape(-1))
     return np.concatenate(out)
+
+
+def correlations(residual: np.ndarray, parts) -> tuple:
+    """Per record ``c[tau, i, j] = sum_k r[k, i] u_j[k - tau]`` (``u_0`` left out, as
+    :func:`responses`' convolutions leave it) and ``r (steps, p)``: what :func:`transposed`
+    reads, formed once for every parameter point of a Jacobian.
+
+    Parameters
+    ----------
+    residual : (rows,) array
+        Stacked as :class:`Projection`'s.
+    parts : list of R (Y, U) pairs
+
+    Returns
+    -------
+    tuple of R ``(r (steps, p), c (steps, p, m))``
+    """
+    out, at = [], 0
+    for Y, U in parts:
+        steps, p = Y.shape
+        r = residual[at: at + Y.size].reshape(steps, p)
+        at += Y.size
+        later = U.copy()
+        later[0] = 0.0
+        c = scipy.signal.fftconvolve(r[:, :, None], later[::-1, None, :], axes=0)
+        out.append((r, c[steps - 1:]))
+    return tuple(out)
+
+
+def transposed(A, C, parts, h: float, holds, feedthrough: bool, seen: tuple) -> np.ndarray:
+    """``X^T r`` of :func:`project`'s design (``B`` free) for the residual whose
+    :func:`correlations` are ``seen``, ``(width,)``: without forming ``X``, the ``B`` columns by
+    the Markov parameters against the correlations (``p n m`` sums of ``steps`` terms, not
+    ``p n m`` convolutions).
+
+    Parameters
+    ----------
+    A, C, parts, h, holds, feedthrough
+        As :func:`project`.
+    seen : tuple
+        :func:`correlations` of the residual.
+
+    Returns
+    -------
+    (width,) array
+    """
+    n, p, m = A.shape[0], C.shape[0], parts[0][1].shape[1]
+    shared = n * m + (p * m if feedthrough else 0)
+    out = np.zeros(shared + len(parts) * (n + p))
+    for k, ((Y, U), hold, (r, c)) in enumerate(zip(parts, holds, seen, strict=True)):
+        tk, t0, O = _kernels(A, C, Y.shape[0], h, hold)
+        out[: n * m] += (np.einsum("kil,kij->lj", tk, c)
+                         + np.einsum("kil,ki->l", t0, r)[:, None] * U[0]).ravel()
+        if feedthrough:
+            out[n * m: shared] += (r.T @ U).ravel()
+        base = shared + k * (n + p)
+        out[base: base + n] = np.einsum("kil,ki->l", O, r)
+        out[base + n: base + n + p] = r.sum(axis=0)
+    return out
 
 
 def _feedthrough_columns(U: np.ndarray, p: int) -> np.ndarray:
