@@ -106,7 +106,7 @@ def test_projection_recovers_B_D_x0_offsets_exactly(hold):
 def test_outputs_with_given_linear_parameters_match_lsim(hold):
     """``realisation.outputs`` (the Jacobian's simulations): two records, each its own initial
     state and offset, against scipy's ``lsim``; stacked as the projection's residual."""
-    from aeid_struct.multi.realisation import outputs
+    from aeid_struct.multi.realisation import markov, outputs
 
     rng = np.random.default_rng(3)
     n, p, m = 3, 2, 2
@@ -123,7 +123,7 @@ def test_outputs_with_given_linear_parameters_match_lsim(hold):
         offsets.append(offset)
         parts.append((np.zeros((steps, p)), U))
         expected.append((Y + offset).reshape(-1))
-    got = outputs(A, C, B, D, x0s, offsets, parts, DT, [hold, hold])
+    got = outputs(markov(A, C, parts, DT, [hold, hold]), B, D, x0s, offsets, parts)
     np.testing.assert_allclose(got, np.concatenate(expected), atol=1e-10)
 
 
@@ -133,7 +133,7 @@ def test_the_jacobian_is_golub_and_pereyras():
     output moved at fixed linear parameters, projected) differs from it there by more than
     round-off, and ``transposed`` is ``X^T r`` of the explicit design."""
     from aeid_struct.multi import experiments_of, fit
-    from aeid_struct.multi.realisation import _design, correlations, factor, transposed
+    from aeid_struct.multi.realisation import _design, correlations, factor, markov, transposed
 
     system = _system(3, 2, 2, 4)
     ex = experiments_of([_record(system, 5, steps=200, noise=0.05),
@@ -151,7 +151,8 @@ def test_the_jacobian_is_golub_and_pereyras():
     X = _design(*layout.model(theta), parts, DT, holds, True)[0]
     r = rng.normal(size=X.shape[0])        # the residual itself is orthogonal to X
     np.testing.assert_allclose(
-        transposed(*layout.model(theta), parts, DT, holds, True, correlations(r, parts)),
+        transposed(markov(*layout.model(theta), parts, DT, holds), parts, True,
+                   correlations(r, parts)),
         X.T @ r, rtol=1e-9, atol=1e-11 * np.abs(X.T @ r).max())
     J = fit._jacobian(layout, theta, here, parts, holds, DT, True)
     full = np.empty_like(J)

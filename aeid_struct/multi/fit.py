@@ -35,6 +35,7 @@ from aeid_struct.multi.realisation import (
     Projection,
     correlations,
     factor,
+    markov,
     outputs,
     project,
     transposed,
@@ -128,18 +129,21 @@ def _jacobian(layout: Layout, theta, proj: Projection, parts, holds, h: float,
     with np.errstate(all="ignore"):
         F = factor(A, C, parts, h, holds, feedthrough)
         seen = correlations(proj.residual, parts)
-        fixed = (proj.B, proj.D, proj.x0, proj.offset, parts, h, holds)
-        y0 = outputs(A, C, *fixed)
-        g0 = transposed(A, C, parts, h, holds, feedthrough, seen)
+        fixed = (proj.B, proj.D, proj.x0, proj.offset, parts)
+        # y0 and g0 are the projection's fitted output and X^T r (zero up to round-off), taken
+        # again by the path the moved points take, so that the differences cancel its round-off
+        here = markov(A, C, parts, h, holds)
+        y0 = outputs(here, *fixed)
+        g0 = transposed(here, parts, feedthrough, seen)
         moves = np.empty((y0.shape[0], theta.shape[0]))
         turns = np.empty((g0.shape[0], theta.shape[0]))
         for k in range(theta.shape[0]):
             moved = theta.copy()
             moved[k] += step[k]
-            A_k, C_k = layout.model(moved)
-            moves[:, k] = (outputs(A_k, C_k, *fixed) - y0) / (moved[k] - theta[k])
-            turns[:, k] = (transposed(A_k, C_k, parts, h, holds, feedthrough, seen)
-                           - g0) / (moved[k] - theta[k])
+            there = markov(*layout.model(moved), parts, h, holds)
+            moves[:, k] = (outputs(there, *fixed) - y0) / (moved[k] - theta[k])
+            turns[:, k] = (transposed(there, parts, feedthrough, seen) - g0) / (moved[k]
+                                                                               - theta[k])
     moves[~np.isfinite(moves)] = 0.0
     turns[~np.isfinite(turns)] = 0.0
     return -(moves - F.Q @ (F.Q.T @ moves)) - F.pinv_transposed(turns)

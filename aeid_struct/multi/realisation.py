@@ -35,8 +35,8 @@ import scipy.signal
 
 from aeid_struct.simulation import discrete_inputs, free_basis
 
-__all__ = ["Factor", "Layout", "Projection", "correlations", "factor", "observer_form",
-           "outputs", "project", "responses", "transposed"]
+__all__ = ["Factor", "Layout", "Projection", "correlations", "factor", "markov",
+           "observer_form", "outputs", "project", "responses", "transposed"]
 
 
 def observer_form(a: np.ndarray) -> np.ndarray:
@@ -161,6 +161,27 @@ def _kernels(A: np.ndarray, C: np.ndarray, steps: int, h: float, hold: str):
     t0 = np.zeros((steps,) + C.shape)
     t0[1:] = O[:-1] @ E
     return tk, t0, O
+
+
+def markov(A: np.ndarray, C: np.ndarray, parts, h: float, holds) -> tuple:
+    """Per record the Markov parameters of :func:`responses` (``tk, t0, O``, each
+    ``(steps, p, n)``; the exact first-order-hold or held-input discretisation, Eq. 10-13),
+    which :func:`outputs` and :func:`transposed` read: one matrix exponential and one set of
+    powers per parameter point for both.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    C : (p, n) array
+    parts, h, holds
+        As :func:`project`.
+
+    Returns
+    -------
+    tuple of R ``(tk, t0, O)``
+    """
+    return tuple(_kernels(A, C, Y.shape[0], h, hold)
+                 for (Y, _), hold in zip(parts, holds, strict=True))
 
 
 @dataclass(frozen=True)
@@ -319,9 +340,9 @@ def factor(A, C, parts, h: float, holds, feedthrough: bool = True) -> Factor:
     return Factor(Q[:, :rank], R[:rank, :rank], perm[:rank], scale)
 
 
-def outputs(A, C, B, D, x0s, offsets, parts, h: float, holds) -> np.ndarray:
-    """The model's output on every record with all its linear parameters given, stacked as
-    :class:`Projection`'s ``residual`` is: ``(rows,)``.
+def outputs(kernels: tuple, B, D, x0s, offsets, parts) -> np.ndarray:
+    """The model's output on every record with all its linear parameters given (Eq. 10-13 in
+    convolution form), stacked as :class:`Projection`'s ``residual`` is: ``(rows,)``.
 
     The forced part as :func:`responses`' sums with ``B`` applied first: the Markov
     parameters ``C Phi^k Bd B`` convolved with the ``m`` inputs, ``p m`` convolutions instead of
@@ -329,12 +350,12 @@ def outputs(A, C, B, D, x0s, offsets, parts, h: float, holds) -> np.ndarray:
 
     Parameters
     ----------
-    A : (n, n) array
-    C : (p, n) array
+    kernels : tuple
+        :func:`markov` of the model's ``A, C``.
     B : (n, m) array
     D : (p, m) array
     x0s, offsets : sequences of R (n,) and (p,) arrays
-    parts, h, holds
+    parts : list of R (Y, U) pairs
         As :func:`project`.
 
     Returns
@@ -342,9 +363,8 @@ def outputs(A, C, B, D, x0s, offsets, parts, h: float, holds) -> np.ndarray:
     (rows,) array
     """
     out = []
-    for (Y, U), hold, x0, offset in zip(parts, holds, x0s, offsets, strict=True):
+    for (Y, U), (tk, t0, O), x0, offset in zip(parts, kernels, x0s, offsets, strict=True):
         steps = Y.shape[0]
-        tk, t0, O = _kernels(A, C, steps, h, hold)
         later = U.copy()
         later[0] = 0.0
         forced = scipy.signal.fftconvolve(tk @ B, later[:, None, :], axes=0)[:steps]
@@ -380,7 +400,7 @@ def correlations(residual: np.ndarray, parts) -> tuple:
     return tuple(out)
 
 
-def transposed(A, C, parts, h: float, holds, feedthrough: bool, seen: tuple) -> np.ndarray:
+def transposed(kernels: tuple, parts, feedthrough: bool, seen: tuple) -> np.ndarray:
     """``X^T r`` of :func:`project`'s design (``B`` free) for the residual whose
     :func:`correlations` are ``seen``, ``(width,)``: without forming ``X``, the ``B`` columns by
     the Markov parameters against the correlations (``p n m`` sums of ``steps`` terms, not
@@ -388,7 +408,9 @@ def transposed(A, C, parts, h: float, holds, feedthrough: bool, seen: tuple) -> 
 
     Parameters
     ----------
-    A, C, parts, h, holds, feedthrough
+    kernels : tuple
+        :func:`markov` of the model's ``A, C``.
+    parts, feedthrough
         As :func:`project`.
     seen : tuple
         :func:`correlations` of the residual.
@@ -397,11 +419,11 @@ def transposed(A, C, parts, h: float, holds, feedthrough: bool, seen: tuple) -> 
     -------
     (width,) array
     """
-    n, p, m = A.shape[0], C.shape[0], parts[0][1].shape[1]
+    _, p, n = kernels[0][0].shape
+    m = parts[0][1].shape[1]
     shared = n * m + (p * m if feedthrough else 0)
     out = np.zeros(shared + len(parts) * (n + p))
-    for k, ((Y, U), hold, (r, c)) in enumerate(zip(parts, holds, seen, strict=True)):
-        tk, t0, O = _kernels(A, C, Y.shape[0], h, hold)
+    for k, ((_, U), (tk, t0, O), (r, c)) in enumerate(zip(parts, kernels, seen, strict=True)):
         out[: n * m] += (np.einsum("kil,kij->lj", tk, c)
                          + np.einsum("kil,ki->l", t0, r)[:, None] * U[0]).ravel()
         if feedthrough:
