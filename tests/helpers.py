@@ -92,3 +92,49 @@ def wrong_in_threads(check, threads: int = 4, calls: int = 400) -> list[int]:
     finally:
         sys.setswitchinterval(interval)
     return wrong
+
+
+#: A user's own mechanism, as a user writes it: a mass on a spring and damper pushed through a
+#: lever of known ratio, its structure built at module level, training under ``__main__``.
+MACHINE = '''
+import casadi as ca
+import aeid_struct as ae
+from symbolic.mechanism import Mechanism
+
+x, v, F = ca.SX.sym("x"), ca.SX.sym("v"), ca.SX.sym("F")
+m, k, d = ca.SX.sym("m"), ca.SX.sym("k"), ca.SX.sym("d")
+plant = Mechanism(q=x, dq=v, u=F, parameters={"m": m, "k": k, "d": d},
+                  lagrangian=0.5 * m * v**2 - 0.5 * k * x**2, dissipation=0.5 * d * v**2,
+                  forces=RATIO * F, outputs=x, name="myplant")
+structure = ae.Physical(plant, bounds={"m": (0.5, 2.0), "k": (10.0, 50.0), "d": (0.5, 3.0)})
+
+if __name__ == "__main__":
+    raise SystemExit("training code: never run by --maps")
+'''
+
+
+def write_machine(folder, ratio: float = 1.5):
+    """Write ``machine.py`` (:data:`MACHINE`) in ``folder``; train and save a small identifier of
+    its structure (``myplant.aeid``, 100 samples at dt = 0.02).
+
+    Returns
+    -------
+    script : pathlib.Path
+    path : pathlib.Path
+        The identifier file (``None`` when ``ratio`` is not 1.5: only the script is written).
+    structure : aeid_struct.Physical
+        The structure the script builds, built here in the same way.
+    """
+    import runpy
+    from pathlib import Path
+
+    import aeid_struct as ae
+
+    script = Path(folder) / "machine.py"
+    script.write_text(MACHINE.replace("RATIO", repr(ratio)))
+    structure = runpy.run_path(str(script), run_name="helpers")["structure"]
+    if ratio != 1.5:
+        return script, None, structure
+    ident = ae.train(structure, ae.ParameterFamily(structure), ae.TrainConfig(
+        steps=100, dt=0.02, epochs=1, count=100, excitation="prbs", progress=False, seed=0))
+    return script, ident.save(Path(folder) / "myplant.aeid"), structure

@@ -232,3 +232,29 @@ def test_a_part_cut_off_mid_write_leaves_the_table_readable(fleet, tmp_path, mon
     left = sorted(p.name for p in out.iterdir())
     assert len(left) == 2 and left[0].startswith(".") and left[1].startswith("part-a.npy@0")
     assert len(_table(out)) == 400
+
+
+def test_an_identifier_of_ones_own_mechanism_runs_with_its_maps(tmp_path, capsys):
+    # --maps: the user's script builds the map again; it reaches every worker (pickled by
+    # Dask) and is checked there against the file's SHA-256; the rows are the plain call's
+    from helpers import write_machine
+
+    script, path, structure = write_machine(tmp_path)
+    ident = ae.load(path, maps={"myplant_y0_u0": structure.function})
+    rec = ae.data.records(ae.ParameterFamily(structure), 6, steps=100, dt=0.02,
+                          excitation_kind="prbs", seed=2, noise=0.01)
+    src = tmp_path / "src"
+    src.mkdir()
+    np.savez(src / "plants.npz", y=rec.y, u=rec.u)
+    with pytest.raises(SystemExit, match="user map 'myplant_y0_u0'.*--maps FILE.py"):
+        main(["identify-many", str(src), "--identifier", str(path), "--out",
+              str(tmp_path / "none")])
+    out = tmp_path / "out"
+    assert main(["identify-many", str(src), "--identifier", str(path), "--maps", str(script),
+                 "--out", str(out), "--workers", "1", "--chunk", "4", "--quiet"]) == 0
+    table = _table(out)
+    assert list(table["status"]) == ["ok"] * 6
+    plain = ident.identify(rec.y, rec.u)
+    np.testing.assert_allclose(np.stack(table["physical"]),
+                               np.stack([plain.physical[k] for k in ("m", "k", "d")], 1),
+                               rtol=1e-6)

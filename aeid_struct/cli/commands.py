@@ -99,7 +99,7 @@ def run_track(args: argparse.Namespace) -> int:
     InputError
         A wrong identifier or tracker setting.
     """
-    ident = load_identifier(args.model, "--model")
+    ident = load_identifier(args.model, "--model", args.maps)
     from aeid_struct import studies
     from aeid_struct.online import TrackerConfig
 

@@ -12,6 +12,7 @@ import numpy as np
 from aeid_struct.cli.errors import EXIT_OUTSIDE, InputError
 from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import on_grid, read_record
+from aeid_struct.cli.user_maps import maps_hint, read_maps
 
 #: How the shipped generic identifiers' names begin (``generic-1`` .. ``generic-4``): the file
 #: name tells a shipped file's kind (``identification.load_pretrained`` reads the others).
@@ -56,7 +57,7 @@ def generic_names() -> list[str]:
     return [n for n in _shipped() if n.startswith(GENERIC_PREFIX)]
 
 
-def load_identifier(model: str, option: str):
+def load_identifier(model: str, option: str, maps: str | None = None):
     """An identifier from an ``.aeid`` file, or a shipped one by name (a file wins).
 
     Parameters
@@ -65,6 +66,9 @@ def load_identifier(model: str, option: str):
         A file name or a shipped name (:func:`shipped_names`).
     option : str
         The option or argument that named it, for the errors.
+    maps : str, optional
+        ``--maps``: a Python file that builds the user maps the identifier file names
+        (``cli.user_maps``).
 
     Returns
     -------
@@ -80,10 +84,11 @@ def load_identifier(model: str, option: str):
     if path.is_file():
         from aeid_struct.identification import Identifier
 
+        functions = read_maps(maps)
         try:
-            return Identifier.load(path)
+            return Identifier.load(path, maps=functions)
         except ValueError as err:
-            raise InputError(f"{option} {model!r}: {err}") from None
+            raise InputError(f"{option} {model!r}: {err}{maps_hint(err, maps)}") from None
     if path.is_dir():
         raise InputError(f"{option}: {model!r} is a folder; expected an identifier file (.aeid) "
                          f"or a shipped name: {names}")
@@ -94,6 +99,10 @@ def load_identifier(model: str, option: str):
                          f"it by 'aeid-struct identify RECORD --order "
                          f"{order if order.isdigit() else 'N'} --dt DT'")
     if model in names.split(", "):
+        if maps is not None:
+            raise InputError(f"--maps: the shipped identifier {model!r} needs no maps (its "
+                             f"maps are the library's own); --maps belongs to an identifier "
+                             f"file of your own mechanism")
         from aeid_struct.identification import load_pretrained
 
         return load_pretrained(model)
@@ -165,7 +174,7 @@ def run_identify(args: argparse.Namespace) -> int:
 
         return run_identify_any(args)
     _check_model_use(args)
-    ident = load_identifier(args.model, "model")
+    ident = load_identifier(args.model, "model", args.maps)
     R = ident.records
     channels = getattr(ident.structure, "channels", None)
     if channels is not None and len(args.y) == 1:

@@ -113,7 +113,8 @@ def _refuse_model_options(args: argparse.Namespace) -> None:
     given = [opt for opt, on in (("--y", args.y is not None),
                                  ("--refine", args.refine != "no"),
                                  ("--starts", args.starts != 0),
-                                 ("--allow-outside", args.allow_outside)) if on]
+                                 ("--allow-outside", args.allow_outside),
+                                 ("--maps", args.maps is not None)) if on]
     if given:
         raise InputError(f"identify: {', '.join(given)} "
                          f"{'applies' if len(given) == 1 else 'apply'} to an identifier "

@@ -7,6 +7,7 @@ import argparse
 
 from aeid_struct.cli.arguments import POSITIVE_INT, number
 from aeid_struct.cli.errors import InputError
+from aeid_struct.cli.user_maps import MAPS_HELP, maps_hint, read_maps
 
 __all__ = ["add_identify_many", "run_identify_many"]
 
@@ -34,6 +35,7 @@ def add_identify_many(sub) -> None:
     many.add_argument("source", metavar="SOURCE", help="directory of record files, or one file")
     many.add_argument("--identifier", required=True, metavar="NAME",
                       help="a shipped identifier (e.g. leg-stable) or an identifier file")
+    many.add_argument("--maps", default=None, metavar="FILE.py", help=MAPS_HELP)
     many.add_argument("--out", required=True, metavar="DIR",
                       help="output directory: the Parquet table (pandas.read_parquet(DIR))")
     many.add_argument("--scheduler", metavar="ADDRESS",
@@ -76,10 +78,11 @@ def run_identify_many(args: argparse.Namespace) -> int:
 
     try:
         run = identify_many(args.source, args.identifier, args.out, scheduler=args.scheduler,
+                            maps=read_maps(args.maps),
                             workers=args.workers, chunk=args.chunk, retries=args.retries,
                             progress=None if args.quiet else print)
     except ValueError as err:
-        raise InputError(f"identify-many: {err}") from None
+        raise InputError(f"identify-many: {err}{maps_hint(err, args.maps)}") from None
     print(f"{run.records} records identified ({run.ok} with a model, {run.records - run.ok} "
           f"refused with their reason) in {run.seconds:.1f} s on {run.workers} workers: "
           f"{run.records_per_second:.0f} records/s; {run.skipped} of {run.chunks} chunks were "

@@ -25,6 +25,7 @@ from aeid_struct.cli.identify import generic_names, run_identify, shipped_names
 from aeid_struct.cli.identify_many import add_identify_many
 from aeid_struct.cli.records_io import RECORD_LAYOUTS
 from aeid_struct.cli.train_options import add_train, add_train_generic
+from aeid_struct.cli.user_maps import MAPS_HELP
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -127,6 +128,7 @@ def _add_track(sub, names: str) -> None:
     trk.add_argument("--model", default="leg-stable-window",
                      help="an identifier of mid-motion windows reading u: an .aeid file or a "
                           f"shipped name ({names}; default leg-stable-window)")
+    trk.add_argument("--maps", default=None, metavar="FILE.py", help=MAPS_HELP)
     trk.add_argument("--y", nargs="+", default=None, metavar="FILE",
                      help="a measured stream to track in place of the wear scenario: one "
                           "file per output the identifier reads (columns as 'identify' "
@@ -190,6 +192,7 @@ def _add_model_options(idp) -> None:
                      help="with MODEL --refine, a physical structure: also fit from K fixed "
                           "points of the parameters' box and keep the lowest cost (a "
                           "mechanism whose cost holds several optima at noise; default 0)")
+    idp.add_argument("--maps", default=None, metavar="FILE.py", help=MAPS_HELP)
     idp.add_argument("--allow-outside", action="store_true",
                      help=f"with MODEL: exit 0 even when an estimate is flagged outside the "
                           f"training range (default: exit {EXIT_OUTSIDE}); the WARNING is "

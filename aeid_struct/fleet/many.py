@@ -82,7 +82,7 @@ def _client(scheduler: str | None, workers: int | None):
 
 def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
                   workers: int | None = None, chunk: int = 10_000, retries: int = 2,
-                  progress=print) -> FleetRun:
+                  progress=print, maps: dict | None = None) -> FleetRun:
     """Identify every record under ``source`` with a trained identifier, on Dask.
 
     Parameters
@@ -106,6 +106,9 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
         Times a failed task is run again.
     progress : callable or None
         Called with a line as chunks finish.
+    maps : dict str -> casadi.Function, optional
+        The user maps an identifier file of one's own mechanism names (``aeid_struct.load``'s
+        ``maps=``), sent to every worker and checked there against the file's SHA-256.
 
     Returns
     -------
@@ -126,7 +129,7 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
         raise ValueError(f"workers must be an integer >= 1 or None; got {workers!r}")
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ValueError(f"retries must be an integer >= 0; got {retries!r}")
-    ident = load(identifier)          # refused here, by name, not on every worker
+    ident = load(identifier, maps=maps)      # refused here, by name, not on every worker
     if not hasattr(ident, "steps"):
         raise ValueError(f"identifier {identifier!r} identifies one record at a time with a "
                          f"sample time of its own (a generic identifier); identify_many runs "
@@ -146,6 +149,7 @@ def identify_many(source, identifier: str, out, *, scheduler: str | None = None,
             root = str(Path(source))
             futures = client.map(identify_chunk, [identifier] * len(pending), pending,
                                  [str(out)] * len(pending), [root] * len(pending),
+                                 [maps] * len(pending),
                                  key=[f"aeid-chunk-{c.key}" for c in pending],
                                  retries=retries, pure=False)
             for done, future in enumerate(as_completed(futures), 1):

@@ -31,7 +31,6 @@ schema's version.
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 from pathlib import Path
@@ -46,12 +45,19 @@ __all__ = ["SCHEMA", "identify_chunk", "part_path"]
 SCHEMA = 1
 
 
-@functools.cache
-def _identifier(name: str):
+#: A worker's identifiers, read once each: by name and the SHA-256 of the maps given with it.
+_LOADED: dict = {}
+
+
+def _identifier(name: str, maps: dict | None):
     """A worker reads each identifier once (a shipped name or a file: data only)."""
     from aeid_struct.loading import load
+    from aeid_struct.structures import sha256
 
-    return load(name)
+    key = (name, tuple(sorted((k, sha256(f)) for k, f in (maps or {}).items())))
+    if key not in _LOADED:
+        _LOADED[key] = load(name, maps=maps)
+    return _LOADED[key]
 
 
 def _arrow_schema():
@@ -125,7 +131,8 @@ def _refused_rows(names: list, reason: str) -> dict:
             "elements": empty, "physical": empty}
 
 
-def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
+def identify_chunk(identifier: str, c: Chunk, out, source_root: str,
+                   maps: dict | None = None) -> dict:
     """Identify one chunk's records and write its part (the module docstring's table).
 
     Parameters
@@ -137,6 +144,8 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
         The output directory.
     source_root : str
         The source the chunks came from (records are named relative to it).
+    maps : dict str -> casadi.Function, optional
+        The user maps the identifier file names (``aeid_struct.load``).
 
     Returns
     -------
@@ -146,7 +155,7 @@ def identify_chunk(identifier: str, c: Chunk, out, source_root: str) -> dict:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    ident = _identifier(identifier)
+    ident = _identifier(identifier, maps)
     root = Path(source_root)
     rel = str(Path(c.path).relative_to(root)) if root.is_dir() else Path(c.path).name
     meta = {"schema": SCHEMA, "identifier": identifier, "chunk": c.key,
