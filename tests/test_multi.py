@@ -167,6 +167,48 @@ def test_the_jacobian_is_golub_and_pereyras():
     assert np.abs(full - kaufman).max() > 1e-2 * scale
 
 
+@pytest.mark.parametrize("feedthrough", [True, False])
+def test_the_jacobians_columns_of_c_are_exact_at_any_reference(feedthrough):
+    """The columns of ``C``'s free rows (``multi.realisation.output_rows``: the output linear
+    in them) against central differences of the projected residual, for three outputs whose
+    reference is the middle one, with and without a feedthrough; and the moved output alone
+    against the output at the moved ``C`` with the linear parameters held."""
+    from aeid_struct.multi import experiments_of, fit
+    from aeid_struct.multi.realisation import markov, output_rows, outputs
+
+    system = _system(3, 3, 2, 8)
+    ex = experiments_of(_record(system, 2, steps=180, noise=0.05), None)
+    parts, holds = ex.aligned(np.zeros(2, dtype=int)), ex.holds
+    layout = Layout(3, 3, 2, 1)
+    rng = np.random.default_rng(3)
+    C = rng.normal(size=(3, 3))
+    C[1] = np.eye(3)[0]
+    theta = layout.theta(np.real(np.poly([-0.5, -0.2 + 0.9j, -0.2 - 0.9j]))[1:][::-1], C)
+
+    def projected(at):
+        return project(*layout.model(at), parts, DT, holds, feedthrough)
+
+    here = projected(theta)
+    J = fit._jacobian(layout, theta, here, parts, holds, DT, feedthrough)
+    full = np.empty_like(J)
+    for k in range(theta.shape[0]):
+        e = np.zeros_like(theta)
+        e[k] = 1e-6
+        full[:, k] = (projected(theta + e).residual - projected(theta - e).residual) / 2e-6
+    np.testing.assert_allclose(J, full, atol=1e-5 * np.abs(full).max())
+    A = layout.model(theta)[0]
+    fixed = (here.B, here.D, here.x0, here.offset, parts)
+    moves = output_rows(layout, markov(A, np.eye(3), parts, DT, holds), here.B, here.x0,
+                        parts, feedthrough, ((np.zeros((180, 3)), np.zeros((180, 3, 2))),))[0]
+    for k in range(3, 9):
+        e = np.zeros_like(theta)
+        e[k] = 0.5                       # linear: any step
+        moved = outputs(markov(*layout.model(theta + e), parts, DT, holds), *fixed)
+        base = outputs(markov(*layout.model(theta), parts, DT, holds), *fixed)
+        np.testing.assert_allclose(moves[:, k - 3], (moved - base) / 0.5,
+                                   atol=1e-9 * np.abs(base).max())
+
+
 @pytest.mark.parametrize(("n", "p", "m"), [(3, 2, 2), (4, 2, 1), (3, 1, 3), (2, 3, 3)])
 def test_noise_free_identification_is_exact(n, p, m):
     system = _system(n, p, m, 10 + n + p + m)

@@ -36,6 +36,7 @@ from aeid_struct.multi.realisation import (
     correlations,
     factor,
     markov,
+    output_rows,
     outputs,
     project,
     transposed,
@@ -137,7 +138,12 @@ def _jacobian(layout: Layout, theta, proj: Projection, parts, holds, h: float,
         g0 = transposed(here, parts, feedthrough, seen)
         moves = np.empty((y0.shape[0], theta.shape[0]))
         turns = np.empty((g0.shape[0], theta.shape[0]))
-        for k in range(theta.shape[0]):
+        n = layout.n
+        if layout.p > 1:          # C's free rows: exact, from the state's Markov parameters
+            states = markov(A, np.eye(n), parts, h, holds)
+            moves[:, n:], turns[:, n:] = output_rows(layout, states, proj.B, proj.x0, parts,
+                                                     feedthrough, seen)
+        for k in range(n):        # a: forward differences
             moved = theta.copy()
             moved[k] += step[k]
             there = markov(*layout.model(moved), parts, h, holds)

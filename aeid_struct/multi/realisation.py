@@ -36,7 +36,7 @@ import scipy.signal
 from aeid_struct.simulation import discrete_inputs, free_basis
 
 __all__ = ["Factor", "Layout", "Projection", "correlations", "factor", "markov",
-           "observer_form", "outputs", "project", "responses", "transposed"]
+           "observer_form", "output_rows", "outputs", "project", "responses", "transposed"]
 
 
 def observer_form(a: np.ndarray) -> np.ndarray:
@@ -432,6 +432,63 @@ def transposed(kernels: tuple, parts, feedthrough: bool, seen: tuple) -> np.ndar
         out[base: base + n] = np.einsum("kil,ki->l", O, r)
         out[base + n: base + n + p] = r.sum(axis=0)
     return out
+
+
+def output_rows(layout: Layout, states: tuple, B, x0s, parts, feedthrough: bool,
+                seen: tuple) -> tuple[np.ndarray, np.ndarray]:
+    r"""The derivatives along the entries of ``C``'s rows other than the reference one, exact:
+    at fixed ``B``, ``x0`` the output ``y_i = C_i x + D_i u + o_i`` is linear in ``C_i``, and
+    so is every column of the design, so that ``d y_i / d C_{il} = x_l`` (the state's ``l``-th
+    component on every record) and ``d (X^T r) / d C_{il}`` is ``X^T r`` of the state's own
+    design (``C = I``) read at output ``i``'s residual. One set of the state's Markov parameters
+    replaces a point (a matrix exponential, ``p m`` convolutions and the sums of
+    :func:`transposed`) per entry, ``n (p - 1)`` of the ``n p`` that ``multi.fit``'s Jacobian
+    moves.
+
+    Parameters
+    ----------
+    layout : Layout
+    states : tuple
+        :func:`markov` of the model's ``A`` and ``C = I (n, n)``.
+    B : (n, m) array
+    x0s : sequence of R (n,) arrays
+    parts, feedthrough
+        As :func:`project`.
+    seen : tuple
+        :func:`correlations` of the residual.
+
+    Returns
+    -------
+    moves : (rows, (p - 1) n) array
+        The output's derivatives, stacked as :class:`Projection`'s ``residual``; columns in
+        ``theta``'s order after ``a`` (:class:`Layout`).
+    turns : (width, (p - 1) n) array
+        The derivatives of ``X^T r`` (``X`` with ``B`` free: :func:`transposed`'s entries).
+    """
+    n, p, m = layout.n, layout.p, layout.m
+    rows = [i for i in range(p) if i != layout.reference]
+    shared = n * m + (p * m if feedthrough else 0)
+    moves, turns = [], np.zeros((shared + len(parts) * (n + p), len(rows), n))
+    for k, ((Y, U), (tk, t0, O), x0, (r, c)) in enumerate(
+            zip(parts, states, x0s, seen, strict=True)):
+        steps = Y.shape[0]
+        later = U.copy()
+        later[0] = 0.0
+        x = (t0 @ (B @ U[0]) + scipy.signal.fftconvolve(tk @ B, later[:, None, :],
+                                                        axes=0)[:steps].sum(axis=2) + O @ x0)
+        move = np.zeros((steps, p, len(rows), n))
+        for q, i in enumerate(rows):
+            move[:, i, q, :] = x
+        moves.append(move.reshape(steps * p, len(rows) * n))
+        # X^T r of the state's design: [l', l, j, i] for B[l, j] (row l' of C = I), and
+        # [l', l, i] for x0[l]; output i's residual picks the derivative along C_{i l'}
+        forced = (np.einsum("kab,kij->abji", tk, c[:, rows])
+                  + np.einsum("kab,ki->abi", t0, r[:, rows])[:, :, None, :]
+                  * U[0][None, None, :, None])
+        turns[: n * m] += forced.reshape(n, n * m, len(rows)).transpose(1, 2, 0)
+        base = shared + k * (n + p)
+        turns[base: base + n] = np.einsum("kab,ki->bia", O, r[:, rows])
+    return np.vstack(moves), turns.reshape(turns.shape[0], len(rows) * n)
 
 
 def _feedthrough_columns(U: np.ndarray, p: int) -> np.ndarray:
