@@ -61,7 +61,7 @@ def test_the_unrolled_newton_inverse_is_the_step_halving_loops():
     loop alone."""
     structure = ae.Physical(mechanisms.lever(), bounds=BOX, known={"r": 1.5})
     head = physical_head(structure, initial=False)
-    assert head._newton is not None
+    assert head.inverse._newton is not None
     rng = np.random.default_rng(4)
     lo, hi = np.array([v[0] for v in BOX.values()]), np.array([v[1] for v in BOX.values()])
     for scale in (1.0, 1.0, 1.0, 3.0, 0.2):            # the last two beyond the box's image
@@ -69,16 +69,47 @@ def test_the_unrolled_newton_inverse_is_the_step_halving_loops():
         target = head.coefficients(p)[0].copy() * scale * (1 + 1e-3 * rng.standard_normal(3))
         start = rng.uniform(lo, hi)
         graph = head.parameters(target, start)
-        newton, head._newton = head._newton, None
+        newton, head.inverse._newton = head.inverse._newton, None
         try:
             loop = head.parameters(target, start)
         finally:
-            head._newton = newton
+            head.inverse._newton = newton
         assert np.all(graph >= lo) and np.all(graph <= hi)
         np.testing.assert_allclose(graph, loop, rtol=1e-8)
     two_mass = ae.Physical(mechanisms.two_mass(), bounds={n: (0.5, 2.0) for n in (
         "m1", "m2", "k1", "k2", "c1", "c2")}, channel=(0, 0))
-    assert physical_head(two_mass, initial=False)._newton is None
+    assert physical_head(two_mass, initial=False).inverse._newton is None
+
+
+def test_an_inverse_that_stops_short_is_started_again_in_the_box():
+    # a two-mass system's coefficient map is square but not one-to-one over the box, and
+    # Gauss-Newton from this start stops near a bound, far from the coefficients; from the
+    # box's fixed points the inverse reaches them: the transfer function of the parameters
+    # found is the generating system's (scipy's ss2tf of the structure's own A, B, C, D)
+    import scipy.signal
+
+    box = {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}
+    head = physical_head(ae.Physical(mechanisms.two_mass(), bounds=box), initial=False)
+    truth = np.array([1.587, 0.923, 1.013, 1.678, 0.955, 1.576])
+    target = head.coefficients(truth)[0]
+    start = np.full(6, 0.6)
+    stopped, distance = head.inverse._nearest(target, start, None)
+    assert distance > 1e-6 and np.abs(stopped - truth).max() > 0.5
+    found = head.parameters(target, start)
+    np.testing.assert_allclose(head.coefficients(found)[0], target, rtol=1e-8)
+
+    def tf(p):
+        A, b, c, d, _ = head.systems(p)[0]
+        num, den = scipy.signal.ss2tf(A, b[:, None], c[None, :], [[d]])
+        return num[0] / den[0], den
+
+    for got, want in zip(tf(found), tf(truth), strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
+    assert head.inverse._retries().shape == (8, 6)
+    # the lever's map is inverted from anywhere: no further starts (they would only cost time)
+    lever_head = physical_head(ae.Physical(mechanisms.lever(), bounds=BOX, known={"r": 1.5}),
+                               initial=False)
+    assert lever_head.inverse._retries().shape == (0, 3)
 
 
 def test_the_batch1_path_maps_theta_as_the_structure_does(lever):

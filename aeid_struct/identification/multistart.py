@@ -27,39 +27,18 @@ import time
 import numpy as np
 
 from aeid_struct.estimates import Estimate
+from aeid_struct.identification.inverse import SEED, box_points
 from aeid_struct.identification.physical_errors import parameter_errors, parameters_of
 from aeid_struct.identification.physical_head import physical_head
 
 __all__ = ["SEED", "best_of_starts", "box_points", "from_starts"]
 
-#: The seed of the scrambled Halton sequence of the box.
-SEED = 0
 #: A start replaces the refined estimate only where its cost is lower by more than this,
 #: relative, and by more than :data:`FLOOR`: the same optimum reached twice differs in the last
 #: digits, and the costs of noise-free records are round-off.
 BETTER = 1e-9
 #: Costs closer than this are equal (a normalised mean square: round-off is ~1e-30).
 FLOOR = 1e-24
-
-
-def box_points(lower: np.ndarray, upper: np.ndarray, count: int) -> np.ndarray:
-    """The first ``count`` points of the scrambled Halton sequence of the box (module
-    docstring).
-
-    Parameters
-    ----------
-    lower, upper : (q,) arrays
-    count : int, >= 0
-
-    Returns
-    -------
-    (count, q) array
-    """
-    from scipy.stats import qmc
-
-    lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
-    unit = qmc.Halton(d=lower.size, scramble=True, seed=SEED).random(count)
-    return lower + (upper - lower) * unit
 
 
 def best_of_starts(ph, P: np.ndarray, ys: list, us: list, dts: tuple, initial: bool,

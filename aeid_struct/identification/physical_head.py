@@ -10,7 +10,10 @@ paper Eq. 5 some of their coefficients are the same for every ``p`` (a mass-spri
    the structurally constant coefficients held at their values;
 2. the parameters whose coefficients are closest to the fitted ones within the bounds:
    least squares on ``S (k(p) - k_fit)`` from the encoder's parameters, with CasADi's
-   Jacobian of the coefficient map ``k(p)`` (Gauss-Newton with step halving). ``S^T S`` is
+   Jacobian of the coefficient map ``k(p)`` (Gauss-Newton with step halving,
+   ``identification.inverse``; where a square map's inverse stops short of ``k_fit``, a
+   mechanism's map not being one-to-one over its box, again from fixed points of the box).
+   ``S^T S`` is
    the information of the fitted coefficients (``J J^T`` of each record's residual in its
    coefficients, :meth:`PhysicalHead.information`) where the map is not square, so the
    distance is the Gauss-Newton model of the output error itself; a square map reaches
@@ -46,6 +49,7 @@ import math
 import casadi
 import numpy as np
 
+from aeid_struct.identification.inverse import Inverse
 from aeid_struct.refinement import Pattern, fit_rows
 from aeid_struct.structures import Numeric, ccf_matrices, expanded
 
@@ -53,9 +57,6 @@ __all__ = ["PhysicalHead", "centred", "physical_head"]
 
 #: Points of the box on which a coefficient must not move to count as structurally constant.
 PROBES = 12
-#: Iterations of the coefficient fit (step 2); each is one evaluation of ``k(p)`` and its
-#: Jacobian per record.
-INVERSE_ITERATIONS = 30
 
 
 class PhysicalHead:
@@ -108,7 +109,6 @@ class PhysicalHead:
         # dense outputs: the buffer writes nonzeros only, and numpy reads full matrices
         k_map = expanded(casadi.Function("k_free", [p], [
             casadi.densify(k_free), casadi.densify(casadi.jacobian(k_free, p))]))
-        self.coefficients = Numeric(k_map)
         # per record: A, B, C, D and the CCF's a
         model = casadi.Function("model", [p], [
             casadi.densify(v) for r, system in enumerate(systems)
@@ -120,13 +120,11 @@ class PhysicalHead:
         self.groups = getattr(structure, "groups", None)
         self.square = self.free.size == q
         self._level = level
-        # a square map's inverse as one SX graph (the Newton iterations unrolled), where the
-        # map expands to SX (a rootfinder's does not) and is small: the graph evaluates it
-        # 4 NEWTON_ITERATIONS + 1 times, and a large one (a two-mass system's) costs more
-        # than the loop it replaces
-        small = (k_map.is_a("SXFunction") and k_map.n_instructions()
-                 * (4 * NEWTON_ITERATIONS + 1) <= NEWTON_SIZE)
-        self._newton = Numeric(_newton(k_map, lo, hi)) if self.square and small else None
+        #: step 2's inverse of the coefficient map; the probes' coefficients are targets it
+        #: must reach where the map is square
+        self.inverse = Inverse(k_map, lo, hi, square=self.square,
+                               targets=values[:, self.free])
+        self.coefficients = self.inverse.coefficients
 
     def systems(self, p: np.ndarray) -> list[tuple]:
         """``(A (n, n), b (n,), c (n,), d, a (n,))`` of each record at the parameters ``p``.
@@ -224,7 +222,7 @@ class PhysicalHead:
     def parameters(self, target: np.ndarray, start: np.ndarray,
                    weight: np.ndarray | None = None) -> np.ndarray:
         """The parameters in the bounds whose free coefficients are nearest ``target``
-        (weighted least squares, Gauss-Newton with step halving from ``start``).
+        (``identification.inverse.Inverse.parameters``).
 
         Parameters
         ----------
@@ -234,98 +232,13 @@ class PhysicalHead:
             The encoder's parameters.
         weight : (k, k) array, optional
             ``S`` of the distance ``||S (k(p) - target)||`` (:meth:`information`); relative
-            (``S = diag(1 / |target|)``) where None.
+            where None.
 
         Returns
         -------
         (q,) array
         """
-        margin = 1e-9 * (self.hi - self.lo)
-        lo, hi = self.lo + margin, self.hi - margin
-        p = np.clip(np.asarray(start, dtype=np.float64), lo, hi)
-        if weight is None and self._newton is not None:
-            found, cost = self._newton(np.ascontiguousarray(target, dtype=np.float64), p)
-            if cost[0] <= NEWTON_DONE:
-                return found.copy()
-            if np.isfinite(found).all():
-                p = found.copy()                # near a bound, or slow: the loop goes on
-        if weight is None:
-            S = np.diag(1.0 / (np.abs(target) + 1e-9 * max(np.abs(target).max(), 1e-300)))
-        else:
-            S = weight
-        k, J = self.coefficients(p)
-        r = S @ (k - target)
-        cost = float(r @ r)
-        # Gauss-Newton with step halving: the coefficient map is smooth and, where square,
-        # regular near its solution (quadratic convergence in a few steps)
-        for _ in range(INVERSE_ITERATIONS):
-            if not cost > 1e-28:
-                break
-            Jw = S @ J.reshape(self.q, -1).T                    # column-major (k, q)
-            step = np.linalg.lstsq(Jw, -r, rcond=None)[0]
-            for _ in range(12):
-                trial = np.clip(p + step, lo, hi)
-                k2, J2 = self.coefficients(trial)
-                r2 = S @ (k2 - target)
-                cost2 = float(r2 @ r2)
-                if math.isfinite(cost2) and cost2 < cost:
-                    break
-                step = 0.5 * step
-            else:
-                break                   # no descent along the Gauss-Newton direction
-            done = cost - cost2 <= 1e-14 * cost
-            p, r, J, cost = trial, r2, J2, cost2
-            if done:
-                break
-        return p
-
-
-#: Unrolled Newton iterations of a square map's inverse (:func:`_newton`).
-NEWTON_ITERATIONS = 8
-#: The largest unrolled Newton graph, in evaluations of the coefficient map's SX instructions.
-NEWTON_SIZE = 20_000
-#: The relative cost ``||(k(p) - target) / |target| ||^2`` at which the unrolled Newton's
-#: result is taken (relative coefficient errors of 1e-12); above it the step-halving loop of
-#: :meth:`PhysicalHead.parameters` goes on from that result.
-NEWTON_DONE = 1e-24
-
-
-def _newton(k_map: casadi.Function, lo: np.ndarray, hi: np.ndarray) -> casadi.Function:
-    """``(target (k,), p0 (q,)) -> (p (q,), cost)``: :data:`NEWTON_ITERATIONS` Newton steps on
-    ``k(p) = target`` for a square map, relative residual ``(k(p) - target) / |target|``, each
-    step the longest of 1, 1/2, 1/4 and 1/8 of the Newton step that lowers the cost (or none),
-    clipped into the box, as one SX graph.
-
-    Why: the step-halving loop of :meth:`PhysicalHead.parameters` costs a few evaluations of
-    the map and a least-squares solve per iteration in Python, most of a SISO mechanism's
-    one pass; the same iterations as one graph cost one call."""
-    q = k_map.size1_in(0)
-    k = k_map.size1_out(0)
-    target, p0 = casadi.SX.sym("target", k), casadi.SX.sym("p0", q)
-    margin = 1e-9 * (hi - lo)
-    lo, hi = casadi.DM(lo + margin), casadi.DM(hi - margin)
-    scale = 1.0 / (casadi.fabs(target) + 1e-9 * casadi.mmax(casadi.fabs(target)) + 1e-300)
-
-    def at(p):
-        values, J = k_map(p)
-        r = scale * (values - target)
-        return r, casadi.reshape(J, k, q), casadi.sumsqr(r)
-
-    p = casadi.fmin(casadi.fmax(p0, lo), hi)
-    r, J, cost = at(p)
-    for _ in range(NEWTON_ITERATIONS):
-        step = casadi.solve(casadi.diag(scale) @ J, -r)
-        new_p, new_r, new_J, new_cost = p, r, J, cost
-        for h in (0.125, 0.25, 0.5, 1.0):          # the longest step that lowers the cost
-            trial = casadi.fmin(casadi.fmax(p + h * step, lo), hi)
-            tr, tJ, tc = at(trial)
-            better = tc < cost
-            new_p = casadi.if_else(better, trial, new_p)
-            new_r = casadi.if_else(better, tr, new_r)
-            new_J = casadi.if_else(better, tJ, new_J)
-            new_cost = casadi.if_else(better, tc, new_cost)
-        p, r, J, cost = new_p, new_r, new_J, new_cost
-    return casadi.Function("newton", [target, p0], [p, cost])
+        return self.inverse.parameters(target, start, weight)
 
 
 #: PhysicalHead by (structure object, initial): built once per identifier's structure.
