@@ -127,6 +127,16 @@ def test_outputs_with_given_linear_parameters_match_lsim(hold):
     np.testing.assert_allclose(got, np.concatenate(expected), atol=1e-10)
 
 
+def _central(projected, theta: np.ndarray) -> np.ndarray:
+    """Central differences (step 1e-6) of the projected residual along each entry of theta."""
+    columns = []
+    for k in range(theta.shape[0]):
+        e = np.zeros_like(theta)
+        e[k] = 1e-6
+        columns.append((projected(theta + e).residual - projected(theta - e).residual) / 2e-6)
+    return np.stack(columns, axis=1)
+
+
 def test_the_jacobian_is_golub_and_pereyras():
     """``multi.fit``'s Jacobian against central differences of the projected residual, at a
     point off the optimum of a noisy 2x2 record of two experiments; Kaufman's term alone (the
@@ -155,11 +165,7 @@ def test_the_jacobian_is_golub_and_pereyras():
                    correlations(r, parts)),
         X.T @ r, rtol=1e-9, atol=1e-11 * np.abs(X.T @ r).max())
     J = fit._jacobian(layout, theta, here, parts, holds, DT, True)
-    full = np.empty_like(J)
-    for k in range(theta.shape[0]):
-        e = np.zeros_like(theta)
-        e[k] = 1e-6
-        full[:, k] = (projected(theta + e).residual - projected(theta - e).residual) / 2e-6
+    full = _central(projected, theta)
     scale = np.abs(full).max()
     np.testing.assert_allclose(J, full, atol=1e-5 * scale)
     Q = factor(*layout.model(theta), parts, DT, holds).Q
@@ -190,11 +196,7 @@ def test_the_jacobians_columns_of_c_are_exact_at_any_reference(feedthrough):
 
     here = projected(theta)
     J = fit._jacobian(layout, theta, here, parts, holds, DT, feedthrough)
-    full = np.empty_like(J)
-    for k in range(theta.shape[0]):
-        e = np.zeros_like(theta)
-        e[k] = 1e-6
-        full[:, k] = (projected(theta + e).residual - projected(theta - e).residual) / 2e-6
+    full = _central(projected, theta)
     np.testing.assert_allclose(J, full, atol=1e-5 * np.abs(full).max())
     A = layout.model(theta)[0]
     fixed = (here.B, here.D, here.x0, here.offset, parts)
