@@ -363,14 +363,20 @@ def outputs(kernels: tuple, B, D, x0s, offsets, parts) -> np.ndarray:
     (rows,) array
     """
     out = []
-    for (Y, U), (tk, t0, O), x0, offset in zip(parts, kernels, x0s, offsets, strict=True):
-        steps = Y.shape[0]
-        later = U.copy()
-        later[0] = 0.0
-        forced = scipy.signal.fftconvolve(tk @ B, later[:, None, :], axes=0)[:steps]
-        out.append((t0 @ (B @ U[0]) + forced.sum(axis=2) + U @ D.T + O @ x0
-                    + offset).reshape(-1))
+    for (_, U), kernel, x0, offset in zip(parts, kernels, x0s, offsets, strict=True):
+        out.append((_seen(kernel, B, U, x0) + U @ D.T + offset).reshape(-1))
     return np.concatenate(out)
+
+
+def _seen(kernel: tuple, B, U: np.ndarray, x0) -> np.ndarray:
+    """``C x`` on one record's samples, ``(steps, r)``: the state from ``x0`` driven by ``B u``
+    (Eq. 10-13 in convolution form, :func:`markov`'s ``kernel`` of ``A, C``), without the
+    feedthrough and the offset."""
+    tk, t0, O = kernel
+    later = U.copy()
+    later[0] = 0.0
+    forced = scipy.signal.fftconvolve(tk @ B, later[:, None, :], axes=0)[:U.shape[0]]
+    return t0 @ (B @ U[0]) + forced.sum(axis=2) + O @ x0
 
 
 def correlations(residual: np.ndarray, parts) -> tuple:
@@ -472,10 +478,7 @@ def output_rows(layout: Layout, states: tuple, B, x0s, parts, feedthrough: bool,
     for k, ((Y, U), (tk, t0, O), x0, (r, c)) in enumerate(
             zip(parts, states, x0s, seen, strict=True)):
         steps = Y.shape[0]
-        later = U.copy()
-        later[0] = 0.0
-        x = (t0 @ (B @ U[0]) + scipy.signal.fftconvolve(tk @ B, later[:, None, :],
-                                                        axes=0)[:steps].sum(axis=2) + O @ x0)
+        x = _seen((tk, t0, O), B, U, x0)          # the state itself: C = I
         move = np.zeros((steps, p, len(rows), n))
         for q, i in enumerate(rows):
             move[:, i, q, :] = x
