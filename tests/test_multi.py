@@ -142,8 +142,9 @@ def test_the_jacobian_is_golub_and_pereyras():
     point off the optimum of a noisy 2x2 record of two experiments; Kaufman's term alone (the
     output moved at fixed linear parameters, projected) differs from it there by more than
     round-off, and ``transposed`` is ``X^T r`` of the explicit design."""
-    from aeid_struct.multi import experiments_of, fit
-    from aeid_struct.multi.realisation import _design, correlations, factor, markov, transposed
+    from aeid_struct.multi import experiments_of
+    from aeid_struct.multi.jacobian import correlations, jacobian, transposed
+    from aeid_struct.multi.realisation import _design, factor, markov
 
     system = _system(3, 2, 2, 4)
     ex = experiments_of([_record(system, 5, steps=200, noise=0.05),
@@ -164,7 +165,7 @@ def test_the_jacobian_is_golub_and_pereyras():
         transposed(markov(*layout.model(theta), parts, DT, holds), parts, True,
                    correlations(r, parts)),
         X.T @ r, rtol=1e-9, atol=1e-11 * np.abs(X.T @ r).max())
-    J = fit._jacobian(layout, theta, here, parts, holds, DT, True)
+    J = jacobian(layout, theta, here, parts, holds, DT, True)
     full = _central(projected, theta)
     scale = np.abs(full).max()
     np.testing.assert_allclose(J, full, atol=1e-5 * scale)
@@ -175,12 +176,13 @@ def test_the_jacobian_is_golub_and_pereyras():
 
 @pytest.mark.parametrize("feedthrough", [True, False])
 def test_the_jacobians_columns_of_c_are_exact_at_any_reference(feedthrough):
-    """The columns of ``C``'s free rows (``multi.realisation.output_rows``: the output linear
+    """The columns of ``C``'s free rows (``multi.jacobian.output_rows``: the output linear
     in them) against central differences of the projected residual, for three outputs whose
     reference is the middle one, with and without a feedthrough; and the moved output alone
     against the output at the moved ``C`` with the linear parameters held."""
-    from aeid_struct.multi import experiments_of, fit
-    from aeid_struct.multi.realisation import markov, output_rows, outputs
+    from aeid_struct.multi import experiments_of
+    from aeid_struct.multi.jacobian import jacobian, output_rows
+    from aeid_struct.multi.realisation import markov, outputs
 
     system = _system(3, 3, 2, 8)
     ex = experiments_of(_record(system, 2, steps=180, noise=0.05), None)
@@ -195,7 +197,7 @@ def test_the_jacobians_columns_of_c_are_exact_at_any_reference(feedthrough):
         return project(*layout.model(at), parts, DT, holds, feedthrough)
 
     here = projected(theta)
-    J = fit._jacobian(layout, theta, here, parts, holds, DT, feedthrough)
+    J = jacobian(layout, theta, here, parts, holds, DT, feedthrough)
     full = _central(projected, theta)
     np.testing.assert_allclose(J, full, atol=1e-5 * np.abs(full).max())
     A = layout.model(theta)[0]

@@ -5,23 +5,7 @@ Only ``theta = (a, C without its reference row)`` is iterated (``multi.realisati
 point ``B, D`` and every record's ``x0`` and offset are the least-squares solution, so the
 residual is a function of ``theta`` alone (Golub and Pereyra's variable projection). The
 library's one Levenberg-Marquardt (``refinement.core.minimise``) iterates it with Golub and
-Pereyra's Jacobian of ``r = P(theta) t`` (:func:`_jacobian`),
-
-    J = -P (dX / dtheta) beta - (X^+)^T (dX / dtheta)^T r,
-
-each term by forward differences along ``theta`` without a projection per column: the first
-(Kaufman's) is the model's output at fixed ``B, D``, initial states and offsets
-(``multi.realisation.outputs``: one matrix exponential and ``p m`` convolutions) projected off
-the design's column space; the second moves ``X^T r``, which the Markov parameters against the
-residual's correlations with the inputs give without forming ``X``
-(``multi.realisation.transposed``), through the design's QR (``multi.realisation.factor``).
-A projection per column (``p n m`` convolutions and a least-squares solve: 32 of them per
-Jacobian of a 4x4 order-8 record) was the fit's largest cost. Why not Kaufman's term alone
-(it has the exact gradient ``J^T r``): far from the optimum, where ``r`` is large, it is a poor
-model of the residual, and the iterations stalled there (least squares of three 1x1 experiments
-from ARX poles: a cost 700 times the optimum's). In the time unit ``h``
-(``multi.start.scale_of``) the entries of ``theta`` are of order one, so one relative step
-suits them all.
+Pereyra's Jacobian of ``r = P(theta) t`` (``multi.jacobian``).
 """
 
 from __future__ import annotations
@@ -30,17 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeid_struct.multi.realisation import (
-    Layout,
-    Projection,
-    correlations,
-    factor,
-    markov,
-    output_rows,
-    outputs,
-    project,
-    transposed,
-)
+from aeid_struct.multi.jacobian import jacobian
+from aeid_struct.multi.realisation import Layout, Projection, project
 from aeid_struct.refinement import Rules, minimise
 
 __all__ = ["LAMBDA_FACTOR", "MAX_ITERATIONS", "TOL", "Fitted", "iterate", "physical", "rescan"]
@@ -91,13 +66,9 @@ class Fitted:
         return self.projection.cost
 
 
-#: Forward differences' relative step (the square root of float64's eps).
-_STEP = float(np.sqrt(np.finfo(np.float64).eps))
-
-
 class _Problem:
     """The projected output error as a one-row problem of ``refinement.core.minimise``: the
-    residual by projection, the Jacobian (:func:`_jacobian`) at accepted points only."""
+    residual by projection, the Jacobian (``multi.jacobian``) at accepted points only."""
 
     lazy = True
 
@@ -116,43 +87,9 @@ class _Problem:
                 "theta": theta[None], "proj": [proj if finite else None]}
 
     def jacobian(self, e: dict) -> np.ndarray:
-        J = _jacobian(self.layout, e["theta"][0], e["proj"][0], self.parts, self.holds,
+        J = jacobian(self.layout, e["theta"][0], e["proj"][0], self.parts, self.holds,
                       self.h, self.feedthrough)
         return J.T[None]
-
-
-def _jacobian(layout: Layout, theta, proj: Projection, parts, holds, h: float,
-              feedthrough: bool) -> np.ndarray:
-    """Golub and Pereyra's Jacobian ``(rows, n p)`` of the projected residual at ``theta``,
-    ``proj`` its projection (module docstring)."""
-    A, C = layout.model(theta)
-    step = _STEP * np.where(theta >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(theta))
-    with np.errstate(all="ignore"):
-        F = factor(A, C, parts, h, holds, feedthrough)
-        seen = correlations(proj.residual, parts)
-        fixed = (proj.B, proj.D, proj.x0, proj.offset, parts)
-        # y0 and g0 are the projection's fitted output and X^T r (zero up to round-off), taken
-        # again by the path the moved points take, so that the differences cancel its round-off
-        here = markov(A, C, parts, h, holds)
-        y0 = outputs(here, *fixed)
-        g0 = transposed(here, parts, feedthrough, seen)
-        moves = np.empty((y0.shape[0], theta.shape[0]))
-        turns = np.empty((g0.shape[0], theta.shape[0]))
-        n = layout.n
-        if layout.p > 1:          # C's free rows: exact, from the state's Markov parameters
-            states = markov(A, np.eye(n), parts, h, holds)
-            moves[:, n:], turns[:, n:] = output_rows(layout, states, proj.B, proj.x0, parts,
-                                                     feedthrough, seen)
-        for k in range(n):        # a: forward differences
-            moved = theta.copy()
-            moved[k] += step[k]
-            there = markov(*layout.model(moved), parts, h, holds)
-            moves[:, k] = (outputs(there, *fixed) - y0) / (moved[k] - theta[k])
-            turns[:, k] = (transposed(there, parts, feedthrough, seen) - g0) / (moved[k]
-                                                                               - theta[k])
-    moves[~np.isfinite(moves)] = 0.0
-    turns[~np.isfinite(turns)] = 0.0
-    return -(moves - F.Q @ (F.Q.T @ moves)) - F.pinv_transposed(turns)
 
 
 def iterate(layout: Layout, theta: np.ndarray, h: float, experiments, delays, feedthrough: bool,

@@ -35,8 +35,8 @@ import scipy.signal
 
 from aeid_struct.simulation import discrete_inputs, free_basis
 
-__all__ = ["Factor", "Layout", "Projection", "correlations", "factor", "markov",
-           "observer_form", "output_rows", "outputs", "project", "responses", "transposed"]
+__all__ = ["Factor", "Layout", "Projection", "factor", "markov", "observer_form", "outputs",
+           "project", "responses", "through_state"]
 
 
 def observer_form(a: np.ndarray) -> np.ndarray:
@@ -364,134 +364,31 @@ def outputs(kernels: tuple, B, D, x0s, offsets, parts) -> np.ndarray:
     """
     out = []
     for (_, U), kernel, x0, offset in zip(parts, kernels, x0s, offsets, strict=True):
-        out.append((_seen(kernel, B, U, x0) + U @ D.T + offset).reshape(-1))
+        out.append((through_state(kernel, B, U, x0) + U @ D.T + offset).reshape(-1))
     return np.concatenate(out)
 
 
-def _seen(kernel: tuple, B, U: np.ndarray, x0) -> np.ndarray:
+def through_state(kernel: tuple, B, U: np.ndarray, x0) -> np.ndarray:
     """``C x`` on one record's samples, ``(steps, r)``: the state from ``x0`` driven by ``B u``
-    (Eq. 10-13 in convolution form, :func:`markov`'s ``kernel`` of ``A, C``), without the
-    feedthrough and the offset."""
+    (Eq. 10-13 in convolution form), without the feedthrough and the offset.
+
+    Parameters
+    ----------
+    kernel : tuple
+        One record's ``(tk, t0, O)`` of :func:`markov` of ``A, C``.
+    B : (n, m) array
+    U : (steps, m) array
+    x0 : (n,) array
+
+    Returns
+    -------
+    (steps, r) array
+    """
     tk, t0, O = kernel
     later = U.copy()
     later[0] = 0.0
     forced = scipy.signal.fftconvolve(tk @ B, later[:, None, :], axes=0)[:U.shape[0]]
     return t0 @ (B @ U[0]) + forced.sum(axis=2) + O @ x0
-
-
-def correlations(residual: np.ndarray, parts) -> tuple:
-    """Per record ``c[tau, i, j] = sum_k r[k, i] u_j[k - tau]`` (``u_0`` left out, as
-    :func:`responses`' convolutions leave it) and ``r (steps, p)``: what :func:`transposed`
-    reads, formed once for every parameter point of a Jacobian.
-
-    Parameters
-    ----------
-    residual : (rows,) array
-        Stacked as :class:`Projection`'s.
-    parts : list of R (Y, U) pairs
-
-    Returns
-    -------
-    tuple of R ``(r (steps, p), c (steps, p, m))``
-    """
-    out, at = [], 0
-    for Y, U in parts:
-        steps, p = Y.shape
-        r = residual[at: at + Y.size].reshape(steps, p)
-        at += Y.size
-        later = U.copy()
-        later[0] = 0.0
-        c = scipy.signal.fftconvolve(r[:, :, None], later[::-1, None, :], axes=0)
-        out.append((r, c[steps - 1:]))
-    return tuple(out)
-
-
-def transposed(kernels: tuple, parts, feedthrough: bool, seen: tuple) -> np.ndarray:
-    """``X^T r`` of :func:`project`'s design (``B`` free) for the residual whose
-    :func:`correlations` are ``seen``, ``(width,)``: without forming ``X``, the ``B`` columns by
-    the Markov parameters against the correlations (``p n m`` sums of ``steps`` terms, not
-    ``p n m`` convolutions).
-
-    Parameters
-    ----------
-    kernels : tuple
-        :func:`markov` of the model's ``A, C``.
-    parts, feedthrough
-        As :func:`project`.
-    seen : tuple
-        :func:`correlations` of the residual.
-
-    Returns
-    -------
-    (width,) array
-    """
-    _, p, n = kernels[0][0].shape
-    m = parts[0][1].shape[1]
-    shared = n * m + (p * m if feedthrough else 0)
-    out = np.zeros(shared + len(parts) * (n + p))
-    for k, ((_, U), (tk, t0, O), (r, c)) in enumerate(zip(parts, kernels, seen, strict=True)):
-        out[: n * m] += (np.einsum("kil,kij->lj", tk, c)
-                         + np.einsum("kil,ki->l", t0, r)[:, None] * U[0]).ravel()
-        if feedthrough:
-            out[n * m: shared] += (r.T @ U).ravel()
-        base = shared + k * (n + p)
-        out[base: base + n] = np.einsum("kil,ki->l", O, r)
-        out[base + n: base + n + p] = r.sum(axis=0)
-    return out
-
-
-def output_rows(layout: Layout, states: tuple, B, x0s, parts, feedthrough: bool,
-                seen: tuple) -> tuple[np.ndarray, np.ndarray]:
-    r"""The derivatives along the entries of ``C``'s rows other than the reference one, exact:
-    at fixed ``B``, ``x0`` the output ``y_i = C_i x + D_i u + o_i`` is linear in ``C_i``, and
-    so is every column of the design, so that ``d y_i / d C_{il} = x_l`` (the state's ``l``-th
-    component on every record) and ``d (X^T r) / d C_{il}`` is ``X^T r`` of the state's own
-    design (``C = I``) read at output ``i``'s residual. One set of the state's Markov parameters
-    replaces a point (a matrix exponential, ``p m`` convolutions and the sums of
-    :func:`transposed`) per entry, ``n (p - 1)`` of the ``n p`` that ``multi.fit``'s Jacobian
-    moves.
-
-    Parameters
-    ----------
-    layout : Layout
-    states : tuple
-        :func:`markov` of the model's ``A`` and ``C = I (n, n)``.
-    B : (n, m) array
-    x0s : sequence of R (n,) arrays
-    parts, feedthrough
-        As :func:`project`.
-    seen : tuple
-        :func:`correlations` of the residual.
-
-    Returns
-    -------
-    moves : (rows, (p - 1) n) array
-        The output's derivatives, stacked as :class:`Projection`'s ``residual``; columns in
-        ``theta``'s order after ``a`` (:class:`Layout`).
-    turns : (width, (p - 1) n) array
-        The derivatives of ``X^T r`` (``X`` with ``B`` free: :func:`transposed`'s entries).
-    """
-    n, p, m = layout.n, layout.p, layout.m
-    rows = [i for i in range(p) if i != layout.reference]
-    shared = n * m + (p * m if feedthrough else 0)
-    moves, turns = [], np.zeros((shared + len(parts) * (n + p), len(rows), n))
-    for k, ((Y, U), (tk, t0, O), x0, (r, c)) in enumerate(
-            zip(parts, states, x0s, seen, strict=True)):
-        steps = Y.shape[0]
-        x = _seen((tk, t0, O), B, U, x0)          # the state itself: C = I
-        move = np.zeros((steps, p, len(rows), n))
-        for q, i in enumerate(rows):
-            move[:, i, q, :] = x
-        moves.append(move.reshape(steps * p, len(rows) * n))
-        # X^T r of the state's design: [l', l, j, i] for B[l, j] (row l' of C = I), and
-        # [l', l, i] for x0[l]; output i's residual picks the derivative along C_{i l'}
-        forced = (np.einsum("kab,kij->abji", tk, c[:, rows])
-                  + np.einsum("kab,ki->abi", t0, r[:, rows])[:, :, None, :]
-                  * U[0][None, None, :, None])
-        turns[: n * m] += forced.reshape(n, n * m, len(rows)).transpose(1, 2, 0)
-        base = shared + k * (n + p)
-        turns[base: base + n] = np.einsum("kab,ki->bia", O, r[:, rows])
-    return np.vstack(moves), turns.reshape(turns.shape[0], len(rows) * n)
 
 
 def _feedthrough_columns(U: np.ndarray, p: int) -> np.ndarray:
