@@ -131,3 +131,64 @@ def test_starts_need_a_physical_structure():
     ident = ae.load_pretrained("leg-stable")
     with pytest.raises(ValueError, match="starts=1 needs refine=True and a physical"):
         ident.identify(np.ones(300), refine=True, starts=1)
+
+
+@pytest.fixture(scope="module")
+def two_mass():
+    """A briefly trained two-mass identifier (a square map that is not one-to-one over its
+    box), with a five-iteration head."""
+    structure = _two_mass()
+    ident = ae.train(structure, ae.ParameterFamily(structure), ae.TrainConfig(
+        steps=400, dt=0.05, epochs=2, count=300, excitation="prbs", progress=False))
+    ident.head = Head(iterations=5)
+    return ident
+
+
+def _cost(ph, P, ys, us, dts):
+    from aeid_struct.refinement import fit_joint
+
+    return fit_joint(ph.at, P, ys, us, dts, lower=ph.lo, upper=ph.hi, initial=False,
+                     max_iter=0).cost
+
+
+def test_a_refinement_worse_than_its_one_pass_is_refitted_from_the_one_pass(two_mass):
+    """``no_worse_than``: a refined estimate left at a corner of the box beside a one pass
+    near the truth (noise-free records) is refitted from the one pass and reaches the truth,
+    the global optimum, with its systems; a refinement at the truth is kept as it is."""
+    import dataclasses
+
+    from aeid_struct.identification.multistart import no_worse_than
+
+    ph = physical_head(two_mass.structure, False)
+    rec, truth, ys, us, dts = _records(two_mass.structure, 3, 0.0, 8, steps=400, dt=0.05)
+    names = two_mass.structure.element_names
+    est = two_mass.identify(rec.y, rec.u, refine=True)
+
+    def at(P):
+        return dataclasses.replace(est, elements={k: P[:, j].copy()
+                                                  for j, k in enumerate(names)})
+
+    corner, near = np.tile(ph.lo, (3, 1)), truth * (1 + 0.01 * np.linspace(-1, 1, 6))
+    out = no_worse_than(at(corner), at(near))
+    assert np.all(out.info["from_one_pass"])
+    got = np.stack([out.physical[k] for k in names], 1)
+    np.testing.assert_allclose(got, truth, rtol=1e-6)
+    for i in range(3):
+        A, b, c, d, _ = ph.systems(got[i])[0]
+        np.testing.assert_allclose(out.A[i], A, rtol=1e-12)
+        np.testing.assert_allclose(out.c[i], c, rtol=1e-12)
+    kept = no_worse_than(at(truth), at(corner))
+    assert not kept.info["from_one_pass"].any()
+    np.testing.assert_array_equal(np.stack([kept.physical[k] for k in names], 1), truth)
+
+
+def test_refine_is_never_worse_than_the_one_pass(two_mass):
+    """At 3 % noise, on every record: the refined parameters' output-error cost is at most the
+    one pass's (the cost ``refinement.fit_joint`` minimises, evaluated at both)."""
+    ph = physical_head(two_mass.structure, False)
+    rec, truth, ys, us, dts = _records(two_mass.structure, 12, 0.03, 21, steps=400, dt=0.05)
+    names = two_mass.structure.element_names
+    one = two_mass.identify(rec.y, rec.u)
+    refined = two_mass.identify(rec.y, rec.u, refine=True)
+    P1, P2 = (np.stack([e.physical[k] for k in names], 1) for e in (one, refined))
+    assert np.all(_cost(ph, P2, ys, us, dts) <= _cost(ph, P1, ys, us, dts) * (1 + 1e-9))

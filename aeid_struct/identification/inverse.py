@@ -93,6 +93,14 @@ class Inverse:
                     break
         return p
 
+    @property
+    def reached_from_anywhere(self) -> bool:
+        """Whether Gauss-Newton reaches the map's coefficients from any start in the box
+        (:meth:`_retries`: checked once on probes of the box), so that the parameters
+        nearest the fitted coefficients do not depend on where the inverse starts: always
+        False for a map that is not square."""
+        return self.square and self._retries().size == 0
+
     def _retries(self) -> np.ndarray:
         """The further starts of a square map's inverse (:meth:`parameters`): the first
         :data:`INVERSE_STARTS` points of :func:`box_points`, or none where the inverse from

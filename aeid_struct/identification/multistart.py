@@ -31,7 +31,7 @@ from aeid_struct.identification.inverse import SEED, box_points
 from aeid_struct.identification.physical_errors import parameter_errors, parameters_of
 from aeid_struct.identification.physical_head import physical_head
 
-__all__ = ["SEED", "best_of_starts", "box_points", "from_starts"]
+__all__ = ["SEED", "best_of_starts", "box_points", "from_starts", "no_worse_than"]
 
 #: A start replaces the refined estimate only where its cost is lower by more than this,
 #: relative, and by more than :data:`FLOOR`: the same optimum reached twice differs in the last
@@ -42,9 +42,9 @@ FLOOR = 1e-24
 
 
 def best_of_starts(ph, P: np.ndarray, ys: list, us: list, dts: tuple, initial: bool,
-                   starts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each row's parameters or the output-error fit from :func:`box_points`, whichever costs
-    less (module docstring).
+                   starts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each row's parameters or the output-error fit from :func:`box_points` (or from each
+    row's own starts), whichever costs less (module docstring).
 
     Parameters
     ----------
@@ -56,7 +56,9 @@ def best_of_starts(ph, P: np.ndarray, ys: list, us: list, dts: tuple, initial: b
     dts : tuple of R floats
     initial : bool
         The records' initial states projected out.
-    starts : int, >= 1
+    starts : int >= 1, or (B, S, q) array
+        The first ``starts`` points of :func:`box_points`, the same for every row; or each
+        row's own ``S`` starts.
 
     Returns
     -------
@@ -70,11 +72,15 @@ def best_of_starts(ph, P: np.ndarray, ys: list, us: list, dts: tuple, initial: b
     from aeid_struct.refinement import fit_joint
 
     B = P.shape[0]
-    points = box_points(ph.lo, ph.hi, starts)
+    if isinstance(starts, (int, np.integer)):
+        points = np.tile(box_points(ph.lo, ph.hi, int(starts)), (B, 1))
+    else:
+        points = np.asarray(starts, dtype=np.float64).reshape(-1, P.shape[1])
+        starts = points.shape[0] // B
     kw = dict(lower=ph.lo, upper=ph.hi, initial=initial, groups=ph.groups)
     own = fit_joint(ph.at, P, ys, us, dts, max_iter=0, **kw).cost
     # rows are (record, start), record-major
-    fit = fit_joint(ph.at, np.tile(points, (B, 1)), [np.repeat(y, starts, 0) for y in ys],
+    fit = fit_joint(ph.at, points, [np.repeat(y, starts, 0) for y in ys],
                     [np.repeat(u, starts, 0) for u in us], dts, **kw)
     cost = np.where(np.isfinite(fit.cost), fit.cost, math.inf).reshape(B, starts)
     best = np.argmin(cost, axis=1)
@@ -105,6 +111,74 @@ def from_starts(est: Estimate, starts: int) -> Estimate:
         ``starts``. Records set aside (``errors="collect"``) or without finite parameters
         are kept as they are (start 0, cost NaN).
     """
+    out, start, cost = _refitted(est, lambda rows: starts)
+    if est.batched:
+        info = {"start": start, "cost": cost}
+    else:
+        info = {"start": int(start[0]), "cost": float(cost[0])}
+    return dataclasses.replace(out, info={**out.info, **info, "starts": int(starts)})
+
+
+def no_worse_than(est: Estimate, one: Estimate) -> Estimate:
+    """``est``, a refined physical estimate, with each record whose own one pass ``one``
+    costs less replaced by the output-error fit from the one pass's parameters (where that
+    costs less still); ``info["from_one_pass"]``: the records replaced.
+
+    Why: the refinement of one record's square map starts over from the encoder's poles
+    (``head.refine_route``), and where the map is not one-to-one over its box, the converged
+    CCF's nearest parameters can lie in another basin of the output error than the one
+    pass's few iterations did, which the fit from a bound then cannot leave (a two-mass
+    record at 2 % noise: refined to a cost 60 times its one pass's). A refinement is never
+    worse than the estimate it refines.
+
+    Parameters
+    ----------
+    est : Estimate
+        ``identify(refine=True)`` of a physical structure of one record.
+    one : Estimate
+        The one pass of the same records.
+
+    Returns
+    -------
+    Estimate
+    """
+    from aeid_struct.refinement import fit_joint
+
+    initial = est.initial == "fitted"
+    ph = physical_head(est.structure, initial)
+    P, start = parameters_of(est), parameters_of(one)
+    good = np.isfinite(P).all(axis=1) & np.isfinite(start).all(axis=1)
+    if est._good is not None:
+        good &= est._good
+    rows = np.flatnonzero(good)
+    lower = np.zeros(P.shape[0], dtype=bool)
+    if rows.size:
+        record = est.record
+        ys = [y[rows] for y in record.y]
+        us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
+        kw = dict(lower=ph.lo, upper=ph.hi, initial=initial, groups=ph.groups, max_iter=0)
+        both = fit_joint(ph.at, np.concatenate([P[rows], start[rows]]),
+                         [np.concatenate([y, y]) for y in ys],
+                         [np.concatenate([u, u]) for u in us], record.dt, **kw).cost
+        refined, first = both[: rows.size], both[rows.size:]
+        # only where the one pass costs less is the fit from it run
+        lower[rows] = first < np.where(np.isfinite(refined), refined, math.inf) \
+            * (1.0 - BETTER) - FLOOR
+    if not lower.any():
+        return dataclasses.replace(est, info={
+            **est.info, "from_one_pass": lower if est.batched else False})
+    out, replaced, _ = _refitted(est, lambda rows: start[rows][:, None, :], lower)
+    return dataclasses.replace(out, info={
+        **out.info, "from_one_pass": replaced.astype(bool) if est.batched
+        else bool(replaced[0])})
+
+
+def _refitted(est: Estimate, starts_of, only: np.ndarray | None = None
+              ) -> tuple[Estimate, np.ndarray, np.ndarray]:
+    """:func:`best_of_starts` on ``est``'s good records (of those marked in ``only``, where
+    given; ``starts_of(rows)``: its ``starts`` for those rows), their parameters, systems and
+    standard errors replaced where a start's fit costs less. Returns the estimate, the
+    1-based start per record (0: kept) and the cost per record (NaN where not fitted)."""
     t0 = time.perf_counter()
     structure, record = est.structure, est.record
     initial = est.initial == "fitted"
@@ -113,6 +187,8 @@ def from_starts(est: Estimate, starts: int) -> Estimate:
     rows = np.isfinite(P).all(axis=1)
     if est._good is not None:
         rows &= est._good
+    if only is not None:
+        rows &= only
     rows = np.flatnonzero(rows)
     start = np.zeros(P.shape[0], dtype=int)
     cost = np.full(P.shape[0], math.nan)
@@ -125,7 +201,7 @@ def from_starts(est: Estimate, starts: int) -> Estimate:
         ys = [y[rows] for y in record.y]
         us = [np.broadcast_to(u, y.shape)[rows] for u, y in zip(record.u, record.y, strict=True)]
         found, cost[rows], start[rows] = best_of_starts(ph, P[rows], ys, us, record.dt, initial,
-                                                        starts)
+                                                        starts_of(rows))
         names = structure.element_names
         for i in np.flatnonzero(start[rows]):
             row, p = rows[i], found[i]
@@ -142,14 +218,11 @@ def from_starts(est: Estimate, starts: int) -> Estimate:
                     std[k][row] = errors[j]
     if est.batched:
         elements = {k: P[:, j] for j, k in enumerate(structure.element_names)}
-        info = {"start": start, "cost": cost}
     else:
         A, b, c, d = A[0], b[0], c[0], d[0]
         elements = {k: float(P[0, j]) for j, k in enumerate(structure.element_names)}
-        info = {"start": int(start[0]), "cost": float(cost[0])}
         std = {k: float(v[0]) for k, v in std.items()}
-    if std:
-        info["std"] = std
-    return dataclasses.replace(est, A=A, b=b, c=c, d=d, elements=elements,
-                               seconds=est.seconds + time.perf_counter() - t0,
-                               info={**est.info, **info, "starts": int(starts)})
+    info = {**est.info, "std": std} if std else est.info
+    return (dataclasses.replace(est, A=A, b=b, c=c, d=d, elements=elements,
+                                seconds=est.seconds + time.perf_counter() - t0, info=info),
+            start, cost)

@@ -99,9 +99,39 @@ def refine_with_head(ident, record: RecordBatch, start: float, errors: str,
     est = dataclasses.replace(est, refined=True, info={**est.info, "refine": "separable"})
     if type_of(ident.structure) != "Physical":
         return est
+    from aeid_struct.identification.physical_head import physical_head
     from aeid_struct.identification.polish import polish_at_bounds, with_standard_errors
 
-    return with_standard_errors(polish_at_bounds(est))
+    est = with_standard_errors(polish_at_bounds(est))
+    if physical_head(ident.structure, ident.initial == "fitted").inverse.reached_from_anywhere:
+        return est            # the one pass's nearest parameters are the same ones
+    return no_worse_than_one_pass(ident, record, start, errors, provenance, est)
+
+
+def no_worse_than_one_pass(ident, record: RecordBatch, start: float, errors: str,
+                           provenance, est: Estimate) -> Estimate:
+    """``est``, a physical structure's refinement that started over from the encoder's poles,
+    no worse than the one pass of the same records (``multistart.no_worse_than``).
+
+    Parameters
+    ----------
+    ident : Identifier
+    record : RecordBatch
+    start : float
+    errors : {"raise", "collect"}
+    provenance : Provenance or None
+        As :func:`identify_record`.
+    est : Estimate
+        The refinement.
+
+    Returns
+    -------
+    Estimate
+    """
+    from aeid_struct.identification.multistart import no_worse_than
+
+    one = identify_record(ident, record, start, errors, provenance=provenance)
+    return no_worse_than(est, one)
 
 
 def _on_rows(ident, record: RecordBatch, good: np.ndarray, every: bool, head) -> tuple:
