@@ -295,7 +295,7 @@ def _identified(ident: Identifier, record, start: float, errors: str, refine,
     if route == "converged head":
         est = one_pass.identify_record(ident, record, start, errors, head.converged(),
                                        provenance)
-        return one_pass.no_worse_than_one_pass(ident, record, start, errors, provenance,
+        return one_pass.no_worse_than_one_pass(ident, record, start, provenance,
                                                _polished(est, True))
     est = one_pass.identify_record(ident, record, start, errors, provenance=provenance)
     return _polished(est, refine) if refine else est

@@ -124,12 +124,12 @@ def no_worse_than(est: Estimate, one: Estimate) -> Estimate:
     costs less replaced by the output-error fit from the one pass's parameters (where that
     costs less still); ``info["from_one_pass"]``: the records replaced.
 
-    Why: the refinement of one record's square map starts over from the encoder's poles
-    (``head.refine_route``), and where the map is not one-to-one over its box, the converged
-    CCF's nearest parameters can lie in another basin of the output error than the one
-    pass's few iterations did, which the fit from a bound then cannot leave (a two-mass
-    record at 2 % noise: refined to a cost 60 times its one pass's). A refinement is never
-    worse than the estimate it refines.
+    Why: the refinement of a structure of one record starts over from the encoder's poles
+    (``head.refine_route``), and where its coefficient map is not inverted from anywhere
+    (not square, or not one-to-one over the box), the converged CCF's nearest parameters can
+    lie in another basin of the output error than the one pass's few iterations did, which
+    the fit from there then cannot leave (a two-mass record at 2 % noise: refined to a cost
+    60 times its one pass's). A refinement is never worse than the estimate it refines.
 
     Parameters
     ----------
