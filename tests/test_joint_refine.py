@@ -189,8 +189,8 @@ def test_the_information_weighted_parameters_start_near_the_joint_optimum(cart_p
             fitted.append(np.concatenate([a[0], c[0], d]))
         target = np.concatenate(fitted)[ph.free]
         S = ph.information(target, [y[i] for y in ys], [u[i] for u in us], dts, False)
-        weighted[i] = ph.parameters(target, start[i], S)
-        relative[i] = ph.parameters(target, start[i])
+        weighted[i] = ph.inverse.parameters(target, start[i], S)
+        relative[i] = ph.inverse.parameters(target, start[i])
     excess = {name: cost(P) / optimum.cost - 1 for name, P in (
         ("weighted", weighted), ("relative", relative),
         ("one pass", np.stack([one.physical[k] for k in NAMES], 1)))}
@@ -516,7 +516,7 @@ def test_a_map_that_is_not_square_is_refined_from_the_converged_ccf(cart_pole):
                 target = np.concatenate([a[0], c[0], d])[ph.free]
                 S = ph.information(target, [y[0] for y in ys], [u[0] for u in us], (0.05,),
                                    True)
-                nearest.append(ph.parameters(target, start, S))
+                nearest.append(ph.inverse.parameters(target, start, S))
             for out, p0 in ((direct, nearest[0]), (converged, nearest[1])):
                 p = fit_joint(ph.at, p0[None], ys, us, (0.05,), lower=ph.lo, upper=ph.hi,
                               initial=True).p[0]

@@ -48,10 +48,10 @@ def test_the_coefficient_inverse_recovers_the_parameters():
     for _ in range(5):
         p = np.array([rng.uniform(*BOX[k]) for k in NAMES])
         target = np.array([p[1] / p[0], p[2] / p[0], 1.5 / p[0]])      # a0, a1, c0
-        np.testing.assert_allclose(head.coefficients(p)[0], target, rtol=1e-14)
+        np.testing.assert_allclose(head.inverse.coefficients(p)[0], target, rtol=1e-14)
         start = np.clip(p * rng.uniform(0.7, 1.3, 3), [v[0] for v in BOX.values()],
                         [v[1] for v in BOX.values()])
-        np.testing.assert_allclose(head.parameters(target, start), p, rtol=1e-10)
+        np.testing.assert_allclose(head.inverse.parameters(target, start), p, rtol=1e-10)
 
 
 def test_the_unrolled_newton_inverse_is_the_step_halving_loops():
@@ -66,12 +66,13 @@ def test_the_unrolled_newton_inverse_is_the_step_halving_loops():
     lo, hi = np.array([v[0] for v in BOX.values()]), np.array([v[1] for v in BOX.values()])
     for scale in (1.0, 1.0, 1.0, 3.0, 0.2):            # the last two beyond the box's image
         p = rng.uniform(lo, hi)
-        target = head.coefficients(p)[0].copy() * scale * (1 + 1e-3 * rng.standard_normal(3))
+        target = (head.inverse.coefficients(p)[0].copy() * scale
+                  * (1 + 1e-3 * rng.standard_normal(3)))
         start = rng.uniform(lo, hi)
-        graph = head.parameters(target, start)
+        graph = head.inverse.parameters(target, start)
         newton, head.inverse._newton = head.inverse._newton, None
         try:
-            loop = head.parameters(target, start)
+            loop = head.inverse.parameters(target, start)
         finally:
             head.inverse._newton = newton
         assert np.all(graph >= lo) and np.all(graph <= hi)
@@ -91,12 +92,12 @@ def test_an_inverse_that_stops_short_is_started_again_in_the_box():
     box = {n: (0.5, 2.0) for n in ("m1", "m2", "k1", "k2", "c1", "c2")}
     head = physical_head(ae.Physical(mechanisms.two_mass(), bounds=box), initial=False)
     truth = np.array([1.587, 0.923, 1.013, 1.678, 0.955, 1.576])
-    target = head.coefficients(truth)[0]
+    target = head.inverse.coefficients(truth)[0]
     start = np.full(6, 0.6)
     stopped, distance = head.inverse._nearest(target, start, None)
     assert distance > 1e-6 and np.abs(stopped - truth).max() > 0.5
-    found = head.parameters(target, start)
-    np.testing.assert_allclose(head.coefficients(found)[0], target, rtol=1e-8)
+    found = head.inverse.parameters(target, start)
+    np.testing.assert_allclose(head.inverse.coefficients(found)[0], target, rtol=1e-8)
 
     def tf(p):
         A, b, c, d, _ = head.systems(p)[0]
@@ -179,8 +180,8 @@ def test_a_one_pass_on_a_bound_iterates_in_the_parameters(lever):
         ident.head = Head(iterations=5)
     a, c, d, _ = fit_rows(ph.patterns[0], np.stack([ph.systems(p)[0][4] for p in start]),
                           rec.y, rec.u, 0.02, iterations=5)
-    nearest = np.stack([ph.parameters(np.concatenate([a[i], c[i], [d[i]]])[ph.free], start[i])
-                        for i in range(count)])
+    nearest = np.stack([ph.inverse.parameters(np.concatenate([a[i], c[i], [d[i]]])[ph.free],
+                                              start[i]) for i in range(count)])
     width = ph.hi - ph.lo
     on_bound = np.any((nearest - ph.lo <= 1e-6 * width) | (ph.hi - nearest <= 1e-6 * width),
                       axis=1)

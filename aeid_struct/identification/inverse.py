@@ -188,7 +188,7 @@ def box_points(lower: np.ndarray, upper: np.ndarray, count: int) -> np.ndarray:
 #: The seed of :func:`box_points`' scrambled Halton sequence.
 SEED = 0
 #: Further starts of a square map's inverse that does not reach the fitted coefficients from
-#: the encoder's parameters (:meth:`PhysicalHead.parameters`).
+#: the encoder's parameters (:meth:`Inverse.parameters`).
 INVERSE_STARTS = 8
 #: Points of the box whose coefficients the inverse must reach from every further start for
 #: those starts to be left out (:meth:`PhysicalHead._retries`).
@@ -209,7 +209,7 @@ NEWTON_ITERATIONS = 8
 NEWTON_SIZE = 20_000
 #: The relative cost ``||(k(p) - target) / |target| ||^2`` at which the unrolled Newton's
 #: result is taken (relative coefficient errors of 1e-12); above it the step-halving loop of
-#: :meth:`PhysicalHead.parameters` goes on from that result.
+#: :meth:`Inverse.parameters` goes on from that result.
 NEWTON_DONE = 1e-24
 
 
@@ -219,7 +219,7 @@ def _newton(k_map: casadi.Function, lo: np.ndarray, hi: np.ndarray) -> casadi.Fu
     step the longest of 1, 1/2, 1/4 and 1/8 of the Newton step that lowers the cost (or none),
     clipped into the box, as one SX graph.
 
-    Why: the step-halving loop of :meth:`PhysicalHead.parameters` costs a few evaluations of
+    Why: the step-halving loop of :meth:`Inverse.parameters` costs a few evaluations of
     the map and a least-squares solve per iteration in Python, most of a SISO mechanism's
     one pass; the same iterations as one graph cost one call."""
     q = k_map.size1_in(0)

@@ -124,7 +124,6 @@ class PhysicalHead:
         #: must reach where the map is square
         self.inverse = Inverse(k_map, lo, hi, square=self.square,
                                targets=values[:, self.free])
-        self.coefficients = self.inverse.coefficients
 
     def systems(self, p: np.ndarray) -> list[tuple]:
         """``(A (n, n), b (n,), c (n,), d, a (n,))`` of each record at the parameters ``p``.
@@ -219,26 +218,6 @@ class PhysicalHead:
         s, V = np.linalg.eigh(F)
         return np.sqrt(np.clip(s, 0.0, None))[:, None] * V.T
 
-    def parameters(self, target: np.ndarray, start: np.ndarray,
-                   weight: np.ndarray | None = None) -> np.ndarray:
-        """The parameters in the bounds whose free coefficients are nearest ``target``
-        (``identification.inverse.Inverse.parameters``).
-
-        Parameters
-        ----------
-        target : (k,) array
-            The fitted free coefficients.
-        start : (q,) array
-            The encoder's parameters.
-        weight : (k, k) array, optional
-            ``S`` of the distance ``||S (k(p) - target)||`` (:meth:`information`); relative
-            where None.
-
-        Returns
-        -------
-        (q,) array
-        """
-        return self.inverse.parameters(target, start, weight)
 
 
 #: PhysicalHead by (structure object, initial): built once per identifier's structure.
@@ -338,7 +317,7 @@ def apply_physical_head(ident, head, ys: list, us: list, model: tuple) -> tuple:
                 fitted[i], [y[row] for y in ys],
                 [np.ones(y.shape[1]) if u is None else np.broadcast_to(u, y.shape)[row]
                  for y, u in zip(ys, us, strict=True)], ident._dts, ident.initial == "fitted")
-            found[i] = ph.parameters(fitted[i], el[row], weight)
+            found[i] = ph.inverse.parameters(fitted[i], el[row], weight)
     # the same number of iterations of the output-error fit in the parameters (the one
     # refine=True converges), within the bounds: for several records, which it reads at once
     # (each channel fitted its own poles); for one, where the nearest parameters sit on a

@@ -53,7 +53,7 @@ def summed_head(ph, ident, head, ys: list, us: list, model: tuple,
         target = np.concatenate([np.concatenate([fit.a[i], fit.c[i, r], fit.d[i, r: r + 1]])
                                  for r in range(ph.records)])[ph.free]
         if np.isfinite(fit.cost[i]) and np.isfinite(target).all():
-            found[i] = ph.parameters(target, el[row])
+            found[i] = ph.inverse.parameters(target, el[row])
     found = fit_joint(ph.at, found, ys, us, ident._dts, lower=ph.lo, upper=ph.hi,
                       initial=initial, max_iter=head.iterations, gain=False,
                       groups=ph.groups).p

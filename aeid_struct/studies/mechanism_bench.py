@@ -223,7 +223,7 @@ def _n4sid(ident, y, u, head) -> np.ndarray:
     if not np.isfinite(coefficients).all():
         return np.full(len(ident.structure.element_names), np.nan)
     centre = 0.5 * (head.lo + head.hi)
-    return head.parameters(coefficients, centre)
+    return head.inverse.parameters(coefficients, centre)
 
 
 def _evaluate(ident, family, case: Case, noise: float, records: int, timed: int,
