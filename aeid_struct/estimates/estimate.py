@@ -133,12 +133,14 @@ class Estimate(EstimateFields):
 
     def __init__(self, *legacy, A=None, b=None, c=None, d=None, elements=None, record=None,
                  provenance=None, seconds=0.0, refined=False, info=None, errors=None, **old):
-        if not (legacy or old) and isinstance(record, RecordBatch) and all(
-                v is not None for v in (A, b, c, d, elements)):
+        if not (legacy or old) and isinstance(record, RecordBatch) and (
+                A is not None and b is not None and c is not None and d is not None
+                and elements is not None):
             # the library's own keyword form (one per tracker window): nothing to translate,
             # the fields set at once (a frozen dataclass's fields live in its __dict__)
             self.__dict__.update(A=A, b=b, c=c, d=d, elements=elements, record=record,
-                                 provenance=_provenance(provenance, old), seconds=seconds,
+                                 provenance=Provenance() if provenance is None else provenance,
+                                 seconds=seconds,
                                  refined=refined, info={} if info is None else info,
                                  errors=errors)
             return
