@@ -355,6 +355,23 @@ def test_baselines_for_several_channels():
     assert _frequency_gap(joint, system) < 1e-6
 
 
+def test_n4sid_of_several_channels_fails_cleanly_on_a_negative_real_discrete_pole():
+    # a 2x2 discrete system with poles 0.9 and -0.5 (no real logarithm): a NaN model and the
+    # reason, as for one channel (the NaN model's coefficients once raised a LinAlgError)
+    rng = np.random.default_rng(5)
+    T = rng.normal(size=(2, 2)) + 2 * np.eye(2)
+    Phi = T @ np.diag([0.9, -0.5]) @ np.linalg.inv(T)
+    B, C = rng.normal(size=(2, 2)), rng.normal(size=(2, 2))
+    U = np.where(rng.random((300, 2)) < 0.5, -1.0, 1.0)
+    x, Y = np.zeros(2), np.empty((300, 2))
+    for k in range(300):
+        Y[k] = C @ x
+        x = Phi @ x + B @ U[k]
+    est = n4sid(ae.Record(Y, U, 0.1), order=2)
+    assert est.info["failed"] and "negative real pole" in est.info["reason"]
+    assert np.all(np.isnan(est.A)) and all(np.isnan(v) for v in est.elements.values())
+
+
 def test_compare_per_output_and_overall():
     system = _system(3, 2, 2, 11)
     est = ae.identify(_record(system, 7, noise=0.01), order=3)

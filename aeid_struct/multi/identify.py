@@ -469,7 +469,9 @@ def packed(model: dict, records, delays, refined: bool, info: dict,
     else:
         b, c, d = model["B"], model["C"], model["D"]
         fit = fits[0] if R == 1 else fits
-    a = np.real(np.poly(np.linalg.eigvals(model["A"])))[1:][::-1]
+    # a failed fit's NaN model (a baseline's, baselines.several) has NaN coefficients
+    a = (np.real(np.poly(np.linalg.eigvals(model["A"])))[1:][::-1]
+         if np.all(np.isfinite(model["A"])) else np.full(n, np.nan))
     elements = {f"a{k}": float(v) for k, v in enumerate(a)}
     elements |= {f"b{l}_{j}": float(model["B"][l, j]) for l in range(n) for j in range(m)}
     elements |= {f"c{i}_{l}": float(model["C"][i, l]) for i in range(p) for l in range(n)}
