@@ -61,7 +61,7 @@ def test_the_help_lists_leg_and_generic_identifiers_apart(capsys):
     assert generic_names() == ["generic-1", "generic-2", "generic-3", "generic-4"]
     assert not set(generic_names()) & set(shipped_names())
     for option in ("--order", "--dt", "--no-refine", "--delay", "--max-delay", "--structure",
-                   "--figure", "--json"):
+                   "--stable", "--figure", "--json"):
         assert option in text
 
 
@@ -210,6 +210,8 @@ GENERIC_ERRORS = [
     # the two uses do not mix: generic options with an identifier, a record without --order
     (["leg-stable", "--y", "{y.csv}", "--dt", "0.1", "--no-refine"],
      r"identify: --dt, --no-refine apply to the generic identifiers: give --order N"),
+    (["leg-stable", "--y", "{y.csv}", "--stable"],
+     r"identify: --stable applies to the generic identifiers: give --order N"),
     (["{lab.csv}"], r"identify: '.*lab.csv' is a record file: identify it with the generic "
                     r"identifiers by --order N \(or --order auto\)"),
     (["generic-2", "--y", "{y.csv}"], r"model 'generic-2' is a generic identifier \(any system, "
@@ -353,6 +355,23 @@ def test_identify_a_record_of_two_inputs_and_two_outputs(tmp_path, capsys):
                  "output offsets = y1:", "fit: y1:", "wrote"):
         assert line in out, line
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_identify_stable_holds_the_model_stable(tmp_path, capsys):
+    """--stable: the library's stable=True (a stable plant: the constraint changes nothing);
+    one channel goes to the modal form."""
+    t, U, Y, _ = _two_by_two()
+    csv = _write_csv(tmp_path / "plant.csv", "t,u1,u2,y1,y2",
+                     [t, U[:, 0], U[:, 1], Y[:, 0], Y[:, 1]])
+    js = tmp_path / "plant.json"
+    assert main(["identify", csv, "--order", "2", "--stable", "--json", str(js)]) == 0
+    result = json.loads(js.read_text())
+    assert np.all(np.linalg.eigvals(np.array(result["A"])).real < 0)
+    direct = ae.identify(ae.Record(Y, U, 0.05), order=2, stable=True)
+    np.testing.assert_allclose(result["fit_percent"], direct.fit, rtol=1e-9)
+    one = _write_csv(tmp_path / "one.csv", "t,u,y", [t, U[:, 0], Y[:, 0]])
+    assert main(["identify", one, "--order", "2", "--stable", "--json", str(js)]) == 0
+    assert json.loads(js.read_text())["structure"].startswith("MCF(")
 
 
 def test_numbered_columns_refused_where_they_do_not_fit(tmp_path, capsys):

@@ -372,6 +372,77 @@ def test_n4sid_of_several_channels_fails_cleanly_on_a_negative_real_discrete_pol
     assert np.all(np.isnan(est.A)) and all(np.isnan(v) for v in est.elements.values())
 
 
+def test_stabilised_mirrors_the_right_half_plane_into_the_left():
+    from aeid_struct.multi.start import stabilised
+
+    got = stabilised(np.array([0.3, -0.2 + 1j, 0.1 - 2j, 0.0, -0.5]))
+    floor = 1e-3 * abs(0.1 - 2j)          # a thousandth of the largest magnitude
+    np.testing.assert_array_equal(got, [-0.3, -0.2 + 1j, -0.1 - 2j, -floor, -0.5])
+
+
+def test_stable_fit_of_an_unstable_plant_is_stable_and_flagged():
+    """A 2x1 plant with a pole at +0.4 (scipy's lsim oracle): the default fit recovers it; held
+    to stable models (``stable=True``) every pole lies left of the axis and the estimate
+    warns, ``info["unstable"]`` giving the unconstrained fit's unstable pole and its better
+    fit; on a stable plant the constraint changes nothing and raises nothing."""
+    import warnings
+
+    from aeid_struct.generic.pipeline import StableOnlyWarning
+
+    A = np.array([[0.4, 0.0, 0.0], [0.0, -0.5, 1.5], [0.0, -1.5, -0.5]])
+    T = np.random.default_rng(3).normal(size=(3, 3))
+    A = T @ A @ np.linalg.inv(T)
+    rng = np.random.default_rng(4)
+    system = (A, rng.normal(size=(3, 1)), rng.normal(size=(2, 3)), np.zeros((2, 1)))
+    rec = _record(system, 12, steps=200, noise=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StableOnlyWarning)
+        free = ae.identify(rec, order=3)
+    assert np.linalg.eigvals(free.A).real.max() == pytest.approx(0.4, abs=0.02)
+    with pytest.warns(StableOnlyWarning, match=r"best model is unstable .*without stable=True"):
+        held = ae.identify(rec, order=3, stable=True)
+    assert np.all(np.linalg.eigvals(held.A).real < 0)
+    flagged = held.info["unstable"]
+    assert flagged["poles"].real.max() == pytest.approx(0.4, abs=0.02)
+    assert np.all(flagged["fit"] > np.asarray(held.fit) + 1.0)
+    plant = _system(3, 2, 2, 9)
+    stable_rec = _record(plant, 5, steps=400, noise=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StableOnlyWarning)
+        both = [ae.identify(stable_rec, order=3, stable=s) for s in (False, True)]
+    assert "unstable" not in both[1].info
+    np.testing.assert_allclose(both[1].fit, both[0].fit, atol=1e-6)
+
+
+def test_a_delay_at_the_top_of_its_range_is_tried_against_none():
+    """A 2x2 record without a delay, fitted at the largest delay allowed (where the ARX scan
+    put a thermal record's): the trial without a delay reaches a lower cost and replaces it;
+    a delay inside the range is left alone (the same object back)."""
+    from aeid_struct.multi.experiments import experiments_of
+    from aeid_struct.multi.fit import iterate, without_delay
+    from aeid_struct.multi.start import classical_poles, start_of
+
+    ex = experiments_of(_record(_system(3, 2, 2, 21), 22, steps=500, noise=0.01))
+    top = np.array([6, 6])
+    parts = ex.aligned(top)
+    layout, theta, h = start_of(classical_poles(parts, 3)[0], parts, ex.holds)
+    at_top = iterate(layout, theta, h, ex, top, True, None)
+    better = without_delay(at_top, ex, True, top=6)
+    assert np.array_equal(better.delays, [0, 0]) and better.cost < 0.5 * at_top.cost
+    assert without_delay(at_top, ex, True, top=7) is at_top
+
+
+def test_stable_is_refused_by_name_where_it_cannot_hold():
+    system = _system(2, 1, 1, 2)
+    rec = _record(system, 3, steps=300)
+    with pytest.raises(ValueError, match=r"stable must be True or False; got 'yes'"):
+        ae.identify(rec, order=2, stable="yes")
+    with pytest.raises(ValueError, match=r"structure must be None or 'mcf' with stable=True"):
+        ae.identify(rec, order=2, structure="ccf", stable=True)
+    est = ae.identify(rec, order=2, stable=True)       # one channel: the modal form
+    assert type(est.provenance.structure).__name__ == "MCF"
+
+
 def test_compare_per_output_and_overall():
     system = _system(3, 2, 2, 11)
     est = ae.identify(_record(system, 7, noise=0.01), order=3)

@@ -20,8 +20,8 @@ GENERIC_PREFIX = "generic-"
 
 
 #: The options of ``identify RECORD --order N`` (the generic identifiers) alone.
-GENERIC_OPTIONS = ("dt", "no_refine", "delay", "max_delay", "structure", "intersample",
-                   "figure")
+GENERIC_OPTIONS = ("dt", "no_refine", "delay", "max_delay", "structure", "stable",
+                   "intersample", "figure")
 
 
 def _shipped() -> list[str]:

@@ -151,7 +151,7 @@ def run_identify_any(args: argparse.Namespace) -> int:
     order = None if args.order == "auto" else int(args.order)
     try:
         est = ae.identify(record, order=order, structure=args.structure, refine=not args.no_refine,
-                          delay=args.delay, max_delay=args.max_delay)
+                          delay=args.delay, max_delay=args.max_delay, stable=args.stable)
     except ValueError as err:   # the record's content, its length, a missing generic file
         raise InputError(f"identify {args.model} --order {args.order}: {err}") from None
     figure = None

@@ -260,6 +260,10 @@ def _add_identify(sub, names: str, generic: str) -> None:
     idp.add_argument("--structure", choices=("ccf", "mcf"), default=None,
                      help="with --order: ccf (controllable canonical form with feedthrough, "
                           "default) or mcf (modal form, stable by construction)")
+    idp.add_argument("--stable", action="store_true",
+                     help="with --order: a stable model (a plant known to be stable): the modal "
+                          "form for one channel, the fit held to stable models for several; "
+                          "warns where the record's best model is unstable")
     idp.add_argument("--figure", default=None,
                      help="with --order: write the measured and the model's output (MATLAB's "
                           "compare, initial state and offset fitted) as a PNG file")

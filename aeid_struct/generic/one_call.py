@@ -30,6 +30,7 @@ from aeid_struct.generic.pipeline import (
     METHODS,
     ORDER_TOLERANCE,
     run,
+    warn_stable_only,
     warn_unexcited,
 )
 from aeid_struct.generic.pipeline import measured as measured
@@ -46,7 +47,7 @@ __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDERS", "
 @one_thread
 def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=None,
              identifier=None, method="auto", iterations=ITERATIONS,
-             classical=True) -> Estimate:
+             classical=True, stable=False) -> Estimate:
     """Identify a continuous-time model of a measured record in one call (see the module
     docstring): generic identifier, whole-record projection, input delay, refinement.
 
@@ -94,6 +95,14 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         The Steiglitz-McBride estimate as a candidate of the one pass and as the refinement's
         second start; False: the encoder's candidates alone (``iterations=0, classical=False,
         refine=False`` is the encoder's pass with projection only).
+    stable : bool
+        A stable model (every pole in the open left half-plane: a plant known to be stable,
+        MATLAB's ``EnforceStability``): for one channel the modal form (``structure`` None or
+        ``"mcf"``); for several channels or experiments the observer form's fit held to stable
+        models, each candidate's unstable poles mirrored into the left half-plane. Either way,
+        where the records' best model is unstable and fits clearly better, it warns
+        (:class:`~aeid_struct.generic.pipeline.StableOnlyWarning`) and ``info["unstable"]``
+        holds that model's ``poles`` and ``fit`` (with ``refine``).
 
     Returns
     -------
@@ -127,10 +136,17 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
     """
     if _tuple_of_channels(record):
         record = measured_record(*record)
+    if not isinstance(stable, (bool, np.bool_)):
+        raise ValueError(f"stable must be True or False; got {stable!r}")
     if several(record):
         return _several(record, order, structure=structure, refine=refine, delay=delay,
                         max_delay=max_delay, identifier=identifier, method=method,
-                        iterations=iterations, classical=classical)
+                        iterations=iterations, classical=classical, stable=bool(stable))
+    if stable:
+        if structure not in (None, "mcf"):
+            raise ValueError(f"structure must be None or 'mcf' with stable=True for one channel "
+                             f"(the modal form is the stable one); got {structure!r}")
+        structure = "mcf"
     return run(functools.partial(_identifiers, identifier=identifier), record, order,
                structure=structure, refine=refine, delay=delay, max_delay=max_delay,
                method=method, iterations=iterations, classical=classical)
@@ -143,7 +159,7 @@ def _tuple_of_channels(record) -> bool:
 
 
 def _several(record, order, *, structure, refine, delay, max_delay, identifier, method,
-             iterations, classical) -> Estimate:
+             iterations, classical, stable) -> Estimate:
     """``identify`` of several channels or experiments (``multi.identify``), the generic
     encoders' candidates of every output-input pair passed in as its proposals."""
     if structure not in (None, "ccf"):
@@ -172,7 +188,8 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
 
     began = time.perf_counter()
     kw = {"refine": refine, "delay": delay, "max_delay": max_delay, "iterations": iterations,
-          "classical": classical, "proposals": proposals, "orders": range(1, MAX_ORDER + 1)}
+          "classical": classical, "proposals": proposals, "orders": range(1, MAX_ORDER + 1),
+          "stable": stable}
     est = identify_multi(record, order, **kw)
     records = est.record
     outputs = [y[0].reshape(y.shape[1], -1) for y in records.y]
@@ -197,6 +214,9 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
     B, C, D = np.reshape(est.b, (n, -1)), np.reshape(est.c, (p, n)), np.reshape(est.d, (p, -1))
     unexcited = unexcited_modes(est.A, B, C, D, outputs, inputs, residual, records.dt[0])
     warn_unexcited(unexcited)
+    if "unstable" in est.info:
+        warn_stable_only(est.info["unstable"]["poles"], est.info["unstable"]["fit"], est.fit,
+                         "identify it without stable=True")
     info = {**est.info, "unexcited": unexcited} | ({"feedback": found} if refine else {})
     return dataclasses.replace(est, seconds=time.perf_counter() - began, info=info)
 

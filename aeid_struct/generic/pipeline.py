@@ -114,7 +114,7 @@ from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE",
-           "StableOnlyWarning", "UnexcitedModeWarning", "run", "warn_unexcited"]
+           "StableOnlyWarning", "UnexcitedModeWarning", "run", "warn_stable_only", "warn_unexcited"]
 
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
 SHORTLIST = 2
@@ -356,9 +356,27 @@ def _stable_only(unstable: dict | None, model: Model, dt: float) -> dict:
         return {}
     poles = np.sort_complex(np.asarray(unstable["poles"]) / dt)
     fit = 100.0 * (1.0 - np.sqrt(unstable["cost"] / model.cost) * (1.0 - model.fit / 100.0))
-    warn_caller(f"the record's best model is unstable (poles {np.round(poles, 4).tolist()}, "
-                f"fit {fit:.1f} % against {model.fit:.1f} %): the modal form is stable by "
-                f"construction and returns the best stable model, not the system; identify it "
-                f"with structure='ccf' (the default)", StableOnlyWarning)
+    warn_stable_only(poles, fit, model.fit, "identify it with structure='ccf' (the default)")
     return {"unstable": {"poles": poles, "fit": float(fit)}}
+
+
+def warn_stable_only(poles, fit, stable_fit, instead: str) -> None:
+    """The :class:`StableOnlyWarning` of an estimate held to stable models whose records' best
+    model is unstable (one channel's modal form, or ``stable=True``).
+
+    Parameters
+    ----------
+    poles : (n,) complex array
+        The unstable model's, in the record's time unit.
+    fit, stable_fit : float or (p,) array
+        Its fit % and the returned estimate's (per output for several).
+    instead : str
+        What to do instead, as the message's last words.
+    """
+    poles = np.sort_complex(np.asarray(poles))
+    fits = ", ".join(f"{float(v):.1f}" for v in np.ravel(fit))
+    ours = ", ".join(f"{float(v):.1f}" for v in np.ravel(stable_fit))
+    warn_caller(f"the record's best model is unstable (poles {np.round(poles, 4).tolist()}, "
+                f"fit {fits} % against {ours} %): the estimate is held to stable models and is "
+                f"the best stable one, not the system; {instead}", StableOnlyWarning)
 

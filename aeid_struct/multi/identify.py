@@ -36,15 +36,23 @@ import numpy as np
 from aeid_struct.identification import Estimate, Provenance
 from aeid_struct.multi.excitation import unexcited_modes
 from aeid_struct.multi.experiments import Experiments, experiments_of
-from aeid_struct.multi.fit import Fitted, iterate, physical, rescan
-from aeid_struct.multi.realisation import project
-from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, start_of
+from aeid_struct.multi.fit import (
+    Fitted,
+    beyond_stable,
+    iterate,
+    output_fits,
+    physical,
+    rescan,
+    validation_fit,
+    without_delay,
+)
+from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, stabilised, start_of
 from aeid_struct.records import RecordBatch
 from aeid_struct.threads import one_thread
 
 __all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "PATIENCE",
            "chosen_order", "fit_from_poles", "identify", "order_search_done", "packed",
-           "parameters", "validation_fit"]
+           "parameters"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``; the
 #: rule of one channel too: ``generic.pipeline`` reads it from here).
@@ -112,7 +120,7 @@ def _poles_of(dens) -> list[np.ndarray]:
 
 
 def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int,
-         classical: bool, proposals, feedthrough: bool) -> tuple[Fitted, int]:
+         classical: bool, proposals, feedthrough: bool, stable: bool) -> tuple[Fitted, int]:
     """Steps 2-5 of the module docstring for one order; the fit and the candidates scored
     (the one pass's bounded iterations, or the refinement's to convergence)."""
     budget = None if refine else iterations
@@ -128,6 +136,8 @@ def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int
                                                                           U[:, j]))]
     if not found:
         found = [(s, "classical") for s in classical_poles(parts, order)]
+    if stable:
+        found = [(stabilised(s), origin) for s, origin in found]
     with np.errstate(all="ignore"):
         fits = [relaxed(s, parts, ex.holds, feedthrough) for s, _ in found]
     ranked = sorted((k for k in range(len(found)) if np.isfinite(fits[k][0])),
@@ -141,9 +151,11 @@ def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int
             break
         poles, origin = found[k]
         layout, theta, h = start_of(poles, parts, ex.holds, feedthrough, fits[k])
-        fitted = iterate(layout, theta, h, ex, delays, feedthrough, budget, origin)
+        fitted = iterate(layout, theta, h, ex, delays, feedthrough, budget, origin, stable)
         if best is None or fitted.cost < best.cost:
             best = fitted
+    if refine and ex.delay is None:     # a delay against a slow pole: fit.without_delay
+        best = without_delay(best, ex, feedthrough, top, stable)
     # the delays walked at the fit's poles and the fit run again there, until they stay (the
     # poles of a fit at a wrong delay move towards the right one's, where the walk goes on)
     for _ in range(RESCANS if ex.delay is None and top > 0 else 0):
@@ -151,10 +163,12 @@ def _fit(ex: Experiments, order: int, *, refine: bool, top: int, iterations: int
         if np.array_equal(moved, best.delays):
             break
         again = iterate(best.layout, best.theta, best.h, ex, moved, feedthrough, budget,
-                        best.start)
+                        best.start, stable)
         if not again.cost < best.cost:
             break
         best = again
+    if stable and refine:    # the records' best model may be unstable: say so (fit.beyond_stable)
+        best = beyond_stable(best, ex, feedthrough)
     return best, len(found)
 
 
@@ -190,40 +204,10 @@ def fit_from_poles(record, order: int, poles=None, *, origin: str = "arx",
     return _estimate(fitted, ex, False, dict(info or {}), time.perf_counter() - began)
 
 
-def validation_fit(fitted: Fitted, ex: Experiments, feedthrough: bool) -> np.ndarray:
-    """NRMSE fit in % per record and output of a fitted model on ``ex`` (its initial states
-    and offsets fitted, ``B, D`` kept): ``(R, p)``.
-
-    Parameters
-    ----------
-    fitted : Fitted
-    ex : Experiments
-    feedthrough : bool
-
-    Returns
-    -------
-    (R, p) array
-    """
-    A, C = fitted.layout.model(fitted.theta)
-    parts = ex.aligned(fitted.delays)
-    with np.errstate(all="ignore"):
-        proj = project(A, C, parts, fitted.h, ex.holds, feedthrough,
-                       B=fitted.projection.B, D=fitted.projection.D)
-    return np.array([_fits(Y, Yh) for (Y, _), Yh in zip(parts, proj.y_hat, strict=True)])
-
-
-def _fits(Y: np.ndarray, Y_hat: np.ndarray) -> np.ndarray:
-    """Per column: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``."""
-    with np.errstate(all="ignore"):
-        fit = 100.0 * (1.0 - np.linalg.norm(Y - Y_hat, axis=0)
-                       / np.linalg.norm(Y - Y.mean(axis=0), axis=0))
-    return np.where(np.isfinite(fit), fit, -np.inf)
-
-
 @one_thread
 def identify(record, order=None, *, refine=True, delay=None, max_delay=None, iterations=3,
              classical=True, proposals=None, orders=range(1, 9), feedthrough=True,
-             what="ae.identify") -> Estimate:
+             stable=False, what="ae.identify") -> Estimate:
     """Identify one model of records with several channels, or of several experiments (module
     docstring); the body of ``ae.identify`` for them.
 
@@ -249,6 +233,11 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
     orders : iterable of int
         Where ``order=None`` selects.
     feedthrough : bool
+    stable : bool
+        Hold the fit to stable models (every pole in the open left half-plane), each candidate's
+        unstable poles mirrored into it (``multi.start.stabilised``); with ``refine``, where
+        the unconstrained fit from there is unstable and clearly better, ``info["unstable"]``
+        holds its ``poles`` (record time unit) and ``fit`` (per output).
     what : str
 
     Returns
@@ -269,7 +258,7 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
     """
     began = time.perf_counter()
     orders = [int(n) for n in orders]
-    _check(order, orders, refine, iterations, classical, max_delay)
+    _check(order, orders, refine, iterations, classical, max_delay, stable)
     ex = experiments_of(record, delay, what=what)
     wanted = [order] if order is not None else [n for n in orders if _room(ex, n) >= 0]
     least = wanted[0] if wanted else 1
@@ -284,7 +273,7 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
                          f"after the delay: at most {room} for these records; got {max_delay}")
     largest = MAX_DELAY if max_delay is None else int(max_delay)
     kw = {"refine": bool(refine), "iterations": int(iterations), "classical": bool(classical),
-          "proposals": proposals, "feedthrough": feedthrough}
+          "proposals": proposals, "feedthrough": feedthrough, "stable": stable}
     order_fits = None
     if order is None:
         order, order_fits = _select(ex, wanted, least, largest, kw)
@@ -402,7 +391,7 @@ def _undetermined(fitted: Fitted, ex: Experiments) -> bool:
                                 residual, ex.dt))
 
 
-def _check(order, orders, refine, iterations, classical, max_delay) -> None:
+def _check(order, orders, refine, iterations, classical, max_delay, stable) -> None:
     """The arguments of :func:`identify` other than the records (``experiments_of``), each
     refused by name."""
     if order is not None and (isinstance(order, bool) or not isinstance(order, (int, np.integer))
@@ -413,7 +402,7 @@ def _check(order, orders, refine, iterations, classical, max_delay) -> None:
             iterations < 0):
         raise ValueError(f"iterations must be an integer >= 0 (iterations of the one pass); got "
                          f"{iterations!r}")
-    for name, value in (("refine", refine), ("classical", classical)):
+    for name, value in (("refine", refine), ("classical", classical), ("stable", stable)):
         if not isinstance(value, (bool, np.bool_)):
             raise ValueError(f"{name} must be True or False; got {value!r}")
     if max_delay is not None and (isinstance(max_delay, bool) or not isinstance(
@@ -425,6 +414,7 @@ def _estimate(fitted: Fitted, ex: Experiments, refine: bool, info: dict,
               seconds: float) -> Estimate:
     """The Estimate of a fit (``identify``'s Returns)."""
     model = physical(fitted, ex)
+    info = info | ({} if fitted.unstable is None else {"unstable": fitted.unstable})
     info = {**info, "cost": fitted.cost, "start": fitted.start,
             "reference": fitted.layout.reference, "iterations": fitted.iterations,
             "converged": fitted.converged, "form": "observer"}
@@ -456,7 +446,7 @@ def packed(model: dict, records, delays, refined: bool, info: dict,
     delays = np.asarray(delays, dtype=int)
     top = int(delays.max())
     n = model["A"].shape[0]
-    fits = np.array([_fits(rec.Y[top:], np.reshape(Yh, rec.Y.shape)[top:])
+    fits = np.array([output_fits(rec.Y[top:], np.reshape(Yh, rec.Y.shape)[top:])
                      for rec, Yh in zip(records, model["y_hat"], strict=True)])   # (R, p)
 
     def per_record(values, squeeze):

@@ -31,6 +31,7 @@ import scipy.signal
 from aeid_struct.multi.realisation import Layout, observer_form, responses
 
 __all__ = ["EARLY", "arx_delays", "classical_poles", "continuous_poles", "reflected", "relaxed",
+           "stabilised",
            "scale_of", "start_of"]
 
 #: Steiglitz-McBride refits of the early candidate (the fixed point is the other).
@@ -147,6 +148,27 @@ def reflected(a: np.ndarray) -> np.ndarray:
         return a
     roots[outside] = 1.0 / np.conj(roots[outside])
     return np.real(np.poly(roots))
+
+
+def stabilised(poles: np.ndarray) -> np.ndarray:
+    """``poles`` with each one on or right of the imaginary axis mirrored into the open left
+    half-plane (``s -> -conj(s)``, the continuous-time counterpart of :func:`reflected`): the
+    same magnitudes and oscillation, so a start of a fit held to stable models (``stable=True``)
+    keeps the candidate's time scales. A pole at zero (an integrator) moves to a thousandth of
+    the largest magnitude on the left (at least float64's smallest normal number).
+
+    Parameters
+    ----------
+    poles : (n,) complex array
+        Per sample.
+
+    Returns
+    -------
+    (n,) complex array
+    """
+    s = np.asarray(poles, dtype=complex)
+    floor = max(1e-3 * float(np.abs(s).max(initial=0.0)), np.finfo(np.float64).tiny)
+    return -np.maximum(np.abs(s.real), floor) + 1j * s.imag
 
 
 def continuous_poles(a: np.ndarray) -> np.ndarray:
