@@ -14,6 +14,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import threadpoolctl
+import torch
 
 import aeid_struct as ae
 from aeid_struct.cli import main
@@ -35,7 +37,16 @@ def fleet(tmp_path_factory):
     np.savez(src / "more" / "b.npz", y=y)
     pq.write_table(pa.table({"y": [list(r) for r in rec.y[1200:]]}), src / "c.parquet")
     (src / "bad.npy").write_bytes(b"not an array")
-    plain = ident.identify(rec.y, errors="collect")
+    # the plain call as the workers run it: Dask's nanny gives each worker process one OpenMP
+    # and BLAS thread, and on some BLAS kernels the float32 encoder's sums are blocked by the
+    # thread count (two threads against one: 1e-7 apart on OpenBLAS's SkylakeX kernel)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with threadpoolctl.threadpool_limits(1):
+            plain = ident.identify(rec.y, errors="collect")
+    finally:
+        torch.set_num_threads(threads)
     return src, plain
 
 
