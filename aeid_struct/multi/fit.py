@@ -54,8 +54,8 @@ class Fitted:
         ``"encoder"`` or ``"classical"``: where the start's poles came from.
     unstable : dict, optional
         Where the fit was held to stable models (``stable``) and the unconstrained fit from it
-        is unstable and clearly better (:func:`beyond_stable`): its ``poles`` (per second of
-        the records' time unit) and ``fit`` (% per output, over every record's samples).
+        is unstable and clearly better (:func:`beyond_stable`): its ``poles`` (in the inverse
+        of the records' time unit) and ``fit`` (% per output, over every record's samples).
     """
 
     layout: Layout
@@ -184,15 +184,13 @@ def without_delay(fitted: Fitted, experiments, feedthrough: bool, top: int,
     cost.
 
     Why: a delay and a slow pole trade off, and the common-denominator ARX picks the delay
-    at fixed low order: on a thermal record's sluggish start it chose the largest delay
-    allowed, and the output-error fit there ended in another basin than the fit without a
-    delay, whose cost was lower (a measured 2x2 heater record, order 4: 0.000244 at delays
-    (10, 10) against 0.000226 at none). The walk over the delays (:func:`rescan`) moves one
-    sample at a time at fixed poles and does not cross to it. A delay at the top of its range
-    is the sign (a real delay lies inside the range): only there a short trial
-    (:data:`TRIAL`) decides, and only a better one is run to convergence (on the channels
-    benchmark's records, with delays of 0-3 samples, a trial at every nonzero delay changed
-    no fit and cost a third more time).
+    at fixed low order: on a measured heater record's sluggish start it chose the largest
+    delay allowed, and the output-error fit there ended in another basin than the fit without
+    a delay, whose cost was lower. The walk over the delays (:func:`rescan`) moves one sample
+    at a time at fixed poles and does not cross to it. A delay at the top of its range is the
+    sign (a real delay lies inside the range): only there a short trial (:data:`TRIAL`)
+    decides, and only a better one is run to convergence; a trial at every nonzero delay
+    changed no fit of the channels benchmark and cost it time.
 
     Parameters
     ----------
