@@ -358,20 +358,38 @@ def test_identify_a_record_of_two_inputs_and_two_outputs(tmp_path, capsys):
 
 
 def test_identify_stable_holds_the_model_stable(tmp_path, capsys):
-    """--stable: the library's stable=True (a stable plant: the constraint changes nothing);
-    one channel goes to the modal form."""
+    """--stable: the library's stable=True (a stable plant: the constraint changes nothing,
+    nothing to report); one channel goes to the modal form; a plant with a pole at +0.5 (ae's
+    FOH simulation) comes back stable, and the JSON and the printout say its best model is
+    not."""
     t, U, Y, _ = _two_by_two()
     csv = _write_csv(tmp_path / "plant.csv", "t,u1,u2,y1,y2",
                      [t, U[:, 0], U[:, 1], Y[:, 0], Y[:, 1]])
     js = tmp_path / "plant.json"
     assert main(["identify", csv, "--order", "2", "--stable", "--json", str(js)]) == 0
     result = json.loads(js.read_text())
+    assert result["stable"] is True and result["unstable"] is None
     assert np.all(np.linalg.eigvals(np.array(result["A"])).real < 0)
     direct = ae.identify(ae.Record(Y, U, 0.05), order=2, stable=True)
     np.testing.assert_allclose(result["fit_percent"], direct.fit, rtol=1e-9)
-    one = _write_csv(tmp_path / "one.csv", "t,u,y", [t, U[:, 0], Y[:, 0]])
+    y = ae.simulate(np.array([[0.0, 1.0], [-4.0, -0.8]]), np.array([0.0, 1.0]),
+                    np.array([1.0, 0.0]), 0.0, U[:, 0], 0.05)
+    one = _write_csv(tmp_path / "one.csv", "t,u,y", [t, U[:, 0], y])
     assert main(["identify", one, "--order", "2", "--stable", "--json", str(js)]) == 0
     assert json.loads(js.read_text())["structure"].startswith("MCF(")
+    A = np.array([[0.5, 0.0], [0.0, -2.0]])
+    u = U[:300, 0]
+    Y = np.column_stack([ae.simulate(A, np.ones(2), c, 0.0, u, 0.05)
+                         for c in ([1.0, 1.0], [1.0, -0.5])])
+    Y = Y + 0.01 * Y.std(axis=0) * np.random.default_rng(1).standard_normal(Y.shape)
+    grows = _write_csv(tmp_path / "grows.csv", "t,u,y1,y2", [t[:300], u, Y[:, 0], Y[:, 1]])
+    capsys.readouterr()
+    with pytest.warns(ae.StableOnlyWarning, match=r"best model is unstable"):
+        assert main(["identify", grows, "--order", "2", "--stable", "--json", str(js)]) == 0
+    result = json.loads(js.read_text())
+    assert max(result["unstable"]["poles_real"]) == pytest.approx(0.5, abs=0.01)
+    assert np.all(np.linalg.eigvals(np.array(result["A"])).real < 0)
+    assert "held stable: the record's best model is unstable" in capsys.readouterr().out
 
 
 def test_numbered_columns_refused_where_they_do_not_fit(tmp_path, capsys):

@@ -23,6 +23,8 @@ from aeid_struct.cli.identify_channels import (
     summary_channels,
     unexcited_line,
     unexcited_of,
+    unstable_line,
+    unstable_of,
 )
 from aeid_struct.cli.output import plain, write_json
 from aeid_struct.cli.records_io import read_record
@@ -195,6 +197,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
         "refined": bool(est.refined), "refine": not args.no_refine,
         "seconds": float(est.seconds), "figure": figure,
         "feedback": est.info.get("feedback"), "unexcited": unexcited_of(est),
+        "stable": bool(args.stable), "unstable": unstable_of(est),
     }
 
 
@@ -221,8 +224,9 @@ def _print(s: dict, est) -> None:
         print(f"closed loop: the residuals are correlated with later inputs (z = "
               f"{found['statistic']:.1f} at lag {found['lag']} > {found['bound']:.2f})"
               + ("; identified without a feedthrough" if "refit" in found else ""))
-    if unexcited_line(s) is not None:
-        print(unexcited_line(s))
+    for line in (unexcited_line(s), unstable_line(s)):
+        if line is not None:
+            print(line)
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: fit {s['figure']['fit_percent']:.2f} %)")

@@ -85,6 +85,49 @@ def unexcited_line(s: dict) -> str | None:
                 f"{m['gain']:.3g} x the model's where the input is)" for m in s["unexcited"]))
 
 
+def unstable_of(est) -> dict | None:
+    """``info["unstable"]`` of an estimate held to stable models (``--stable``, or the modal
+    form) as the JSON carries it: the unstable model's poles (real and imaginary parts, in the
+    record's time unit) and fit % (per output for several), or None where there is none.
+
+    Parameters
+    ----------
+    est : Estimate
+
+    Returns
+    -------
+    dict or None
+    """
+    found = est.info.get("unstable")
+    if found is None:
+        return None
+    poles = np.sort_complex(np.asarray(found["poles"], dtype=complex))
+    return {"poles_real": poles.real.tolist(), "poles_imag": poles.imag.tolist(),
+            "fit_percent": np.atleast_1d(found["fit"]).astype(float).tolist()}
+
+
+def unstable_line(s: dict) -> str | None:
+    """The printout's line on a stable estimate whose record's best model is unstable
+    (``unstable`` of a summary), or None.
+
+    Parameters
+    ----------
+    s : dict
+
+    Returns
+    -------
+    str or None
+    """
+    found = s["unstable"]
+    if found is None:
+        return None
+    poles = ", ".join(f"{re:.4g}{im:+.4g}j" if im else f"{re:.4g}"
+                      for re, im in zip(found["poles_real"], found["poles_imag"], strict=True))
+    fits = ", ".join(f"{f:.2f}" for f in found["fit_percent"])
+    return (f"held stable: the record's best model is unstable (poles {poles}; fit {fits} %), "
+            f"so the estimate is the best stable model, not the system")
+
+
 def summary_channels(est, record, args: argparse.Namespace, source: str, figure) -> dict:
     """The estimate of several channels as the JSON and the printout carry it.
 
@@ -121,6 +164,7 @@ def summary_channels(est, record, args: argparse.Namespace, source: str, figure)
         "fit_percent": fit.tolist(), "fit_overall_percent": float(np.mean(fit)),
         "refined": bool(est.refined), "refine": not args.no_refine,
         "seconds": float(est.seconds), "figure": figure, "unexcited": unexcited_of(est),
+        "stable": bool(args.stable), "unstable": unstable_of(est),
     }
 
 
@@ -150,8 +194,9 @@ def print_channels(s: dict, est) -> None:
           + f"; mean {s['fit_overall_percent']:.2f} % (NRMSE, initial state and offsets "
           f"fitted)")
     print(refinement_line(s))
-    if unexcited_line(s) is not None:
-        print(unexcited_line(s))
+    for line in (unexcited_line(s), unstable_line(s)):
+        if line is not None:
+            print(line)
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: mean fit "

@@ -356,7 +356,8 @@ def _stable_only(unstable: dict | None, model: Model, dt: float) -> dict:
         return {}
     poles = np.sort_complex(np.asarray(unstable["poles"]) / dt)
     fit = 100.0 * (1.0 - np.sqrt(unstable["cost"] / model.cost) * (1.0 - model.fit / 100.0))
-    warn_stable_only(poles, fit, model.fit, "identify it with structure='ccf' (the default)")
+    warn_stable_only(poles, fit, model.fit, "identify it with structure='ccf' (the default) "
+                     "and without stable=True")
     return {"unstable": {"poles": poles, "fit": float(fit)}}
 
 
