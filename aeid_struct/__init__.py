@@ -26,6 +26,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from aeid_struct.encoder import EncoderConfig as EncoderConfig
     from aeid_struct.generic import FeedbackWarning as FeedbackWarning
     from aeid_struct.generic import StableOnlyWarning as StableOnlyWarning
+    from aeid_struct.generic import UndeterminedModelWarning as UndeterminedModelWarning
     from aeid_struct.generic import UnexcitedModeWarning as UnexcitedModeWarning
     from aeid_struct.generic import compare as compare
     from aeid_struct.generic import identify as identify
@@ -81,6 +82,7 @@ _SOURCES = {
     "TrainConfig": "training",
     "UndertrainedWarning": "training",
     "StableOnlyWarning": "generic",
+    "UndeterminedModelWarning": "generic",
     "UnexcitedModeWarning": "generic",
     "FeedbackWarning": "generic",
     "train": "training",
@@ -106,6 +108,7 @@ __all__ = [
     "System",
     "TrainConfig",
     "UndertrainedWarning",
+    "UndeterminedModelWarning",
     "UnexcitedModeWarning",
     "compare",
     "discretise",

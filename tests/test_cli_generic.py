@@ -89,6 +89,9 @@ def test_identify_a_csv_record_end_to_end(tmp_path, capsys):
     assert result["delay_samples"] == DELAY and result["delay_estimated"] is True
     assert result["delay_seconds"] == pytest.approx(DELAY * DT, rel=1e-12)
     assert result["refined"] is True and result["fit_percent"] > 95.0
+    # the model fitted on the first 70 % predicts the rest as well as it fits the whole record
+    assert result["holdout_fit_percent"] > result["fit_percent"] - 3.0
+    assert "hold-out: fitted on the first 70 %" in out and "does not determine" not in out
     # against the truth: the poles within 2 %, the offset within 2 % of its value
     poles = np.sort_complex(np.linalg.eigvals(np.array(result["A"])))
     true_poles = np.sort_complex(np.linalg.eigvals(A_TRUE))

@@ -198,6 +198,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
         "seconds": float(est.seconds), "figure": figure,
         "feedback": est.info.get("feedback"), "unexcited": unexcited_of(est),
         "stable": bool(args.stable), "unstable": unstable_of(est),
+        "holdout_fit_percent": est.info.get("holdout_fit"),
     }
 
 
@@ -227,6 +228,11 @@ def _print(s: dict, est) -> None:
     for line in (unexcited_line(s), unstable_line(s)):
         if line is not None:
             print(line)
+    holdout = s["holdout_fit_percent"]
+    if holdout is not None:
+        print(f"hold-out: fitted on the first 70 %, the model predicts the rest with a fit of "
+              f"{holdout:.2f} %" + (" -- the record does not determine a model of this order"
+                                     if holdout < 0 else ""))
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: fit {s['figure']['fit_percent']:.2f} %)")

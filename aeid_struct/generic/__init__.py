@@ -37,6 +37,7 @@ from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.generic.one_call import identify as identify
 from aeid_struct.generic.one_call import measured as measured
 from aeid_struct.generic.pipeline import StableOnlyWarning as StableOnlyWarning
+from aeid_struct.generic.pipeline import UndeterminedModelWarning as UndeterminedModelWarning
 from aeid_struct.generic.pipeline import UnexcitedModeWarning as UnexcitedModeWarning
 from aeid_struct.generic.poles import denominator as denominator
 from aeid_struct.generic.poles import factors as factors
@@ -63,6 +64,7 @@ __all__ = [
     "ORDERS",
     "ORDER_TOLERANCE",
     "StableOnlyWarning",
+    "UndeterminedModelWarning",
     "UnexcitedModeWarning",
     "Windows",
     "arx",

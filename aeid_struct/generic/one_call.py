@@ -126,7 +126,11 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         ``unexcited``: every estimate's lightly damped pairs that the record does not
         determine (``multi.excitation.unexcited_modes``: ``pole`` in the record's time unit,
         ``damping``, ``snr``, ``gain``; empty where there are none); where there are any it
-        warns (:class:`~aeid_struct.generic.pipeline.UnexcitedModeWarning`).
+        warns (:class:`~aeid_struct.generic.pipeline.UnexcitedModeWarning`). ``holdout_fit``
+        (one channel, refined): the validation fit % of the same fit on the first 70 % of the
+        record run on the rest (None where the record cannot be split); below 0 it warns
+        (:class:`~aeid_struct.generic.pipeline.UndeterminedModelWarning`): the record does not
+        determine a model of that order.
 
     Raises
     ------
