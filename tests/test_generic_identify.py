@@ -802,7 +802,8 @@ def test_orders_above_the_encoders_start_from_the_classical_candidates(noise):
 
 
 def test_a_model_the_record_does_not_determine_is_flagged_by_its_hold_out():
-    """The refined model of the first 70 % of a record, run on the rest (x0 and offset fitted):
+    """The one pass of the first 70 % of a record at the refined estimate's delay, run on the
+    rest (x0 and offset fitted):
     a short integrating record whose order-3 optimum fits it to 99 % and fails on new data
     (-14110 % in validation, the benchmark's record) predicts its own last part badly
     (UndeterminedModelWarning, ``info["holdout_fit"]`` below 0); a well-determined record of

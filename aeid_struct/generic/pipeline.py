@@ -281,16 +281,19 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
 
 def _holdout(call, order: int, model: Model, order_fits, criterion,
              fitting: tuple) -> float | None:
-    """The validation fit of a model of ``order`` fitted, as the estimate was, on the first
-    :data:`ESTIMATION_SHARE` of the record at the estimate's delay and run on the rest (initial
-    state and offset fitted): read from ``order=None``'s ``order_fits`` where its hold-out ran
-    (:func:`_select_order`), else fitted here, records shorter than the identifier's window
-    included (they are read at a finer grid). None where the record leaves no such split (a
-    part too short for the order, or without variation).
+    """The validation fit of a model of ``order`` fitted on the first :data:`ESTIMATION_SHARE`
+    of the record at the estimate's delay and run on the rest (initial state and offset
+    fitted): read from ``order=None``'s ``order_fits`` where its hold-out ran
+    (:func:`_select_order`), else the one pass's fit (``iterations`` of ``fitting``) here,
+    records shorter than the identifier's window included (they are read at a finer grid).
+    None where the record leaves no such split (a part too short for the order, or without
+    variation).
 
-    Why a hold-out and not the parameters' covariance: on the benchmark's 200-sample records
-    the poles' standard errors were no smaller on the fits that validated well than on those
-    that failed, while a model that cannot predict the record's own last part failed."""
+    Why a hold-out and not the parameters' covariance: on the benchmark's short records the
+    poles' standard errors were no smaller on the fits that validated well than on those that
+    failed, while a model that cannot predict the record's own last part failed. Why the one
+    pass and not a second refinement: it flagged nearly the same records at a third of the
+    cost."""
     if criterion is None and order_fits and order in order_fits:
         return float(order_fits[order])
     work, D = call.work, int(model.delay)
@@ -300,7 +303,7 @@ def _holdout(call, order: int, model: Model, order_fits, criterion,
         return None
     part = Record(work.y[:cut], work.u[:cut], work.dt, delay=D, intersample=work.intersample)
     try:
-        fitted = _fit(replace(call, work=part), order, None, *fitting)[0]
+        fitted = _fit(replace(call, work=part), order, None, False, *fitting[1:])[0]
     except ValueError:       # the part refused (a record the identifiers cannot read)
         return None
     fit = fit_initial(fitted.A, fitted.b, fitted.c, fitted.d, work.y[cut:], work.u[cut:], 1.0,
@@ -309,9 +312,10 @@ def _holdout(call, order: int, model: Model, order_fits, criterion,
 
 
 class UndeterminedModelWarning(UserWarning):
-    """The refined model fitted on the first part of its record predicts the rest badly (a
-    validation fit below :data:`HOLDOUT_FLOOR`): the record does not determine a model of that
-    order, and it may fail on other data although it fits the record well."""
+    """A model of the refined estimate's order, fitted on the first part of its record,
+    predicts the rest badly (a validation fit below :data:`HOLDOUT_FLOOR`): the record does not
+    determine a model of that order, and the estimate may fail on other data although it fits
+    the record well."""
 
 
 #: A hold-out fit (:func:`_holdout`) below this, in %, flags the estimate: a model that
@@ -333,10 +337,10 @@ def warn_holdout(holdout: float | None, fit: float) -> None:
     """
     if holdout is None or not holdout < HOLDOUT_FLOOR:
         return
-    warn_caller(f"the model fitted on the first {ESTIMATION_SHARE:.0%} of the record predicts "
-                f"the rest with a fit of {holdout:.1f} % (its fit on the whole record: "
-                f"{fit:.1f} %): the record does not determine a model of this order, which may "
-                f"fail on other data; try a lower order or a longer record",
+    warn_caller(f"a model of this order fitted on the first {ESTIMATION_SHARE:.0%} of the "
+                f"record predicts the rest with a fit of {holdout:.1f} % (the estimate's fit on "
+                f"the whole record: {fit:.1f} %): the record does not determine a model of this "
+                f"order, which may fail on other data; try a lower order or a longer record",
                 UndeterminedModelWarning)
 
 
