@@ -139,8 +139,7 @@ class Estimate(EstimateFields):
             # the library's own keyword form (one per tracker window): nothing to translate,
             # the fields set at once (a frozen dataclass's fields live in its __dict__)
             self.__dict__.update(A=A, b=b, c=c, d=d, elements=elements, record=record,
-                                 provenance=Provenance() if provenance is None else provenance,
-                                 seconds=seconds,
+                                 provenance=_provenance(provenance, old), seconds=seconds,
                                  refined=refined, info={} if info is None else info,
                                  errors=errors)
             return

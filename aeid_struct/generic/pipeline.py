@@ -298,6 +298,8 @@ def _holdout(call, order: int, model: Model, order_fits, criterion,
         return float(order_fits[order])
     work, D = call.work, int(model.delay)
     cut = int(round(ESTIMATION_SHARE * work.steps))
+    # the part must leave the samples a fit of this order needs after the delay, and the rest
+    # at least half as many: more than the n states and the offset fitted to it
     if cut - D < shortest(order) or work.steps - cut - D < shortest(order) // 2 or not (
             np.ptp(work.u[:cut]) > 0 and np.ptp(work.y[cut:]) > 0):
         return None
@@ -319,9 +321,7 @@ class UndeterminedModelWarning(UserWarning):
 
 
 #: A hold-out fit (:func:`_holdout`) below this, in %, flags the estimate: a model that
-#: predicts its record's last part worse than that part's mean does (the generic benchmark's
-#: records measured the rate of false alarms and of failures caught; the closing notes give
-#: them).
+#: predicts its record's last part worse than that part's own mean does.
 HOLDOUT_FLOOR = 0.0
 
 

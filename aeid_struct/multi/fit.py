@@ -87,14 +87,14 @@ class _Problem:
 
     def evaluate(self, x, rows, jacobian, at):
         theta = np.asarray(x[0], dtype=np.float64)
-        if self.stable and not is_stable(self.layout.model(theta)[0]):
+        A, C = self.layout.model(theta)
+        if self.stable and not is_stable(A):
             # outside the stable models: an infinite cost, which the Levenberg-Marquardt
             # rejects as it rejects an overflow, damping the step until it stays inside
             return {"cost": np.array([np.inf]), "r": None, "theta": theta[None],
                     "proj": [None]}
         with np.errstate(all="ignore"):
-            proj = project(*self.layout.model(theta), self.parts, self.h, self.holds,
-                           self.feedthrough)
+            proj = project(A, C, self.parts, self.h, self.holds, self.feedthrough)
         finite = bool(np.all(np.isfinite(proj.residual)))
         return {"cost": np.array([proj.cost if finite else np.inf]),
                 "r": proj.residual[None] if finite else None,
