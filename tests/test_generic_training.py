@@ -102,6 +102,27 @@ def test_a_stopped_run_resumes_to_the_uninterrupted_weights(tmp_path):
         assert whole.meta["history"][key] == resumed.meta["history"][key]
 
 
+def test_worker_processes_simulate_the_same_windows_and_resume_alike(tmp_path):
+    # the windows come from the blocks' own streams whoever simulates them: two workers, one
+    # epoch ahead, give the one-process run bit for bit, stopped and resumed too
+    one = train_generic(CONFIG, settings(), family=TinyFamily())
+
+    def stop(epoch, history):
+        if epoch == 2:
+            raise Stop
+
+    path = tmp_path / "w.ckpt"
+    with pytest.raises(Stop):
+        train_generic(CONFIG, settings(workers=2, checkpoint=str(path)), family=TinyFamily(),
+                      on_epoch=stop)
+    two = train_generic(CONFIG, settings(workers=2, checkpoint=str(path)), family=TinyFamily())
+    for (k, v), (_, w) in zip(one.encoder.state_dict().items(),
+                              two.encoder.state_dict().items(), strict=True):
+        assert torch.equal(v, w), k
+    assert one.meta["history"]["holdout_loss"] == two.meta["history"]["holdout_loss"]
+    assert two.meta["train"]["settings"]["workers"] == 2
+
+
 def test_a_checkpoint_of_another_run_is_refused(tmp_path):
     path = tmp_path / "c.ckpt"
     train_generic(CONFIG, settings(epochs=1, checkpoint=str(path)), family=TinyFamily())
@@ -122,6 +143,7 @@ def test_a_checkpoint_of_another_run_is_refused(tmp_path):
     (dict(clip=0), r"clip must be positive \(inf: no clipping\); got 0"),
     (dict(seed=-1), "seed must be a non-negative integer; got -1"),
     (dict(threads=0), "threads must be a positive integer; got 0"),
+    (dict(workers=0), "workers must be a positive integer; got 0"),
 ])
 def test_bad_settings_are_refused(kw, message):
     with pytest.raises(ValueError, match=message):
@@ -162,7 +184,10 @@ def test_the_nmse_loss_is_one_minus_r_squared():
     (["--order", "2", "--init", "generic-9"],
      "train-generic: --init 'generic-9': name_or_path must be one of"),
     (["--order", "2", "--init", "generic-3"],
-     "train-generic: --init 'generic-3' is an identifier of order 3, window 256; --order 2"),
+     r"train-generic: --init 'generic-3' is an identifier of order 3, window 256, width 12, "
+     r"depth 3, dense \[64, 64\]; --order 2 --window 256 --width 12 --depth 3 --dense 64 64"),
+    (["--order", "2", "--width", "16", "--init", "generic-2"],
+     r"--init 'generic-2' is an identifier of order 2, window 256, width 12, .* --width 16"),
     (["--order", "2", "--integrating", "0.7", "--unstable", "0.6"],
      r"train-generic: integrating \+ unstable must be at most 1"),
 ])

@@ -52,7 +52,9 @@ def run_train_generic(args: argparse.Namespace) -> int:
     )
 
     try:
-        config = GenericConfig(order=args.order, window=args.window)
+        shape = {k: v for k, v in (("width", args.width), ("depth", args.depth),
+                                   ("dense", args.dense)) if v is not None}
+        config = GenericConfig(order=args.order, window=args.window, **shape)
         # an unstable plant grows by e^0.5 to e^3 over one window (GrowthFamily reads it
         # under a weight of up to e^-4 over the window, which leaves it stable)
         family = GenericFamily(order=config.order, band=config.band,
@@ -71,14 +73,18 @@ def run_train_generic(args: argparse.Namespace) -> int:
             raise InputError(f"train-generic: --init {args.init!r}: {err}") from None
         if init.config != config:
             raise InputError(f"train-generic: --init {args.init!r} is an identifier of order "
-                             f"{init.config.order}, window {init.config.window}; --order "
-                             f"{config.order} --window {config.window} needs one of that shape")
+                             f"{init.config.order}, window {init.config.window}, width "
+                             f"{init.config.width}, depth {init.config.depth}, dense "
+                             f"{list(init.config.dense)}; --order {config.order} --window "
+                             f"{config.window} --width {config.width} --depth {config.depth} "
+                             f"--dense {' '.join(map(str, config.dense))} needs one of that "
+                             "shape")
     try:
         train = GenericTrainConfig(
             epochs=args.epochs, seconds=None if args.minutes is None else 60.0 * args.minutes,
             count=args.count, holdout=args.holdout, batch=args.batch, lr=args.lr,
             seed=args.seed, loss=args.loss, checkpoint=str(ckpt), progress=not args.quiet,
-            threads=args.threads, device=args.device)
+            threads=args.threads, device=args.device, workers=args.workers)
     except ValueError as err:
         raise InputError(f"train-generic: {err}") from None
     meta = {"name": out.stem, "command": "aeid-struct " + " ".join(args.argv)}

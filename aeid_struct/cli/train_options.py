@@ -116,6 +116,16 @@ def add_train_generic(sub) -> None:
                     help="where the encoder and the projection run: cpu (default), cuda, or auto "
                          "(a GPU when torch finds one). Launched by torchrun, the run is "
                          "data-parallel (--batch is the global batch) and rank 0 writes --out")
+    tg.add_argument("--workers", type=POSITIVE_INT, default=1,
+                    help="processes that simulate the fresh windows, the next epoch's while one "
+                         "trains (default 1: the training process; the result does not depend "
+                         "on it)")
+    tg.add_argument("--width", type=POSITIVE_INT, default=None,
+                    help="channels of the encoder's convolutions (default 12)")
+    tg.add_argument("--depth", type=POSITIVE_INT, default=None,
+                    help="residual blocks of the encoder (default 3)")
+    tg.add_argument("--dense", type=POSITIVE_INT, nargs="+", default=None,
+                    help="widths of the encoder's hidden dense layers (default 64 64)")
     tg.add_argument("--init", default=None, metavar="NAME_OR_FILE",
                     help="start from this generic identifier's weights (a shipped name such as "
                          "generic-2, or an .aeid file of the same order and shape): fine-tuning")

@@ -346,11 +346,36 @@ def row_records(family, config, epoch: int, rows) -> Records:
                    np.zeros(len(systems)))
 
 
-def block_windows(family, seed: int, count: int, window: int, epoch: int, rows):
+def block_records(family, seed: int, count: int, window: int, epoch: int, block: int):
+    """Block ``block`` of an epoch's fresh windows, unnormalised: ``family.records`` of its
+    ``min(BLOCK, count - block BLOCK)`` windows on the generator seeded by
+    ``(seed, epoch + 1, block)`` (a top-level function: worker processes run it,
+    ``training.window_pool``).
+
+    Parameters
+    ----------
+    family : object
+        Gives ``records(count, steps, rng)`` with ``y`` and ``u`` of shape ``(count, steps)``.
+    seed, count, window, epoch : int
+        As :func:`block_windows`.
+    block : int
+        In ``[0, ceil(count / BLOCK))``.
+
+    Returns
+    -------
+    y, u : (size, window) float64 arrays
+    """
+    size = min(BLOCK, count - block * BLOCK)
+    rec = family.records(size, window, np.random.default_rng([seed, epoch + 1, block]))
+    return np.asarray(rec.y, dtype=np.float64), np.asarray(rec.u, dtype=np.float64)
+
+
+def block_windows(family, seed: int, count: int, window: int, epoch: int, rows, pool=None):
     """Rows of an epoch's fresh windows (``train_generic``): the epoch's ``count`` windows are
     blocks of ``BLOCK``, block ``k`` drawn (and simulated in one batch) by ``family.records`` from
-    a generator seeded by ``(seed, epoch + 1, k)``; only the blocks that ``rows`` fall in are
-    simulated, so a window is the same whichever process draws it, with whichever others.
+    a generator seeded by ``(seed, epoch + 1, k)`` (:func:`block_records`); only the blocks that
+    ``rows`` fall in are simulated, so a window is the same whichever process draws it, with
+    whichever others, and whether a pool of workers simulated it or not.
 
     Parameters
     ----------
@@ -365,6 +390,8 @@ def block_windows(family, seed: int, count: int, window: int, epoch: int, rows):
     epoch : int
     rows : (M,) int array
         Row indices in ``[0, count)``.
+    pool : training.window_pool.WindowPool, optional
+        Simulates the blocks in worker processes (``pool.blocks(epoch, blocks)``); None: here.
 
     Returns
     -------
@@ -377,11 +404,11 @@ def block_windows(family, seed: int, count: int, window: int, epoch: int, rows):
     rows = np.asarray(rows, dtype=np.int64).reshape(-1)
     y = torch.linspace(-1.0, 1.0, window, dtype=torch.float64).repeat(len(rows), 1)
     u, ok = y.clone(), torch.zeros(len(rows), dtype=torch.bool)
-    for block in np.unique(rows // BLOCK).tolist():
-        size = min(BLOCK, count - block * BLOCK)
-        rec = family.records(size, window, np.random.default_rng([seed, epoch + 1, block]))
-        yb, ub, okb = normalise_windows(torch.as_tensor(np.asarray(rec.y, dtype=np.float64)),
-                                        torch.as_tensor(np.asarray(rec.u, dtype=np.float64)))
+    blocks = np.unique(rows // BLOCK).tolist()
+    got = (pool.blocks(epoch, blocks) if pool is not None else
+           {k: block_records(family, seed, count, window, epoch, k) for k in blocks})
+    for block in blocks:
+        yb, ub, okb = normalise_windows(*(torch.from_numpy(a) for a in got[block]))
         at = np.flatnonzero(rows // BLOCK == block)
         keep = torch.as_tensor(at)[okb[rows[at] - block * BLOCK]]
         pick = torch.as_tensor(rows[keep.numpy()] - block * BLOCK)

@@ -47,6 +47,7 @@ from aeid_struct.training.progress import (
     progress_line,
     undertrained,
 )
+from aeid_struct.training.window_pool import WindowPool
 
 __all__ = ["GenericTrainConfig", "train_generic", "window_loss"]
 
@@ -92,6 +93,7 @@ class _Run:
     label: str
     ctx: distributed.Context    # the process's place in a data-parallel run (or one process)
     model: torch.nn.Module      # the encoder, in DistributedDataParallel when distributed
+    pool: WindowPool | None = None   # simulates the fresh windows when train.workers > 1
 
 
 def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=None,
@@ -202,7 +204,7 @@ def _setup(config, train, family, meta, ctx: distributed.Context, init=None) -> 
     held = _windows(family, train.holdout, config.window, np.random.default_rng([train.seed, 0]))
     recipe = {k: v for k, v in train.to_dict().items()
               if k not in ("epochs", "seconds", "min_epochs", "target_loss", "checkpoint",
-                           "progress", "threads", "device")}
+                           "progress", "threads", "device", "workers")}
     fingerprint = json.dumps({"config": config.to_dict(), "train": recipe,
                               "family": _family_dict(family),
                               **({"init": _weights_hash(init)} if init is not None else {})},
@@ -226,6 +228,18 @@ def _setup(config, train, family, meta, ctx: distributed.Context, init=None) -> 
 def _train(config, train, family, on_epoch, meta, ctx, init=None) -> GenericIdentifier:
     _check_shares(train, ctx.world_size)
     run = _setup(config, train, family, meta, ctx, init)
+    if train.workers > 1:
+        run.pool = WindowPool(family, train.seed, train.count, config.window, train.workers)
+    try:
+        return _loop(run, on_epoch)
+    finally:
+        if run.pool is not None:
+            run.pool.close()
+
+
+def _loop(run: _Run, on_epoch) -> GenericIdentifier:
+    """The epochs until the budget is spent, then the best weights (:func:`_finish`)."""
+    train, ctx = run.train, run.ctx
     tty = sys.stderr.isatty()
     start = time.perf_counter() - run.state["elapsed"]
     while run.state["epoch"] < train.epochs:
@@ -270,7 +284,7 @@ def _my_windows(run: _Run):
         slices.append(slice(sum(len(r) for r in rows), sum(len(r) for r in rows) + len(batch)))
         rows.append(batch)
     y, u, ok = distributed.block_windows(run.family, train.seed, train.count, run.config.window,
-                                         run.state["epoch"], np.concatenate(rows))
+                                         run.state["epoch"], np.concatenate(rows), run.pool)
     return y.to(ctx.device), u.to(ctx.device), ok.to(ctx.device), slices
 
 

@@ -61,6 +61,10 @@ class GenericTrainConfig:
     device : {"cpu", "cuda", "auto"}
         Where the encoder and the projection run, as ``TrainConfig.device`` (``"cuda"``
         without a GPU is refused); the windows are simulated on the CPU either way.
+    workers : int
+        Processes that simulate the fresh windows, the next epoch's while one trains
+        (``training.window_pool``); 1: the training process itself. The windows, and so the
+        result, do not depend on it.
     """
 
     epochs: int = 100
@@ -78,6 +82,7 @@ class GenericTrainConfig:
     progress: bool = True
     threads: int | None = None
     device: str = "cpu"
+    workers: int = 1
 
     def __post_init__(self) -> None:
         for name in ("epochs", "count", "holdout", "batch"):
@@ -102,6 +107,7 @@ class GenericTrainConfig:
             raise ValueError(f"progress must be True or False; got {self.progress!r}")
         if self.threads is not None:
             _positive_int("threads", self.threads)
+        _positive_int("workers", self.workers)
         if self.checkpoint is not None and not isinstance(self.checkpoint, (str, os.PathLike)):
             raise ValueError(f"checkpoint must be a file path (str or Path) or None; "
                              f"got {self.checkpoint!r}")
