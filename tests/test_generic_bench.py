@@ -28,7 +28,9 @@ def test_bench_generic_cli_writes_every_method_and_the_stand_ins(tmp_path, capsy
     assert by[("thermal", "one pass")]["fit"] >= by[("thermal", "refined")]["fit"] - 0.1
     assert by[("thermal", "one pass")]["start"] in ("encoder", "classical")
     assert by[("thermal", "n4sid")]["start"] == ""
-    assert "one pass - refined: median" in text and "encoder  - refined: median" in text
+    assert "one pass        - refined: median" in text
+    assert "encoder         - refined: median" in text
+    assert "one pass, no SM - refined: median" in text
     assert by[("thermal", "true")]["fit_clean"] == pytest.approx(100.0, abs=1e-6)
     assert np.isfinite(by[("1/0", "refined")]["fit"])
 
