@@ -123,6 +123,38 @@ def test_worker_processes_simulate_the_same_windows_and_resume_alike(tmp_path):
     assert two.meta["train"]["settings"]["workers"] == 2
 
 
+def test_vanished_gradients_are_a_stall():
+    from aeid_struct.training.progress import STALL, stalled
+
+    # the wide encoder at lr 3e-3 on the GPU (aeid_struct/pretrained/README.md): its largest
+    # gradient norm fell from 3.8 to 0 after one epoch, and later from 4.0 to about 5e-5
+    dead = {"grad_norm_max": [3.8, 0.0, 0.0, 0.0, 0.0]}
+    (note,) = stalled(dead)
+    assert note.startswith("the gradients vanished after epoch 1: ") and "(3.8; last 0)" in note
+    slow = {"grad_norm_max": [4.0, 4.9, 2.0, 4e-5, 5e-5, 3.9e-5, 4.0 * STALL * 1.01, 5e-5,
+                              4e-5, 4e-5]}
+    assert "vanished after epoch 7" in stalled(slow)[0]
+    # a training run keeps them within a factor of ten (the shipped generic-2's 5.5 -> 6.7);
+    # two quiet epochs are not yet a stall, and non-finite ones (skipped) are left out
+    assert stalled({"grad_norm_max": [5.5, 10.0, 6.7, 6.7]}) == []
+    assert stalled({"grad_norm_max": [3.8, 0.0, 0.0, 5.0]}) == []
+    assert stalled({"grad_norm_max": [3.8, math.nan, 0.0, 0.0, 0.0]})[0].startswith(
+        "the gradients vanished after epoch 1")
+    assert stalled({"grad_norm_max": []}) == stalled({}) == []
+
+
+def test_a_stalled_run_warns(monkeypatch):
+    from aeid_struct.training import UndertrainedWarning
+    from aeid_struct.training import generic as tg
+
+    # the run's own gradient norms, as a stalled run records them
+    norms = iter([3.0, 0.0, 0.0, 0.0])
+    monkeypatch.setattr(tg.distributed, "gradient_step",
+                        lambda opt, loss, params, clip: next(norms, 0.0))
+    with pytest.warns(UndertrainedWarning, match="the gradients vanished after epoch 1"):
+        train_generic(CONFIG, settings(epochs=4, count=32, batch=32), family=TinyFamily())
+
+
 def test_a_checkpoint_of_another_run_is_refused(tmp_path):
     path = tmp_path / "c.ckpt"
     train_generic(CONFIG, settings(epochs=1, checkpoint=str(path)), family=TinyFamily())

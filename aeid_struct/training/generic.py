@@ -45,6 +45,7 @@ from aeid_struct.training.progress import (
     UndertrainedWarning,
     learning_rate,
     progress_line,
+    stalled,
     undertrained,
 )
 from aeid_struct.training.window_pool import WindowPool
@@ -149,8 +150,9 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
     Warns
     -----
     UndertrainedWarning
-        The budget fit fewer than ``min_epochs`` epochs, or the best held-out loss is above
-        ``target_loss``.
+        The budget fit fewer than ``min_epochs`` epochs, the best held-out loss is above
+        ``target_loss``, or the gradients vanished (``training.progress.STALL``: the network's
+        outputs saturated, as a wide encoder's do at too high a learning rate).
     """
     if not isinstance(config, GenericConfig):
         raise ValueError(f"config must be a GenericConfig; got {type(config).__name__}")
@@ -365,7 +367,7 @@ def _finish(run: _Run) -> GenericIdentifier:
     """Warn if under-trained (rank 0), load the best weights on the CPU, record the history and
     the recipe."""
     state, ident, train, ctx = run.state, run.ident, run.train, run.ctx
-    notes = undertrained(train, state["history"], state["best"])
+    notes = undertrained(train, state["history"], state["best"]) + stalled(state["history"])
     for note in notes if ctx.writer else ():
         warnings.warn(f"{run.label or 'training'}: {note}", UndertrainedWarning, stacklevel=3)
     ident.encoder.to("cpu")                  # identification runs on the CPU
