@@ -102,6 +102,10 @@ class Row:
     unexcited : int
         The identifiers' pairs the record does not determine (``len(info["unexcited"])``);
         0 for the other methods.
+    holdout : float
+        The refined one-channel estimate's hold-out fit % (``info["holdout_fit"]``: its order
+        fitted on the first 70 % of the record, run on the rest; below 0 it is flagged,
+        ``ae.UndeterminedModelWarning``); NaN where it did not run.
     """
 
     case: str
@@ -116,6 +120,7 @@ class Row:
     start: str = ""
     plant: str = "stable"
     unexcited: int = 0
+    holdout: float = float("nan")
 
 
 def _score(A, b, c, d, delay: int, validation: Record, clean: np.ndarray) -> tuple[float, float]:
@@ -131,6 +136,11 @@ def _score(A, b, c, d, delay: int, validation: Record, clean: np.ndarray) -> tup
     return float(measured), float(truth)
 
 
+def _number(value) -> float:
+    """``value`` as a float, NaN for None (an ``info`` entry that did not run)."""
+    return float("nan") if value is None else float(value)
+
+
 def _methods(order: int, identifiers=None):
     """Method name -> callable(record) -> (A, b, c, d, delay) for one order."""
     import aeid_struct as ae
@@ -140,15 +150,16 @@ def _methods(order: int, identifiers=None):
         def run(record):
             with warnings.catch_warnings():     # counted in the table instead
                 warnings.simplefilter("ignore", ae.UnexcitedModeWarning)
+                warnings.simplefilter("ignore", ae.UndeterminedModelWarning)
                 est = ae.identify(record, order=order, identifier=identifiers, **kwargs)
             return (est.A, est.b, est.c, est.d, int(est.delay), est.info.get("start", ""),
-                    len(est.info["unexcited"]))
+                    len(est.info["unexcited"]), _number(est.info.get("holdout_fit")))
         return run
 
     def classical(fn):
         def run(record):
             est = fn(record, order=order)
-            return est.A, est.b, est.c, est.d, int(record.delay or 0), "", 0
+            return est.A, est.b, est.c, est.d, int(record.delay or 0), "", 0, np.nan
         return run
 
     return {"encoder": ident(refine=False, iterations=0, classical=False),
@@ -198,14 +209,15 @@ def _run_record(methods, estimation, validation, clean, true, label, order, nois
                   else estimation.with_delay(true[4]))
         t0 = time.perf_counter()
         try:
-            A, b, c, d, D, start, flagged = run(record)
+            A, b, c, d, D, start, flagged, holdout = run(record)
         except (ValueError, np.linalg.LinAlgError, RuntimeError):
             A = b = c = np.full((order,), np.nan)
             A, d, D, start, flagged = np.full((order, order), np.nan), np.nan, 0, "", 0
+            holdout = np.nan
         seconds = time.perf_counter() - t0
         fit, fit_clean = _score(A, b, c, d, D, validation, clean)
         rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D, start,
-                        plant, flagged))
+                        plant, flagged, holdout))
     plant_input = validation
     if len(true) > 5:
         plant_input = Record(validation.y, validation.u - true[5], validation.dt,
@@ -380,6 +392,25 @@ def _gap_lines(rows: list[Row], by_case: dict) -> list[str]:
     return lines
 
 
+def _holdout_lines(rows: list[Row], by_case: dict) -> list[str]:
+    """How often the refined model was flagged by its hold-out (``info["holdout_fit"]`` below
+    0 %: the record does not determine a model of its order), and its validation fit against
+    the true model's on the flagged records and the others: a flag is right where the model
+    fails on the validation half (more than 10 points below the true model's fit)."""
+    held = {(r.plant, r.case, r.noise, r.steps): r.holdout for r in rows
+            if r.method == "refined" and np.isfinite(r.holdout)}
+    lines = []
+    for label, keep in (("flagged", True), ("not flagged", False)):
+        gaps = [v["refined"] - v["true"] for k, v in by_case.items()
+                if k in held and (held[k] < 0) == keep and np.isfinite(v.get("refined", np.nan))
+                and "true" in v]
+        if gaps:
+            lines.append(f"  refined, {label} by its hold-out fit: {len(gaps)} records, refined "
+                         f"- true median {_median(gaps):.2f}, more than 10 points below on "
+                         f"{sum(g < -10 for g in gaps)}")
+    return lines
+
+
 def _unexcited_lines(rows: list[Row], by_case: dict) -> list[str]:
     """How often the refined model was flagged for lightly damped modes its record does not
     determine (``info["unexcited"]``), and its validation fit against the true model's on the
@@ -442,6 +473,7 @@ def format_tables(rows: list[Row]) -> str:
         lines.append(f"  {name} - true: median {_median(gap):.2f}, within 1 point: "
                      f"{sum(g >= -1 for g in gap)} of {len(gap)}")
     lines += _unexcited_lines(rows, by_case)
+    lines += _holdout_lines(rows, by_case)
     failed = {m: sum(not np.isfinite(r.fit) for r in rows if r.method == m) for m in METHODS}
     lines.append("  no model (failed): " + ", ".join(f"{m} {k}" for m, k in failed.items()))
     for name in ("encoder", "one pass, no SM", "one pass"):
