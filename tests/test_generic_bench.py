@@ -8,6 +8,7 @@ import pytest
 
 from aeid_struct.cli.main import main
 from aeid_struct.studies import generic_bench as gb
+from aeid_struct.studies import generic_tables as gt
 
 
 def test_bench_generic_cli_writes_every_method_and_the_stand_ins(tmp_path, capsys):
@@ -93,7 +94,7 @@ def test_the_table_counts_the_flagged_refined_models():
     by_case = {}
     for r in table:
         by_case.setdefault((r.plant, r.case, r.noise, r.steps), {})[r.method] = r.fit
-    lines = gb._unexcited_lines(table, by_case)
+    lines = gt._unexcited_lines(table, by_case)
     assert lines == [
         "  refined, flagged for modes the record does not determine: 2 records, refined - true "
         "median -296.00, more than 1 point below on 2",

@@ -42,10 +42,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import statistics
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -53,74 +51,19 @@ import numpy as np
 from aeid_struct.records import Record
 from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import ccf_matrices
+from aeid_struct.studies.generic_tables import METHODS as METHODS
+from aeid_struct.studies.generic_tables import PLANTS as PLANTS
+from aeid_struct.studies.generic_tables import Row as Row
+from aeid_struct.studies.generic_tables import format_tables as format_tables
 
 __all__ = ["METHODS", "PLANTS", "Row", "bench_generic", "format_tables", "measured_stand_ins",
            "write_json"]
 
-#: Method names in table order.
-METHODS = ("encoder", "one pass, no SM", "one pass", "refined", "refined, D given", "n4sid",
-           "least squares", "true")
-#: The kinds of plant a cell can draw: the generic family's stable systems, or every system with
-#: a pole at 0, or with one in the right half plane (``GenericFamily``'s ``integrating`` and
-#: ``unstable`` shares at 1).
-PLANTS = ("stable", "integrating", "unstable")
 #: An unstable plant's growth over its whole simulated run (pre-roll, estimation and validation
 #: record): ``e^{0.5}`` to ``e^{4}``, a record of bounded length as an open-loop run must be.
 GROWTH = (0.5, 4.0)
 #: The methods that estimate the delay (the others are given the true one).
 _DELAY_ESTIMATED = ("encoder", "one pass, no SM", "one pass", "refined")
-
-
-@dataclass(frozen=True)
-class Row:
-    """One record, one method.
-
-    Attributes
-    ----------
-    case : str
-        ``"order/index"``, or the stand-in's name.
-    order : int
-    noise : float
-        Noise std relative to the clean output's std; -1 for the stand-ins.
-    steps : int
-        Estimation record length.
-    method : str
-        One of :data:`METHODS`.
-    fit : float
-        Validation fit % against the measured output.
-    fit_clean : float
-        Validation fit % against the noise-free output.
-    seconds : float
-        Wall time of the identification.
-    delay : int
-        The delay the method used (samples).
-    start : str
-        The identifiers' winning candidate or start (``info["start"]``: ``"encoder"`` or
-        ``"classical"``); empty for the other methods.
-    plant : str
-        One of :data:`PLANTS`.
-    unexcited : int
-        The identifiers' pairs the record does not determine (``len(info["unexcited"])``);
-        0 for the other methods.
-    holdout : float
-        The refined one-channel estimate's hold-out fit % (``info["holdout_fit"]``: its order
-        fitted on the first 70 % of the record, run on the rest; below 0 it is flagged,
-        ``ae.UndeterminedModelWarning``); NaN where it did not run.
-    """
-
-    case: str
-    order: int
-    noise: float
-    steps: int
-    method: str
-    fit: float
-    fit_clean: float
-    seconds: float
-    delay: int
-    start: str = ""
-    plant: str = "stable"
-    unexcited: int = 0
-    holdout: float = float("nan")
 
 
 def _score(A, b, c, d, delay: int, validation: Record, clean: np.ndarray) -> tuple[float, float]:
@@ -364,132 +307,6 @@ def measured_stand_ins(seed: int = 7, identifiers=None) -> list[Row]:
         rows += _run_record(_methods(order, identifiers), est, val, clean, true, label, order, -1.0,
                             est.steps)
     return rows
-
-
-def _median(values) -> float:
-    values = [v for v in values if np.isfinite(v)]
-    return statistics.median(values) if values else float("nan")
-
-
-def _gap_lines(rows: list[Row], by_case: dict) -> list[str]:
-    """The one pass and the encoder's pass alone against the refined model, per record: the
-    median, the 10th percentile and the count within 1 point of the difference in validation
-    fit; how often the classical candidate won the one pass."""
-    lines = ["", "Per record: validation fit minus the refined model's (points; the records "
-                 "where both gave a model)"]
-    for name in ("encoder", "one pass, no SM", "one pass"):
-        gaps = np.array([v[name] - v["refined"] for v in by_case.values()
-                         if np.isfinite(v.get(name, np.nan))
-                         and np.isfinite(v.get("refined", np.nan))])
-        if gaps.size == 0:
-            continue
-        lines.append(f"  {name:15s} - refined: median {np.median(gaps):6.2f}, 10th percentile "
-                     f"{np.percentile(gaps, 10):7.2f}, within 1 point {int(np.sum(gaps >= -1))} "
-                     f"of {gaps.size} ({np.mean(gaps >= -1):.0%})")
-    won = [r.start for r in rows if r.method == "one pass" and r.start]
-    lines.append(f"  one pass: the classical (Steiglitz-McBride) candidate won on "
-                 f"{won.count('classical')} of {len(won)} records")
-    return lines
-
-
-def _holdout_lines(rows: list[Row], by_case: dict) -> list[str]:
-    """How often the refined model was flagged by its hold-out (``info["holdout_fit"]`` below
-    0 %: the record does not determine a model of its order), and its validation fit against
-    the true model's on the flagged records and the others: a flag is right where the model
-    fails on the validation half (more than 10 points below the true model's fit)."""
-    held = {(r.plant, r.case, r.noise, r.steps): r.holdout for r in rows
-            if r.method == "refined" and np.isfinite(r.holdout)}
-    lines = []
-    for label, keep in (("flagged", True), ("not flagged", False)):
-        gaps = [v["refined"] - v["true"] for k, v in by_case.items()
-                if k in held and (held[k] < 0) == keep and np.isfinite(v.get("refined", np.nan))
-                and "true" in v]
-        if gaps:
-            lines.append(f"  refined, {label} by its hold-out fit: {len(gaps)} records, refined "
-                         f"- true median {_median(gaps):.2f}, more than 10 points below on "
-                         f"{sum(g < -10 for g in gaps)}")
-    return lines
-
-
-def _unexcited_lines(rows: list[Row], by_case: dict) -> list[str]:
-    """How often the refined model was flagged for lightly damped modes its record does not
-    determine (``info["unexcited"]``), and its validation fit against the true model's on the
-    flagged records and the others."""
-    flagged = {(r.plant, r.case, r.noise, r.steps) for r in rows
-               if r.method == "refined" and r.unexcited}
-    lines = []
-    for label, keep in (("flagged", True), ("not flagged", False)):
-        gaps = [v["refined"] - v["true"] for k, v in by_case.items()
-                if (k in flagged) == keep and np.isfinite(v.get("refined", np.nan))
-                and "true" in v]
-        if gaps:
-            lines.append(f"  refined, {label} for modes the record does not determine: "
-                         f"{len(gaps)} records, refined - true median {_median(gaps):.2f}, "
-                         f"more than 1 point below on {sum(g < -1 for g in gaps)}")
-    return lines
-
-
-def format_tables(rows: list[Row]) -> str:
-    """The fit table (median validation fit per cell and method), the one pass against the
-    refined model, the worst gap to n4sid and the timings, as text.
-
-    Parameters
-    ----------
-    rows : list of Row
-
-    Returns
-    -------
-    str
-    """
-    lines = []
-    kinds = [p for p in PLANTS if any(r.plant == p for r in rows if r.noise >= 0)]
-    cells = sorted({(PLANTS.index(r.plant), r.order, r.noise, r.steps) for r in rows
-                    if r.noise >= 0})
-    head = "plant        order noise steps | " + " | ".join(f"{m:>16}" for m in METHODS)
-    lines += ["Validation fit % (median; measured output, x0 and offset fitted)", head]
-    for kind, order, noise, steps in cells:
-        sel = [r for r in rows if (PLANTS.index(r.plant), r.order, r.noise, r.steps)
-               == (kind, order, noise, steps)]
-        vals = [_median(r.fit for r in sel if r.method == m) for m in METHODS]
-        lines.append(f"{PLANTS[kind]:12s} {order:5d} {noise:5.0%} {steps:5d} | "
-                     + " | ".join(f"{v:16.2f}" for v in vals))
-    by_case = {}
-    for r in rows:
-        by_case.setdefault((r.plant, r.case, r.noise, r.steps), {})[r.method] = r.fit
-    lines += _gap_lines(rows, by_case)
-    for kind in kinds if len(kinds) > 1 else ():
-        lines += [f"  ({kind} plants only)"] + _gap_lines(
-            [r for r in rows if r.plant == kind],
-            {k: v for k, v in by_case.items() if k[0] == kind})[2:]
-    lines += ["", "Per record: refined minus n4sid and least squares (points, worst and count > 1 "
-              "below), refined minus true (median)"]
-    for name in ("refined", "refined, D given"):
-        for other in ("n4sid", "least squares"):
-            gaps = [v[name] - v[other] for v in by_case.values()
-                    if np.isfinite(v.get(name, np.nan)) and np.isfinite(v.get(other, np.nan))]
-            lines.append(f"  {name} - {other}: worst {min(gaps):.2f}, records more than 1 point "
-                         f"below: {sum(g < -1 for g in gaps)} of {len(gaps)}")
-        gap = [v[name] - v["true"] for v in by_case.values() if np.isfinite(v.get(name, np.nan))]
-        lines.append(f"  {name} - true: median {_median(gap):.2f}, within 1 point: "
-                     f"{sum(g >= -1 for g in gap)} of {len(gap)}")
-    lines += _unexcited_lines(rows, by_case)
-    lines += _holdout_lines(rows, by_case)
-    failed = {m: sum(not np.isfinite(r.fit) for r in rows if r.method == m) for m in METHODS}
-    lines.append("  no model (failed): " + ", ".join(f"{m} {k}" for m, k in failed.items()))
-    for name in ("encoder", "one pass, no SM", "one pass"):
-        lines.append(f"  {name} - true: median "
-                     f"{_median(v[name] - v['true'] for v in by_case.values()):.2f}")
-    lines += ["", "Measured-data stand-ins (validation fit %)"]
-    for r in rows:
-        if r.noise < 0:
-            lines.append(f"  {r.case:10s} {r.method:13s} {r.fit:7.2f}   ({r.seconds * 1e3:.1f} ms)")
-    lines += ["", "Time per call (median ms) by record length"]
-    for steps in sorted({r.steps for r in rows if r.noise >= 0}):
-        sel = [r for r in rows if r.steps == steps and r.noise >= 0]
-        lines.append(f"  {steps:5d} samples: " + ", ".join(
-            f"{m} {_median(r.seconds for r in sel if r.method == m) * 1e3:.2f}"
-            for m in METHODS[:-1]))
-    return "\n".join(lines)
 
 
 def write_json(rows: list[Row], path) -> Path:
