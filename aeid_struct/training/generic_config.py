@@ -64,7 +64,9 @@ class GenericTrainConfig:
     workers : int
         Processes that simulate the fresh windows, the next epoch's while one trains
         (``training.window_pool``); 1: the training process itself. The windows, and so the
-        result, do not depend on it.
+        result, do not depend on it. The workers are started by ``spawn``: the family must be
+        picklable, and a script that trains with ``workers > 1`` guards its entry point
+        (``if __name__ == "__main__":``), as ``multiprocessing`` asks.
     """
 
     epochs: int = 100
