@@ -143,7 +143,7 @@ def test_vanished_gradients_are_a_stall():
     assert stalled({"grad_norm_max": []}) == stalled({}) == []
 
 
-def test_a_stalled_run_warns(monkeypatch):
+def test_a_stalled_run_stops_and_warns(monkeypatch):
     from aeid_struct.training import UndertrainedWarning
     from aeid_struct.training import generic as tg
 
@@ -151,8 +151,12 @@ def test_a_stalled_run_warns(monkeypatch):
     norms = iter([3.0, 0.0, 0.0, 0.0])
     monkeypatch.setattr(tg.distributed, "gradient_step",
                         lambda opt, loss, params, clip: next(norms, 0.0))
-    with pytest.warns(UndertrainedWarning, match="the gradients vanished after epoch 1"):
-        train_generic(CONFIG, settings(epochs=4, count=32, batch=32), family=TinyFamily())
+    with pytest.warns(UndertrainedWarning, match=r"the gradients vanished after epoch 1: .*"
+                                                 r"\(the run stopped at epoch 4\)"):
+        ident = train_generic(CONFIG, settings(epochs=9, count=32, batch=32),
+                              family=TinyFamily())
+    # weights that no longer move: the run stops where the stall shows, not at its budget
+    assert len(ident.meta["history"]["grad_norm_max"]) == 4 and ident.meta["train"]["epochs"] == 4
 
 
 def test_a_checkpoint_of_another_run_is_refused(tmp_path):

@@ -152,7 +152,8 @@ def train_generic(config: GenericConfig, train: GenericTrainConfig, *, family=No
     UndertrainedWarning
         The budget fit fewer than ``min_epochs`` epochs, the best held-out loss is above
         ``target_loss``, or the gradients vanished (``training.progress.STALL``: the network's
-        outputs saturated, as a wide encoder's do at too high a learning rate).
+        outputs saturated, as a wide encoder's do at too high a learning rate; the run stops
+        there instead of spending its budget on weights that no longer move).
     """
     if not isinstance(config, GenericConfig):
         raise ValueError(f"config must be a GenericConfig; got {type(config).__name__}")
@@ -240,7 +241,8 @@ def _train(config, train, family, on_epoch, meta, ctx, init=None) -> GenericIden
 
 
 def _loop(run: _Run, on_epoch) -> GenericIdentifier:
-    """The epochs until the budget is spent, then the best weights (:func:`_finish`)."""
+    """The epochs until the budget is spent or the run stalls (``training.progress.stalled``),
+    then the best weights (:func:`_finish`)."""
     train, ctx = run.train, run.ctx
     tty = sys.stderr.isatty()
     start = time.perf_counter() - run.state["elapsed"]
@@ -259,6 +261,8 @@ def _loop(run: _Run, on_epoch) -> GenericIdentifier:
             sys.stderr.flush()
         if on_epoch is not None:
             on_epoch(run.state["epoch"], hist)
+        if stalled(hist):   # weights that no longer move: the rest of the budget is lost time
+            break           # (every process holds the same norms, so all stop together)
     if train.progress and tty and ctx.writer:
         sys.stderr.write("\n")
     return _finish(run)

@@ -206,4 +206,5 @@ def stalled(history: dict) -> list[str]:
     return [f"the gradients vanished after epoch {since}: the largest gradient norm of every "
             f"epoch since is below {STALL:g} of the first epoch's ({norms[0]:.3g}; last "
             f"{tail[-1]:.3g}), the network's outputs have saturated and the held-out loss stopped "
-            f"moving; train again with a lower lr (a third of it, say)"]
+            f"moving (the run stopped at epoch {len(norms)}); train again with a lower lr (a "
+            f"third of it, say)"]
