@@ -120,8 +120,11 @@ __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLE
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
 SHORTLIST = 2
 #: Levenberg-Marquardt iterations of the one pass (``refine=False``); chosen by
-#: ``aeid-struct bench-generic``: more bought next to nothing in validation fit per iteration.
-ITERATIONS = 3
+#: ``aeid-struct bench-generic`` (1,203 records, orders 1-4, stable, integrating and unstable
+#: plants): from the encoder's candidates alone, 10 iterations came within a point of refined on
+#: 86 % of records where 3 did on 79 %; with the classical candidate 95 % against 94 %, for 7 %
+#: more time.
+ITERATIONS = 10
 
 
 @dataclass(frozen=True)
