@@ -121,6 +121,10 @@ def test_worker_processes_simulate_the_same_windows_and_resume_alike(tmp_path):
         assert torch.equal(v, w), k
     assert one.meta["history"]["holdout_loss"] == two.meta["history"]["holdout_loss"]
     assert two.meta["train"]["settings"]["workers"] == 2
+    local = TinyFamily()
+    local.records = lambda count, steps, rng: TinyFamily().records(count, steps, rng)
+    with pytest.raises(ValueError, match="family must be picklable for workers=2"):
+        train_generic(CONFIG, settings(workers=2), family=local)
 
 
 def test_vanished_gradients_are_a_stall():

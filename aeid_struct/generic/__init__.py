@@ -36,6 +36,7 @@ from aeid_struct.generic.model import spectra as spectra
 from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.generic.one_call import identify as identify
 from aeid_struct.generic.one_call import measured as measured
+from aeid_struct.generic.pipeline import HOLDOUT_FLOOR as HOLDOUT_FLOOR
 from aeid_struct.generic.pipeline import StableOnlyWarning as StableOnlyWarning
 from aeid_struct.generic.pipeline import UndeterminedModelWarning as UndeterminedModelWarning
 from aeid_struct.generic.pipeline import UnexcitedModeWarning as UnexcitedModeWarning
@@ -59,6 +60,7 @@ __all__ = [
     "GROWTH",
     "GenericConfig",
     "GenericIdentifier",
+    "HOLDOUT_FLOOR",
     "MAX_ORDER",
     "NoEncoder",
     "ORDERS",

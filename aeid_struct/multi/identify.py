@@ -224,7 +224,8 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
         The largest delay considered (default :data:`MAX_DELAY`, capped by what the records
         leave).
     iterations : int, >= 0
-        Residual evaluations of the one pass.
+        Residual evaluations of the one pass (``ae.identify`` passes its own, default
+        ``generic.pipeline.ITERATIONS``).
     classical : bool
         The classical candidates beside ``proposals``' (always where there are none).
     proposals : callable, optional

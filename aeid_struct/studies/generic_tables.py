@@ -100,41 +100,42 @@ def _gap_lines(rows: list[Row], by_case: dict) -> list[str]:
     return lines
 
 
-def _holdout_lines(rows: list[Row], by_case: dict) -> list[str]:
-    """How often the refined model was flagged by its hold-out (``info["holdout_fit"]`` below
-    0 %: the record does not determine a model of its order), and its validation fit against
-    the true model's on the flagged records and the others: a flag is right where the model
-    fails on the validation half (more than 10 points below the true model's fit)."""
-    held = {(r.plant, r.case, r.noise, r.steps): r.holdout for r in rows
-            if r.method == "refined" and np.isfinite(r.holdout)}
+def _flag_lines(by_case: dict, flagged: dict, what: str, below: float) -> list[str]:
+    """The refined model's validation fit against the true model's on the records a flag marked
+    and on the others it was computed for (``flagged``: case key -> marked): how many, the
+    median gap, and how many fell more than ``below`` points short."""
     lines = []
     for label, keep in (("flagged", True), ("not flagged", False)):
         gaps = [v["refined"] - v["true"] for k, v in by_case.items()
-                if k in held and (held[k] < 0) == keep and np.isfinite(v.get("refined", np.nan))
+                if flagged.get(k) is keep and np.isfinite(v.get("refined", np.nan))
                 and "true" in v]
         if gaps:
-            lines.append(f"  refined, {label} by its hold-out fit: {len(gaps)} records, refined "
-                         f"- true median {_median(gaps):.2f}, more than 10 points below on "
-                         f"{sum(g < -10 for g in gaps)}")
+            lines.append(f"  refined, {label} {what}: {len(gaps)} records, refined - true "
+                         f"median {_median(gaps):.2f}, more than {below:g} "
+                         f"point{'s' if below != 1 else ''} below on "
+                         f"{sum(g < -below for g in gaps)}")
     return lines
+
+
+def _holdout_lines(rows: list[Row], by_case: dict) -> list[str]:
+    """How often the refined model was flagged by its hold-out (``info["holdout_fit"]`` below
+    ``generic.HOLDOUT_FLOOR``: the record does not determine a model of its order), and
+    how often it failed on the validation half (more than 10 points below the true model's
+    fit), flagged and not (the records where the hold-out ran)."""
+    from aeid_struct.generic import HOLDOUT_FLOOR
+
+    flagged = {(r.plant, r.case, r.noise, r.steps): bool(r.holdout < HOLDOUT_FLOOR)
+               for r in rows if r.method == "refined" and np.isfinite(r.holdout)}
+    return _flag_lines(by_case, flagged, "by its hold-out fit", 10.0)
 
 
 def _unexcited_lines(rows: list[Row], by_case: dict) -> list[str]:
     """How often the refined model was flagged for lightly damped modes its record does not
     determine (``info["unexcited"]``), and its validation fit against the true model's on the
     flagged records and the others."""
-    flagged = {(r.plant, r.case, r.noise, r.steps) for r in rows
-               if r.method == "refined" and r.unexcited}
-    lines = []
-    for label, keep in (("flagged", True), ("not flagged", False)):
-        gaps = [v["refined"] - v["true"] for k, v in by_case.items()
-                if (k in flagged) == keep and np.isfinite(v.get("refined", np.nan))
-                and "true" in v]
-        if gaps:
-            lines.append(f"  refined, {label} for modes the record does not determine: "
-                         f"{len(gaps)} records, refined - true median {_median(gaps):.2f}, "
-                         f"more than 1 point below on {sum(g < -1 for g in gaps)}")
-    return lines
+    flagged = {(r.plant, r.case, r.noise, r.steps): bool(r.unexcited)
+               for r in rows if r.method == "refined"}
+    return _flag_lines(by_case, flagged, "for modes the record does not determine", 1.0)
 
 
 def format_tables(rows: list[Row]) -> str:

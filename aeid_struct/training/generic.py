@@ -24,6 +24,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import pickle
 import sys
 import time
 import warnings
@@ -232,6 +233,12 @@ def _train(config, train, family, on_epoch, meta, ctx, init=None) -> GenericIden
     _check_shares(train, ctx.world_size)
     run = _setup(config, train, family, meta, ctx, init)
     if train.workers > 1:
+        try:    # the workers receive the family pickled: a family they cannot is refused here
+            pickle.dumps(family)
+        except Exception as err:
+            raise ValueError(f"family must be picklable for workers={train.workers} (the worker "
+                             f"processes receive it); {type(family).__name__} is not: {err}; "
+                             f"use workers=1") from None
         run.pool = WindowPool(family, train.seed, train.count, config.window, train.workers)
     try:
         return _loop(run, on_epoch)
