@@ -21,7 +21,7 @@ from aeid_struct.generic.normalised import (
     separable,
     structure_of,
 )
-from aeid_struct.generic.scoring import select
+from aeid_struct.generic.scoring import delay_margin, select
 from aeid_struct.refinement import BUCKETS, refine_record, refine_separable
 from aeid_struct.structures import CCF, MCF, Structure
 
@@ -129,7 +129,7 @@ def _delay_search(run, best: Model, converged: bool, y: np.ndarray, top: int):
     """A local search over the delay by refinement: from the refined model at its delay, step
     the delay up and then down, each refinement warm-started from its neighbour's poles, until
     two steps in a row do not improve the cost on the common samples (from ``top`` on); then
-    the shortest delay within ``2 / N`` of the best (:func:`better_of`).
+    the shortest delay within ``scoring.delay_margin`` of the best (:func:`better_of`).
 
     Why refine at each delay rather than re-scan by projection with the refined poles: the
     poles adapt to a wrong delay (a one-sample error is partly absorbed by a faster or slower
@@ -204,9 +204,9 @@ def better_of(models, y: np.ndarray) -> Model | None:
     """The model with the least mean squared residual, with two preferences: a stable model
     (an unstable one wins only where its cost is below 0.99 times every stable one's: a
     slightly unstable pole fits an estimation record about as well and ruins any longer
-    prediction) and, among those within ``2 / N`` of the least cost, the shortest delay (the
-    parsimony of the delay's selection, ``generic.scoring.select``); costs on the samples every
-    model fits (:func:`common_cost`).
+    prediction) and, among those within ``scoring.delay_margin`` of the least cost, the
+    shortest delay (the parsimony of the delay's selection, ``generic.scoring.select``); costs
+    on the samples every model fits (:func:`common_cost`).
 
     Parameters
     ----------
@@ -231,7 +231,8 @@ def better_of(models, y: np.ndarray) -> Model | None:
         if cost[id(best)] >= 0.99 * cost[id(best_stable)]:
             best = best_stable
     pool = stable if any(m is best for m in stable) else models
-    close = [m for m in pool if cost[id(m)] <= cost[id(best)] * (1.0 + 2.0 / samples)]
+    margin = delay_margin(samples, best.A.shape[0])
+    close = [m for m in pool if cost[id(m)] <= cost[id(best)] * (1.0 + margin)]
     return min(close, key=lambda m: (m.delay, cost[id(m)]))
 
 
