@@ -32,10 +32,13 @@ def test_bench_generic_cli_writes_every_method_and_the_stand_ins(tmp_path, capsy
     assert "one pass        - refined: median" in text
     assert "encoder         - refined: median" in text
     assert "one pass, no SM - refined: median" in text
-    # the refined estimate carries its hold-out fit (a one-channel record long enough to split)
+    # the refined estimate carries its hold-out fit and residual ratio (a one-channel record
+    # long enough to split)
     assert np.isfinite(by[("1/0", "refined")]["holdout"])
+    assert by[("1/0", "refined")]["holdout_ratio"] > 0
     assert np.isnan(by[("1/0", "n4sid")]["holdout"])
-    assert "by its hold-out fit: " in text
+    assert np.isnan(by[("1/0", "n4sid")]["holdout_ratio"])
+    assert "by its hold-out: " in text
     assert by[("thermal", "true")]["fit_clean"] == pytest.approx(100.0, abs=1e-6)
     assert np.isfinite(by[("1/0", "refined")]["fit"])
 

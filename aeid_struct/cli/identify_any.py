@@ -199,6 +199,7 @@ def _summary(est, record, args, source: str, max_delay: int, figure) -> dict:
         "feedback": est.info.get("feedback"), "unexcited": unexcited_of(est),
         "stable": bool(args.stable), "unstable": unstable_of(est),
         "holdout_fit_percent": est.info.get("holdout_fit"),
+        "holdout_residual_ratio": est.info.get("holdout_ratio"),
     }
 
 
@@ -228,11 +229,15 @@ def _print(s: dict, est) -> None:
     for line in (unexcited_line(s), unstable_line(s)):
         if line is not None:
             print(line)
-    holdout = s["holdout_fit_percent"]
+    holdout, ratio = s["holdout_fit_percent"], s["holdout_residual_ratio"]
     if holdout is not None:
+        from aeid_struct.generic import holdout_flagged
+
         print(f"hold-out: fitted on the first 70 %, the model predicts the rest with a fit of "
-              f"{holdout:.2f} %" + (" -- the record does not determine a model of this order"
-                                     if holdout < 0 else ""))
+              f"{holdout:.2f} %" + ("" if ratio is None else f", its residual {ratio:.2f} "
+                                    f"times its own on the first 70 %")
+              + (" -- the record does not determine a model of this order"
+                 if holdout_flagged(holdout, ratio) else ""))
     print(f"time: {1e3 * s['seconds']:.1f} ms")
     if s["figure"] is not None:
         print(f"wrote {s['figure']['path']} (compare: fit {s['figure']['fit_percent']:.2f} %)")

@@ -24,6 +24,10 @@ from aeid_struct.generic.delay import rescan as rescan
 from aeid_struct.generic.feedback import FeedbackWarning as FeedbackWarning
 from aeid_struct.generic.feedback import feedback_test as feedback_test
 from aeid_struct.generic.files import FORMAT as FORMAT
+from aeid_struct.generic.holdout import HOLDOUT_FLOOR as HOLDOUT_FLOOR
+from aeid_struct.generic.holdout import HOLDOUT_RATIO as HOLDOUT_RATIO
+from aeid_struct.generic.holdout import UndeterminedModelWarning as UndeterminedModelWarning
+from aeid_struct.generic.holdout import holdout_flagged as holdout_flagged
 from aeid_struct.generic.model import GENERIC as GENERIC
 from aeid_struct.generic.model import ORDERS as ORDERS
 from aeid_struct.generic.model import GenericConfig as GenericConfig
@@ -36,9 +40,7 @@ from aeid_struct.generic.model import spectra as spectra
 from aeid_struct.generic.one_call import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.generic.one_call import identify as identify
 from aeid_struct.generic.one_call import measured as measured
-from aeid_struct.generic.pipeline import HOLDOUT_FLOOR as HOLDOUT_FLOOR
 from aeid_struct.generic.pipeline import StableOnlyWarning as StableOnlyWarning
-from aeid_struct.generic.pipeline import UndeterminedModelWarning as UndeterminedModelWarning
 from aeid_struct.generic.pipeline import UnexcitedModeWarning as UnexcitedModeWarning
 from aeid_struct.generic.poles import denominator as denominator
 from aeid_struct.generic.poles import factors as factors
@@ -61,6 +63,7 @@ __all__ = [
     "GenericConfig",
     "GenericIdentifier",
     "HOLDOUT_FLOOR",
+    "HOLDOUT_RATIO",
     "MAX_ORDER",
     "NoEncoder",
     "ORDERS",
@@ -76,6 +79,7 @@ __all__ = [
     "denominator",
     "factors",
     "feedback_test",
+    "holdout_flagged",
     "identify",
     "load_generic",
     "measured",

@@ -87,6 +87,11 @@ from aeid_struct.generic.boundary import measured as measured
 from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.feedback import feedback_test, warn_feedback
+from aeid_struct.generic.holdout import HOLDOUT_FLOOR as HOLDOUT_FLOOR
+from aeid_struct.generic.holdout import HOLDOUT_RATIO as HOLDOUT_RATIO
+from aeid_struct.generic.holdout import UndeterminedModelWarning as UndeterminedModelWarning
+from aeid_struct.generic.holdout import holdout_flagged as holdout_flagged
+from aeid_struct.generic.holdout import residual_ratio, warn_holdout
 from aeid_struct.generic.normalised import Model, structure_of
 from aeid_struct.generic.polish import (
     better_of,
@@ -114,8 +119,9 @@ from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE",
-           "HOLDOUT_FLOOR", "StableOnlyWarning", "UndeterminedModelWarning",
-           "UnexcitedModeWarning", "run", "warn_holdout", "warn_stable_only", "warn_unexcited"]
+           "HOLDOUT_FLOOR", "HOLDOUT_RATIO", "StableOnlyWarning", "UndeterminedModelWarning",
+           "UnexcitedModeWarning", "holdout_flagged", "run", "warn_holdout", "warn_stable_only",
+           "warn_unexcited"]
 
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
 SHORTLIST = 2
@@ -178,9 +184,11 @@ def _encoder_fit(identifier, y, u, order, known, max_delay, feedthrough,
 def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
                   refine: bool, method: str, iterations: int, classical: bool) -> tuple:
     """Validation fit per order (see the module docstring), each order's model found as the
-    chosen order's is (the one pass, or refined); returns ``(fits, criterion, flagged)``: order
-    -> fit, order -> Bayesian information criterion where there is no holdout (else None), and
-    the orders whose model has a mode the record does not determine (step 7)."""
+    chosen order's is (the one pass, or refined); returns ``(fits, criterion, flagged,
+    ratios)``: order -> fit, order -> Bayesian information criterion where there is no holdout
+    (else None), the orders whose model has a mode the record does not determine (step 7), and
+    order -> the hold-out's residual ratio (:func:`holdout_flagged`; empty without a
+    hold-out)."""
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
     # a part that says nothing (the input's step after the cut, an output at rest before it)
@@ -190,7 +198,7 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
                and np.ptp(data.y[cut:]) > 0)
     part = Record(data.y[:cut], data.u[:cut], data.dt, delay=data.delay,
                   intersample=data.intersample) if holdout else data
-    fits, criterion, flagged = {}, ({} if not holdout else None), set()
+    fits, criterion, flagged, ratios = {}, ({} if not holdout else None), set(), {}
     for n, ident in sorted(identifiers.items()):
         fit = _encoder_fit(ident, part.y, part.u, n, data.delay, max_delay, feedthrough,
                            classical and not refine, data.intersample, classical)
@@ -215,12 +223,13 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
             if order_search_done(list(criterion.values()), lower=True):
                 break
             continue
-        fits[n] = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
-                              1.0, delay=min(model.delay, N - cut - 2),
-                              intersample=data.intersample).fit
+        rest = fit_initial(model.A, model.b, model.c, model.d, data.y[cut:], data.u[cut:],
+                           1.0, delay=min(model.delay, N - cut - 2),
+                           intersample=data.intersample)
+        fits[n], ratios[n] = rest.fit, residual_ratio(rest.cost, model.cost)
         if order_search_done(list(fits.values()), lower=False):
             break
-    return fits, criterion, flagged
+    return fits, criterion, flagged, ratios
 
 
 def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
@@ -250,10 +259,10 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     call = checked(resolve, record, order, structure=structure, refine=refine, delay=delay,
                    max_delay=max_delay, method=method, iterations=iterations,
                    classical=classical, what=what, default_max_delay=MAX_DELAY)
-    order, order_fits, criterion = call.order, None, None
+    order, order_fits, criterion, ratios = call.order, None, None, None
     fitting = (refine, method, int(iterations), bool(classical))
     if order is None:
-        order_fits, criterion, flagged = _select_order(call.identifiers, call.work,
+        order_fits, criterion, flagged, ratios = _select_order(call.identifiers, call.work,
                                                        call.max_delay, call.feedthrough,
                                                        *fitting)
         order = chosen_order(order_fits, criterion, flagged)
@@ -271,26 +280,28 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
         found = found | {"refit": "no feedthrough"}
     if found is not None and found["detected"]:
         warn_feedback(found, strict)
-    holdout = None
+    holdout, ratio = None, None
     if refine:
         used = replace(call, feedthrough=False) if found and "refit" in found else call
-        holdout = _holdout(used, order, model, order_fits, criterion, fitting)
-        warn_holdout(holdout, model.fit)
+        holdout, ratio = _holdout(used, order, model, order_fits, ratios, criterion, fitting)
+        warn_holdout(holdout, model.fit, ratio)
     info |= {"order_fits": order_fits, "feedback": found, "holdout_fit": holdout,
+             "holdout_ratio": ratio,
              "unexcited": _unexcited(model, call.work)}
     est = estimate_of(model, chosen, call.work, time.perf_counter() - start, refined, info)
     return restore(call.units, est, call.data)
 
 
-def _holdout(call, order: int, model: Model, order_fits, criterion,
-             fitting: tuple) -> float | None:
+def _holdout(call, order: int, model: Model, order_fits, ratios, criterion,
+             fitting: tuple) -> tuple[float | None, float | None]:
     """The validation fit of a model of ``order`` fitted on the first :data:`ESTIMATION_SHARE`
     of the record at the estimate's delay and run on the rest (initial state and offset
-    fitted): read from ``order=None``'s ``order_fits`` where its hold-out ran
-    (:func:`_select_order`), else the one pass's fit (``iterations`` of ``fitting``) here,
-    records shorter than the identifier's window included (they are read at a finer grid).
-    None where the record leaves no such split (a part too short for the order, or without
-    variation).
+    fitted), and the ratio of its RMS residual there to its own on the first part
+    (:func:`holdout_flagged`): read from ``order=None``'s ``order_fits`` and ``ratios`` where
+    its hold-out ran (:func:`_select_order`), else the one pass's fit (``iterations`` of
+    ``fitting``) here, records shorter than the identifier's window included (they are read at
+    a finer grid). ``(None, None)`` where the record leaves no such split (a part too short for
+    the order, or without variation).
 
     Why a hold-out and not the parameters' covariance: on the benchmark's short records the
     poles' standard errors were no smaller on the fits that validated well than on those that
@@ -298,53 +309,23 @@ def _holdout(call, order: int, model: Model, order_fits, criterion,
     pass and not a second refinement: it flagged nearly the same records at a third of the
     cost."""
     if criterion is None and order_fits and order in order_fits:
-        return float(order_fits[order])
+        return float(order_fits[order]), (ratios or {}).get(order)
     work, D = call.work, int(model.delay)
     cut = int(round(ESTIMATION_SHARE * work.steps))
     # the part must leave the samples a fit of this order needs after the delay, and the rest
     # at least half as many: more than the n states and the offset fitted to it
     if cut - D < shortest(order) or work.steps - cut - D < shortest(order) // 2 or not (
             np.ptp(work.u[:cut]) > 0 and np.ptp(work.y[cut:]) > 0):
-        return None
+        return None, None
     part = Record(work.y[:cut], work.u[:cut], work.dt, delay=D, intersample=work.intersample)
     try:
         fitted = _fit(replace(call, work=part), order, None, False, *fitting[1:])[0]
     except ValueError:       # the part refused (a record the identifiers cannot read)
-        return None
-    fit = fit_initial(fitted.A, fitted.b, fitted.c, fitted.d, work.y[cut:], work.u[cut:], 1.0,
-                      delay=D, intersample=work.intersample).fit
-    return float(fit) if np.isfinite(fit) else None
-
-
-class UndeterminedModelWarning(UserWarning):
-    """A model of the refined estimate's order, fitted on the first part of its record,
-    predicts the rest badly (a validation fit below :data:`HOLDOUT_FLOOR`): the record does not
-    determine a model of that order, and the estimate may fail on other data although it fits
-    the record well."""
-
-
-#: A hold-out fit (:func:`_holdout`) below this, in %, flags the estimate: a model that
-#: predicts its record's last part worse than that part's own mean does.
-HOLDOUT_FLOOR = 0.0
-
-
-def warn_holdout(holdout: float | None, fit: float) -> None:
-    """The :class:`UndeterminedModelWarning` of a hold-out fit below :data:`HOLDOUT_FLOOR`.
-
-    Parameters
-    ----------
-    holdout : float or None
-        :func:`_holdout`'s fit, %.
-    fit : float
-        The estimate's own fit on the whole record, %.
-    """
-    if holdout is None or not holdout < HOLDOUT_FLOOR:
-        return
-    warn_caller(f"a model of this order fitted on the first {ESTIMATION_SHARE:.0%} of the "
-                f"record predicts the rest with a fit of {holdout:.1f} % (the estimate's fit on "
-                f"the whole record: {fit:.1f} %): the record does not determine a model of this "
-                f"order, which may fail on other data; try a lower order or a longer record",
-                UndeterminedModelWarning)
+        return None, None
+    rest = fit_initial(fitted.A, fitted.b, fitted.c, fitted.d, work.y[cut:], work.u[cut:], 1.0,
+                       delay=D, intersample=work.intersample)
+    fit = float(rest.fit) if np.isfinite(rest.fit) else None
+    return fit, (residual_ratio(rest.cost, fitted.cost) if fit is not None else None)
 
 
 def _fit(call, order: int, structure, refine: bool, method: str, iterations: int,

@@ -96,13 +96,14 @@ def _methods(order: int, identifiers=None):
                 warnings.simplefilter("ignore", ae.UndeterminedModelWarning)
                 est = ae.identify(record, order=order, identifier=identifiers, **kwargs)
             return (est.A, est.b, est.c, est.d, int(est.delay), est.info.get("start", ""),
-                    len(est.info["unexcited"]), _number(est.info.get("holdout_fit")))
+                    len(est.info["unexcited"]), _number(est.info.get("holdout_fit")),
+                    _number(est.info.get("holdout_ratio")))
         return run
 
     def classical(fn):
         def run(record):
             est = fn(record, order=order)
-            return est.A, est.b, est.c, est.d, int(record.delay or 0), "", 0, np.nan
+            return est.A, est.b, est.c, est.d, int(record.delay or 0), "", 0, np.nan, np.nan
         return run
 
     return {"encoder": ident(refine=False, iterations=0, classical=False),
@@ -152,15 +153,15 @@ def _run_record(methods, estimation, validation, clean, true, label, order, nois
                   else estimation.with_delay(true[4]))
         t0 = time.perf_counter()
         try:
-            A, b, c, d, D, start, flagged, holdout = run(record)
+            A, b, c, d, D, start, flagged, holdout, ratio = run(record)
         except (ValueError, np.linalg.LinAlgError, RuntimeError):
             A = b = c = np.full((order,), np.nan)
             A, d, D, start, flagged = np.full((order, order), np.nan), np.nan, 0, "", 0
-            holdout = np.nan
+            holdout = ratio = np.nan
         seconds = time.perf_counter() - t0
         fit, fit_clean = _score(A, b, c, d, D, validation, clean)
         rows.append(Row(label, order, noise, steps, name, fit, fit_clean, seconds, D, start,
-                        plant, flagged, holdout))
+                        plant, flagged, holdout, ratio))
     plant_input = validation
     if len(true) > 5:
         plant_input = Record(validation.y, validation.u - true[5], validation.dt,

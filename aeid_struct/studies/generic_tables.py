@@ -55,8 +55,11 @@ class Row:
         0 for the other methods.
     holdout : float
         The refined one-channel estimate's hold-out fit % (``info["holdout_fit"]``: its order
-        fitted on the first 70 % of the record, run on the rest; below 0 it is flagged,
-        ``ae.UndeterminedModelWarning``); NaN where it did not run.
+        fitted on the first 70 % of the record, run on the rest); NaN where it did not run.
+    holdout_ratio : float
+        Its RMS residual over the same model's on the first 70 % (``info["holdout_ratio"]``);
+        with the fit, whether ``ae.UndeterminedModelWarning`` flags the estimate
+        (``generic.holdout_flagged``); NaN where it did not run.
     """
 
     case: str
@@ -72,6 +75,7 @@ class Row:
     plant: str = "stable"
     unexcited: int = 0
     holdout: float = float("nan")
+    holdout_ratio: float = float("nan")
 
 
 def _median(values) -> float:
@@ -118,15 +122,16 @@ def _flag_lines(by_case: dict, flagged: dict, what: str, below: float) -> list[s
 
 
 def _holdout_lines(rows: list[Row], by_case: dict) -> list[str]:
-    """How often the refined model was flagged by its hold-out (``info["holdout_fit"]`` below
-    ``generic.HOLDOUT_FLOOR``: the record does not determine a model of its order), and
-    how often it failed on the validation half (more than 10 points below the true model's
-    fit), flagged and not (the records where the hold-out ran)."""
-    from aeid_struct.generic import HOLDOUT_FLOOR
+    """How often the refined model was flagged by its hold-out (``generic.holdout_flagged``:
+    the record does not determine a model of its order), and how often it failed on the
+    validation half (more than 10 points below the true model's fit), flagged and not (the
+    records where the hold-out ran)."""
+    from aeid_struct.generic import holdout_flagged
 
-    flagged = {(r.plant, r.case, r.noise, r.steps): bool(r.holdout < HOLDOUT_FLOOR)
-               for r in rows if r.method == "refined" and np.isfinite(r.holdout)}
-    return _flag_lines(by_case, flagged, "by its hold-out fit", 10.0)
+    flagged = {(r.plant, r.case, r.noise, r.steps): holdout_flagged(
+        r.holdout, r.holdout_ratio if np.isfinite(r.holdout_ratio) else None)
+        for r in rows if r.method == "refined" and np.isfinite(r.holdout)}
+    return _flag_lines(by_case, flagged, "by its hold-out", 10.0)
 
 
 def _unexcited_lines(rows: list[Row], by_case: dict) -> list[str]:
