@@ -19,8 +19,8 @@ class UndeterminedModelWarning(UserWarning):
     that order, and the estimate may fail on other data although it fits the record well."""
 
 
-#: A hold-out fit (``generic.pipeline._holdout``) below this, in %, flags the estimate: a model that
-#: predicts its record's last part worse than that part's own mean does.
+#: A hold-out fit (``generic.pipeline._holdout``) below this, in %, flags the estimate: a
+#: model that predicts its record's last part worse than that part's own mean does.
 HOLDOUT_FLOOR = 0.0
 #: A hold-out RMS residual above this many times the model's own on the part it was fitted to
 #: flags the estimate too (:func:`holdout_flagged`).

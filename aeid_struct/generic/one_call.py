@@ -130,8 +130,8 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         (one channel, refined): the validation fit % of the same fit on the first 70 % of the
         record run on the rest, and ``holdout_ratio`` its RMS residual there over its own on
         the first 70 % (None where the record cannot be split); below 0 % or above
-        :data:`~aeid_struct.generic.pipeline.HOLDOUT_RATIO` it warns
-        (:class:`~aeid_struct.generic.pipeline.UndeterminedModelWarning`): the record does not
+        :data:`~aeid_struct.generic.holdout.HOLDOUT_RATIO` it warns
+        (:class:`~aeid_struct.generic.holdout.UndeterminedModelWarning`): the record does not
         determine a model of that order.
 
     Raises

@@ -262,9 +262,8 @@ def run(resolve, record, order=None, *, structure=None, refine=True, delay=None,
     order, order_fits, criterion, ratios = call.order, None, None, None
     fitting = (refine, method, int(iterations), bool(classical))
     if order is None:
-        order_fits, criterion, flagged, ratios = _select_order(call.identifiers, call.work,
-                                                       call.max_delay, call.feedthrough,
-                                                       *fitting)
+        order_fits, criterion, flagged, ratios = _select_order(
+            call.identifiers, call.work, call.max_delay, call.feedthrough, *fitting)
         order = chosen_order(order_fits, criterion, flagged)
     model, chosen, refined, info = _fit(call, order, structure, *fitting)
     # refined models only: the one pass's residual carries model error that the test reads as
