@@ -56,12 +56,13 @@ def any_record():
 
 @pytest.mark.parametrize(("refine", "stages"), [
     # the refined model's residuals are tested for feedback, then the one pass runs on the
-    # first 70 % of the record at its delay (the hold-out: no delay search) before the result;
-    # every model's lightly damped modes are checked against the record (multi.excitation)
+    # first 70 % of the record at its delay (the hold-out: no delay search) and its rule
+    # (generic.holdout) judges it before the result; every model's lightly damped modes are
+    # checked against the record (multi.excitation)
     (True, ["generic.boundary", "generic.delay", "generic.windows", "generic.scoring",
             "generic.polish", "generic.feedback", "generic.boundary", "generic.windows",
-            "generic.classical", "generic.scoring", "generic.polish", "multi.excitation",
-            "generic.result"]),
+            "generic.classical", "generic.scoring", "generic.polish", "generic.holdout",
+            "multi.excitation", "generic.result"]),
     (False, ["generic.boundary", "generic.delay", "generic.windows", "generic.classical",
              "generic.scoring", "generic.polish", "multi.excitation", "generic.result"]),
 ])
