@@ -7,11 +7,12 @@ ARX model of order ``n`` with ``n + 1`` input terms (the FOH discretisation of a
     y_k = -a_1 y_{k-1} - ... - a_n y_{k-n} + b_0 u_{k-D} + ... + b_n u_{k-D-n} + e,
 
 is fitted by least squares on the same samples ``k >= max_delay + n`` for every ``D``; the
-delay with the least residual sum of squares is the estimate. A delay one sample too short
-misses the term ``u_{k-D-n}``, one too long the term ``u_{k-D}``, so the true ``D`` has the
-least residual on noise-free data (a held input's strictly proper model has no ``b_0``: ``D``
-and ``D + 1`` then fit alike, and the smaller is kept). All ``D`` share one Gram matrix of the
-lagged signals; each ``D`` is a small sub-block solve.
+shortest delay whose residual sum of squares is within
+:func:`~aeid_struct.generic.scoring.delay_margin` of the least is the estimate. A delay one
+sample too short misses the term ``u_{k-D-n}``, one too long the term ``u_{k-D}``, so the true
+``D`` has the least residual on noise-free data (a held input's strictly proper model has no
+``b_0``: ``D`` and ``D + 1`` then fit alike, and the smaller is kept). All ``D`` share one Gram
+matrix of the lagged signals; each ``D`` is a small sub-block solve.
 
 *Re-scan* (:func:`rescan`): equation error is biased by noise, so ``D`` is re-scanned over
 ``D_arx - width .. D_arx + width`` by the model of a record (output error with ``c, d, x_0``
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aeid_struct.generic.scoring import select
+from aeid_struct.generic.scoring import delay_margin, select
 
 __all__ = ["arx_delay", "rescan"]
 
@@ -79,8 +80,10 @@ def arx_delay(y: np.ndarray, u: np.ndarray, order: int, max_delay: int) -> int:
         # one block (every record up to ~250k samples here): its lagged matrix is still Z
         lagged = Z if len(blocks) == 1 else _lagged(y, u, n, max_delay, rows) / scale
         rss += np.sum((y[rows][None, :] - coef @ lagged.T) ** 2, axis=1)
-    # the smallest delay within 2 / rows of the least residual (parsimony: generic.scoring)
-    return int(np.flatnonzero(rss <= rss.min() * (1.0 + 2.0 / (N - k0)))[0])
+    # the smallest delay within the noise of the least residual (generic.scoring.delay_margin:
+    # the regression's 2n + 2 parameters are its p; 2 / rows, AIC's margin, let the longest
+    # delays win on short records)
+    return int(np.flatnonzero(rss <= rss.min() * (1.0 + delay_margin(N - k0, n)))[0])
 
 
 #: Bytes of lagged signals :func:`arx_delay` holds at once.
