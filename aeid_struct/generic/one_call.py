@@ -36,6 +36,7 @@ from aeid_struct.generic.pipeline import (
 from aeid_struct.generic.pipeline import measured as measured
 from aeid_struct.generic.windows import candidates
 from aeid_struct.identification import Estimate
+from aeid_struct.multi import ITERATIONS as SEVERAL_ITERATIONS
 from aeid_struct.multi import identify as identify_multi
 from aeid_struct.multi import several, unexcited_modes
 from aeid_struct.records import Record as measured_record
@@ -46,7 +47,7 @@ __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDERS", "
 
 @one_thread
 def identify(record, order=None, *, structure=None, refine=True, delay=None, max_delay=None,
-             identifier=None, method="auto", iterations=ITERATIONS,
+             identifier=None, method="auto", iterations=None,
              classical=True, stable=False) -> Estimate:
     """Identify a continuous-time model of a measured record in one call (see the module
     docstring): generic identifier, whole-record projection, input delay, refinement.
@@ -88,9 +89,12 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         The refinement (module docstring, step 5): ``"auto"`` separable for the free CCF and
         MCF, CasADi otherwise; ``"separable"`` refuses other structures; ``"casadi"`` always
         CasADi.
-    iterations : int, >= 0
+    iterations : int, >= 0, optional
         Levenberg-Marquardt iterations of the one pass (``refine=False``; the refinement
-        iterates to convergence); 0: the chosen candidate's projection.
+        iterates to convergence); 0: the chosen candidate's projection. None: the path's own
+        budget, :data:`~aeid_struct.generic.pipeline.ITERATIONS` for one channel and
+        :data:`~aeid_struct.multi.ITERATIONS` for several channels or experiments (whose
+        iterations cost a residual of every channel each).
     classical : bool
         The Steiglitz-McBride estimate as a candidate of the one pass and as the refinement's
         second start; False: the encoder's candidates alone (``iterations=0, classical=False,
@@ -155,7 +159,8 @@ def identify(record, order=None, *, structure=None, refine=True, delay=None, max
         structure = "mcf"
     return run(functools.partial(_identifiers, identifier=identifier), record, order,
                structure=structure, refine=refine, delay=delay, max_delay=max_delay,
-               method=method, iterations=iterations, classical=classical)
+               method=method, iterations=ITERATIONS if iterations is None else iterations,
+               classical=classical)
 
 
 def _tuple_of_channels(record) -> bool:
@@ -193,7 +198,8 @@ def _several(record, order, *, structure, refine, delay, max_delay, identifier, 
         return candidates(ident, y, u, growth=())
 
     began = time.perf_counter()
-    kw = {"refine": refine, "delay": delay, "max_delay": max_delay, "iterations": iterations,
+    kw = {"refine": refine, "delay": delay, "max_delay": max_delay,
+          "iterations": SEVERAL_ITERATIONS if iterations is None else iterations,
           "classical": classical, "proposals": proposals, "orders": range(1, MAX_ORDER + 1),
           "stable": stable}
     est = identify_multi(record, order, **kw)

@@ -19,6 +19,7 @@ from aeid_struct.multi.experiments import experiments_of as experiments_of
 from aeid_struct.multi.experiments import several as several
 from aeid_struct.multi.identify import ESTIMATION_SHARE as ESTIMATION_SHARE
 from aeid_struct.multi.identify import EXACT as EXACT
+from aeid_struct.multi.identify import ITERATIONS as ITERATIONS
 from aeid_struct.multi.identify import MAX_DELAY as MAX_DELAY
 from aeid_struct.multi.identify import ORDER_TOLERANCE as ORDER_TOLERANCE
 from aeid_struct.multi.identify import PATIENCE as PATIENCE
@@ -34,7 +35,7 @@ from aeid_struct.multi.realisation import project as project
 from aeid_struct.multi.start import continuous_poles as continuous_poles
 from aeid_struct.multi.start import reflected as reflected
 
-__all__ = ["ESTIMATION_SHARE", "EXACT", "Experiments", "Layout", "MAX_DELAY", "ORDER_TOLERANCE",
-           "PATIENCE", "chosen_order", "compare_channels", "continuous_poles", "experiments_of",
+__all__ = ["ESTIMATION_SHARE", "EXACT", "Experiments", "ITERATIONS", "Layout", "MAX_DELAY",
+           "ORDER_TOLERANCE", "PATIENCE", "chosen_order", "compare_channels", "continuous_poles", "experiments_of",
            "fit_from_poles", "identify", "observer_form", "order_search_done", "packed",
            "parameters", "project", "reflected", "several", "unexcited_modes"]

@@ -50,8 +50,8 @@ from aeid_struct.multi.start import arx_delays, classical_poles, relaxed, stabil
 from aeid_struct.records import RecordBatch
 from aeid_struct.threads import one_thread
 
-__all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "PATIENCE",
-           "chosen_order", "fit_from_poles", "identify", "order_search_done", "packed",
+__all__ = ["ESTIMATION_SHARE", "EXACT", "ITERATIONS", "MAX_DELAY", "ORDER_TOLERANCE",
+           "PATIENCE", "chosen_order", "fit_from_poles", "identify", "order_search_done", "packed",
            "parameters"]
 
 #: Points of validation fit within which the smaller order is preferred (``order=None``; the
@@ -59,6 +59,11 @@ __all__ = ["ESTIMATION_SHARE", "EXACT", "MAX_DELAY", "ORDER_TOLERANCE", "PATIENC
 ORDER_TOLERANCE = 0.5
 #: The estimation part of each record when the order is selected.
 ESTIMATION_SHARE = 0.7
+#: Levenberg-Marquardt iterations of the several-channel one pass (``refine=False``), each a
+#: residual and Jacobian of every channel: on ``aeid-struct bench-generic --channels`` its rows
+#: reach the refined fit at 10, and 30 (one channel's budget) cost up to half as much time again
+#: for the same fits.
+ITERATIONS = 10
 #: ``order=None`` stops its search after this many orders in a row that improve on none before
 #: them (:func:`order_search_done`): a lightly damped pair adds two orders at once, so an order
 #: or two that improve nothing are no reason to stop, and the orders above the system's (the
@@ -205,7 +210,8 @@ def fit_from_poles(record, order: int, poles=None, *, origin: str = "arx",
 
 
 @one_thread
-def identify(record, order=None, *, refine=True, delay=None, max_delay=None, iterations=3,
+def identify(record, order=None, *, refine=True, delay=None, max_delay=None,
+             iterations=ITERATIONS,
              classical=True, proposals=None, orders=range(1, 9), feedthrough=True,
              stable=False, what="ae.identify") -> Estimate:
     """Identify one model of records with several channels, or of several experiments (module
@@ -224,8 +230,8 @@ def identify(record, order=None, *, refine=True, delay=None, max_delay=None, ite
         The largest delay considered (default :data:`MAX_DELAY`, capped by what the records
         leave).
     iterations : int, >= 0
-        Residual evaluations of the one pass (``ae.identify`` passes its own, default
-        ``generic.pipeline.ITERATIONS``).
+        Levenberg-Marquardt iterations of the one pass (:data:`ITERATIONS`, what
+        ``ae.identify`` runs by default).
     classical : bool
         The classical candidates beside ``proposals``' (always where there are none).
     proposals : callable, optional
