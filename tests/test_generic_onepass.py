@@ -158,3 +158,25 @@ def test_one_pass_between_the_encoder_pass_and_the_refined_model(order):
 def test_bad_iterations_and_classical_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         identify(record(), 2, refine=False, identifier=PoleDouble(), **kwargs)
+
+
+def test_the_default_budget_is_each_paths_own(monkeypatch):
+    """``iterations=None`` (the default) runs generic.pipeline.ITERATIONS for one channel and
+    multi.ITERATIONS for several channels; an integer runs as given on both paths."""
+    from aeid_struct import multi
+    from aeid_struct.generic import one_call
+
+    seen = []
+    monkeypatch.setattr(one_call, "run", lambda *a, **kw: seen.append(("one", kw["iterations"])))
+    monkeypatch.setattr(one_call, "identify_multi",
+                        lambda *a, **kw: seen.append(("several", kw["iterations"])))
+    one = record()
+    two = ae.Record(np.stack([one.y, 2 * one.y], 1), one.u, DT)
+    for rec, iterations in ((one, None), (two, None), (one, 7), (two, 7)):
+        try:
+            identify(rec, 2, refine=False, iterations=iterations)
+        except (AttributeError, TypeError):      # the stand-ins return no estimate
+            pass
+    assert seen == [("one", ITERATIONS), ("several", multi.ITERATIONS), ("one", 7),
+                    ("several", 7)]
+    assert ITERATIONS == 30 and multi.ITERATIONS == 10
