@@ -83,7 +83,7 @@ print(estimation, validation, sep="\n")"""),
 
 `order=3` uses the shipped `generic-3` identifier. `refine=False` is the one pass: the encoder's
 candidates and a classical Steiglitz-McBride candidate, everything but the poles exact least
-squares, and ten separable Levenberg-Marquardt iterations from the best (a bounded cost);
+squares, and thirty separable Levenberg-Marquardt iterations from the best (a bounded cost);
 `iterations=0, classical=False` gives the encoder's pass alone."""),
     ("code", r"""ae.identify(estimation, order=3)   # the first call loads generic-3 (package data)
 alone = ae.identify(estimation, order=3, refine=False, iterations=0, classical=False)

@@ -87,10 +87,6 @@ from aeid_struct.generic.boundary import measured as measured
 from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.feedback import feedback_test, warn_feedback
-from aeid_struct.generic.holdout import HOLDOUT_FLOOR as HOLDOUT_FLOOR
-from aeid_struct.generic.holdout import HOLDOUT_RATIO as HOLDOUT_RATIO
-from aeid_struct.generic.holdout import UndeterminedModelWarning as UndeterminedModelWarning
-from aeid_struct.generic.holdout import holdout_flagged as holdout_flagged
 from aeid_struct.generic.holdout import residual_ratio, warn_holdout
 from aeid_struct.generic.normalised import Model, structure_of
 from aeid_struct.generic.polish import (
@@ -119,8 +115,7 @@ from aeid_struct.simulation import fit_initial
 from aeid_struct.structures import CCF
 
 __all__ = ["ESTIMATION_SHARE", "ITERATIONS", "MAX_DELAY", "METHODS", "ORDER_TOLERANCE",
-           "HOLDOUT_FLOOR", "HOLDOUT_RATIO", "StableOnlyWarning", "UndeterminedModelWarning",
-           "UnexcitedModeWarning", "holdout_flagged", "run", "warn_holdout", "warn_stable_only",
+           "StableOnlyWarning", "UnexcitedModeWarning", "run", "warn_stable_only",
            "warn_unexcited"]
 
 #: Candidates re-scanned at the neighbouring delays (the others are scored at the ARX delay).
@@ -189,7 +184,7 @@ def _select_order(identifiers: dict, data: Record, max_delay: int, feedthrough,
     chosen order's is (the one pass, or refined); returns ``(fits, criterion, flagged,
     ratios)``: order -> fit, order -> Bayesian information criterion where there is no holdout
     (else None), the orders whose model has a mode the record does not determine (step 7), and
-    order -> the hold-out's residual ratio (:func:`holdout_flagged`; empty without a
+    order -> the hold-out's residual ratio (``generic.holdout.holdout_flagged``; empty without a
     hold-out)."""
     N = data.steps
     cut = int(round(ESTIMATION_SHARE * N))
@@ -298,11 +293,11 @@ def _holdout(call, order: int, model: Model, order_fits, ratios, criterion,
     """The validation fit of a model of ``order`` fitted on the first :data:`ESTIMATION_SHARE`
     of the record at the estimate's delay and run on the rest (initial state and offset
     fitted), and the ratio of its RMS residual there to its own on the first part
-    (:func:`holdout_flagged`): read from ``order=None``'s ``order_fits`` and ``ratios`` where
-    its hold-out ran (:func:`_select_order`), else the one pass's fit (``iterations`` of
-    ``fitting``) here, records shorter than the identifier's window included (they are read at
-    a finer grid). ``(None, None)`` where the record leaves no such split (a part too short for
-    the order, or without variation).
+    (``generic.holdout.holdout_flagged``): read from ``order=None``'s ``order_fits`` and
+    ``ratios`` where its hold-out ran (:func:`_select_order`), else the one pass's fit
+    (``iterations`` of ``fitting``) here, records shorter than the identifier's window included
+    (they are read at a finer grid). ``(None, None)`` where the record leaves no such split (a
+    part too short for the order, or without variation).
 
     Why a hold-out and not the parameters' covariance: on the benchmark's short records the
     poles' standard errors were no smaller on the fits that validated well than on those that

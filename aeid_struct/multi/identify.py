@@ -211,9 +211,8 @@ def fit_from_poles(record, order: int, poles=None, *, origin: str = "arx",
 
 @one_thread
 def identify(record, order=None, *, refine=True, delay=None, max_delay=None,
-             iterations=ITERATIONS,
-             classical=True, proposals=None, orders=range(1, 9), feedthrough=True,
-             stable=False, what="ae.identify") -> Estimate:
+             iterations=ITERATIONS, classical=True, proposals=None, orders=range(1, 9),
+             feedthrough=True, stable=False, what="ae.identify") -> Estimate:
     """Identify one model of records with several channels, or of several experiments (module
     docstring); the body of ``ae.identify`` for them.
 
