@@ -13,7 +13,8 @@ import numpy as np
 from aeid_struct.generic.scoring import ccf
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["Model", "common_cost", "denominator_of", "feedthrough_of", "separable", "structure_of"]
+__all__ = ["Model", "common_cost", "denominator_of", "feedthrough_of", "separable", "stable_only",
+           "structure_of"]
 
 
 def common_cost(m: Model, y: np.ndarray, first: int) -> float:
@@ -88,6 +89,21 @@ def separable(structure) -> bool:
     if structure is None or structure in ("ccf", "mcf"):
         return True
     return isinstance(structure, (CCF, MCF)) and not structure.fixed_values
+
+
+def stable_only(structure) -> bool:
+    """Whether a structure spec holds its models stable by construction: the modal form
+    (``"mcf"`` or an MCF, ``Re(eig) < 0``; ``stable=True`` of one channel).
+
+    Parameters
+    ----------
+    structure : None, str or Structure
+
+    Returns
+    -------
+    bool
+    """
+    return (isinstance(structure, str) and structure == "mcf") or isinstance(structure, MCF)
 
 
 def feedthrough_of(structure) -> bool:

@@ -19,6 +19,7 @@ from aeid_struct.generic.normalised import (
     common_cost,
     denominator_of,
     separable,
+    stable_only,
     structure_of,
 )
 from aeid_struct.generic.scoring import delay_margin, select
@@ -364,6 +365,11 @@ def refine_model(spec, structure: Structure, model: Model, work, order: int,
         better, about = refine_starts(structure, model, work, max_delay,
                                       split=isinstance(spec, MCF), classical=classical,
                                       origin=origin)
+        if (better is not None and stable_only(spec)
+                and better_of([model, better], work.y) is not better):
+            # the start fits better than the separable optimum found stable (the start's own
+            # optimum left the stable form): the fit held stable from the start, by CasADi
+            better = None
         if better is not None and spec == "mcf":
             # the refined poles decide the modal form's real poles and pairs
             structure = structure_of(spec, order, denominator_of(better.A))
@@ -381,7 +387,10 @@ def refine_model(spec, structure: Structure, model: Model, work, order: int,
             # CasADi did not run (a record beyond its largest bucket) or failed: the
             # free optimum's delay and poles are still the better start to project
             model = start_model
-    if better is not None and better_of([model, better], work.y) is better:
+    # a structure held stable takes its refined model over an unstable start (the start was
+    # kept where it fitted 1 % better: an estimate outside its own structure)
+    if better is not None and (better_of([model, better], work.y) is better or (
+            stable_only(spec) and not np.all(np.linalg.eigvals(model.A).real < 0))):
         model, refined = better, True
     return model, structure, refined, about
 

@@ -34,8 +34,10 @@ from aeid_struct.multi.realisation import observer_form as observer_form
 from aeid_struct.multi.realisation import project as project
 from aeid_struct.multi.start import continuous_poles as continuous_poles
 from aeid_struct.multi.start import reflected as reflected
+from aeid_struct.multi.start import stabilised as stabilised
 
 __all__ = ["ESTIMATION_SHARE", "EXACT", "Experiments", "ITERATIONS", "Layout", "MAX_DELAY",
            "ORDER_TOLERANCE", "PATIENCE", "chosen_order", "compare_channels", "continuous_poles",
            "experiments_of", "fit_from_poles", "identify", "observer_form", "order_search_done",
-           "packed", "parameters", "project", "reflected", "several", "unexcited_modes"]
+           "packed", "parameters", "project", "reflected", "several", "stabilised",
+           "unexcited_modes"]
