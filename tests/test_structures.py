@@ -670,6 +670,20 @@ def test_mcf_model_errors():
     with pytest.raises(ValueError, match=r"violates the constraint lambda0 < 0 \(poles in the "
                                          r"open left half-plane\)"):
         MCF(real=2, pairs=0).elements_of(np.diag([0.5, -2.0]), np.ones(2), np.ones(2))
+    # a pair whose oscillation is below working precision (the form's floor on omega, where a
+    # fit held stable ends) is still the structure's pair, not two real poles: the same
+    # transfer function comes back (it was refused as "2 real")
+    A = np.array([[-2.0, 7e-9], [-7e-9, -2.0]])
+    b, c = np.array([0.3, 1.0]), np.array([1.0, -0.5])
+    s = MCF(real=0, pairs=1, feedthrough=False)
+    back = s.assemble(s.elements_of(A, b, c).to(torch.float64))
+    given = control.ss(A, b[:, None], c[None], 0.0)
+    found = control.ss(back.A.numpy().reshape(2, 2), back.b.numpy().reshape(2, 1),
+                       back.c.numpy().reshape(1, 2), 0.0)
+    w = np.array([0.1, 2.0, 30.0])
+    np.testing.assert_allclose(found(1j * w), given(1j * w), rtol=1e-6)
+    with pytest.raises(ValueError, match=r"has 2 real"):      # two distinct real poles: no pair
+        s.elements_of(np.diag([-1.0, -1.0 - 1e-12]), b, c)
     with pytest.raises(ValueError, match=r"violates the constraint lambda0 < 0 .*lambda0 = 0 "):
         MCF(real=1, pairs=0).elements_of([[0.0]], [1.0], [1.0])
     with pytest.raises(ValueError, match=r"violates the constraint delta0 < 0"):
