@@ -274,6 +274,29 @@ def test_order_none_where_the_inputs_step_after_the_holdouts_cut():
                                atol=0.05)
 
 
+def test_order_none_on_experiments_too_short_to_validate():
+    """Three 40-sample experiments of a 2x1 plant at 10 % noise: the prefiltered ARX of the
+    classical start has no more equations than unknowns at the higher orders (it raised numpy's
+    zero-size error from the QR) and gives no candidate there; the 12-sample validation parts
+    are shorter than twice the initial state and offsets fitted to them at order 8, where every
+    order from 5 validated at 100.0 % (impossible at 10 % noise), so the whole records'
+    criterion chooses, and the chosen model validates on a fresh 200-sample experiment as well
+    as the old rule's median or better."""
+    from aeid_struct.multi.start import classical_poles
+    from aeid_struct.studies import channels_bench as cb
+
+    rng = np.random.default_rng(9)
+    system = cb._system(6, 2, 1, "unstable", rng)
+    records = [cb._run(system, np.full(1, 1), 40, 0.1, rng) for _ in range(3)]
+    fresh = cb._run(system, np.full(1, 1), 200, 0.1, rng)
+    est = ae.identify(records)
+    assert max(est.info["order_fits"].values()) < 99.0
+    assert np.all(np.isfinite(est.A)) and cb._score(est, fresh, np.ravel(est.delay)) > 0.0
+    # 10 samples a record leave 2 rows after 8 lags: 6 equations for 9 input lags, 3 constants
+    parts = [(r.y[:10].reshape(10, 2), r.u[:10].reshape(10, 1)) for r in records]
+    assert classical_poles(parts, 8) == []
+
+
 def test_the_refinements_cap_counts_iterations(monkeypatch):
     """MAX_ITERATIONS caps the refinement's Levenberg-Marquardt iterations (Jacobians): a
     closed-loop 2x2 record, whose fit ran 893 Jacobians under a cap of 100 when scipy's own

@@ -24,6 +24,8 @@ geometric mean of its pole magnitudes), where the coefficients of ``a`` are of o
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.linalg
 import scipy.signal
@@ -79,6 +81,11 @@ def _arx(parts, n: int, filt=None):
         targets.append(Y[n:])
     Phi, Psi, t = np.vstack(phis), np.concatenate(psis), np.concatenate(targets)
     rows, p = t.shape
+    if rows * p <= Phi.shape[1] * p + n * p:
+        # no more equations than unknowns (short records, each with its own constants or, for
+        # the prefiltered refits, its own transients): no estimate, where the QR below left
+        # nothing to solve and raised numpy's zero-size error
+        return np.full(n + 1, np.nan), math.inf
     scale = np.abs(Phi).max(axis=0)
     scale[scale == 0] = 1.0
     k = Phi.shape[1]
@@ -212,6 +219,8 @@ def classical_poles(parts, order: int) -> list[np.ndarray]:
         Per-sample poles.
     """
     den, _ = _arx(parts, order)
+    if not np.all(np.isfinite(den)):
+        return []
     found = [den]
     den = reflected(den)
     for k in range(1, MAX_REFITS + 1):
