@@ -234,7 +234,7 @@ class MCF(Structure):
         cV = np.einsum("bi,bij->bj", c.astype(complex), V)
         res = cV * np.linalg.solve(V, b.astype(complex)[..., None])[..., 0]
         scale = np.abs(poles).max(1, keepdims=True)
-        rel = np.abs(poles.imag) / scale
+        rel = np.abs(poles.imag) / np.where(scale > 0, scale, 1.0)    # all poles at 0: real
         n_real = (rel <= math.sqrt(np.finfo(float).eps)).sum(1)
         # the r poles nearest the real axis are the real modes, where each is real to working
         # precision; the others pair up, a pair whose imaginary part is below that precision
