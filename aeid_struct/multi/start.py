@@ -81,7 +81,7 @@ def _arx(parts, n: int, filt=None):
         targets.append(Y[n:])
     Phi, Psi, t = np.vstack(phis), np.concatenate(psis), np.concatenate(targets)
     rows, p = t.shape
-    if rows * p <= Phi.shape[1] * p + n * p:
+    if rows * p <= Phi.shape[1] * p + n:        # each output's own k columns, one shared a
         # no more equations than unknowns (short records, each with its own constants or, for
         # the prefiltered refits, its own transients): no estimate, where the QR below left
         # nothing to solve and raised numpy's zero-size error
