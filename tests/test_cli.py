@@ -340,7 +340,10 @@ IDENTIFY_ERRORS = [
     (["--y", "{binary.csv}"], r"is not a text CSV file"),
     (["--y", "{object.npy}"], r"--y file '.*object.npy' is not a numeric .npy array "
                               r"\(Object arrays cannot be loaded when allow_pickle=False\)"),
-    (["--y", "{pickle.npy}"], r"--y file '.*pickle.npy' is not a numeric .npy array"),
+    # numpy's own message advises loading such a file unsafely; the library's says what it is not
+    (["--y", "{pickle.npy}"], r"--y file '.*pickle.npy' is not a numeric .npy array \(neither "
+                              r"an .npy array nor an .npz archive: not loaded, as a pickle never "
+                              r"is\)$"),
     (["--y", "{complex.npy}"], r"holds complex values \(complex128\); expected real numbers"),
     (["--y", "{strings.npy}"], r"holds <U1 values; expected a numeric \(float or integer\)"),
     (["--y", "{cube.npy}"], r"array of shape \(2, 2, 300\); expected \(steps,\) or "

@@ -161,6 +161,27 @@ def test_cli_identify_many(fleet, tmp_path, capsys):
     shutil.rmtree(out)
 
 
+def test_a_file_that_is_not_an_array_is_refused_as_data(tmp_path):
+    """Bytes without the .npy or .zip magic (numpy takes them for a pickle and advises loading
+    them unsafely): the file is one chunk, and its reason says what it is not, never how to
+    unpickle it; an object array keeps numpy's own refusal (read memory-mapped)."""
+    from aeid_struct.fleet.sources import read_chunk
+
+    (tmp_path / "garbage.npy").write_bytes(b"not an npy file at all")
+    (tmp_path / "garbage.npz").write_bytes(b"nor a zip archive")
+    np.save(tmp_path / "object.npy", np.array([1.0, None], dtype=object), allow_pickle=True)
+    found = {c.key: c for c in chunks(tmp_path)}
+    assert sorted(found) == ["garbage.npy@0", "garbage.npz@0", "object.npy@0"]
+    for key in ("garbage.npy@0", "garbage.npz@0"):
+        with pytest.raises(ValueError, match=r"cannot be read as records \(ValueError: neither "
+                                             r"an .npy array nor an .npz archive: not loaded, "
+                                             r"as a pickle never is\)$"):
+            read_chunk(found[key])
+    with pytest.raises(ValueError, match=r"\(ValueError: Array can't be memory-mapped: Python "
+                                         r"objects in dtype.\)$"):
+        read_chunk(found["object.npy@0"])
+
+
 def test_parquet_chunks_read_their_own_row_groups(tmp_path):
     """Chunks that cut across a Parquet file's row groups read exactly their rows (pyarrow's
     table as the oracle), with u where the table has it."""

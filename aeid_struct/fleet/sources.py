@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aeid_struct.records.files import load_numpy
+
 __all__ = ["FORMATS", "Chunk", "chunks", "read_chunk"]
 
 #: File suffixes read as records.
@@ -59,10 +61,10 @@ def _count(path: Path) -> int | None:
     if path.suffix == ".csv":
         return None
     if path.suffix == ".npy":
-        shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        shape = load_numpy(path, mmap_mode="r").shape
         return 1 if len(shape) == 1 else shape[0]
     if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as archive:
+        with load_numpy(path) as archive:
             shape = archive["y"].shape
         return 1 if len(shape) == 1 else shape[0]
     import pyarrow.parquet as pq
@@ -131,10 +133,10 @@ def read_chunk(c: Chunk) -> tuple[np.ndarray, np.ndarray | None, float | None]:
     dt = None
     try:
         if path.suffix == ".npy":
-            y = np.load(path, mmap_mode="r", allow_pickle=False)
+            y = load_numpy(path, mmap_mode="r")
             y, u = np.atleast_2d(y)[c.start:stop], None
         elif path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as archive:
+            with load_numpy(path) as archive:
                 y = np.atleast_2d(archive["y"])[c.start:stop]
                 u = np.atleast_2d(archive["u"])[c.start:stop] if "u" in archive else None
         elif path.suffix == ".csv":

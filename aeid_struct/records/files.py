@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["RECORD_LAYOUTS", "RecordFile", "read_record"]
+__all__ = ["RECORD_LAYOUTS", "RecordFile", "load_numpy", "read_record"]
 
 #: The record layouts ``identify`` reads (its --help and its hints show this text).
 RECORD_LAYOUTS = (
@@ -65,11 +65,43 @@ class RecordFile:
     several: bool = False
 
 
+def load_numpy(path, *, mmap_mode: str | None = None):
+    """``numpy.load`` of a record file as data: pickles and object arrays are refused, never
+    loaded (``allow_pickle=False``), and where numpy's own message for a file it takes for a
+    pickle suggests loading it unsafely, the reason says instead what the file is not.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``.npy`` or ``.npz`` file.
+    mmap_mode : {None, "r"}
+        As ``numpy.load``'s.
+
+    Returns
+    -------
+    ndarray or NpzFile
+
+    Raises
+    ------
+    ValueError
+        The file is not an array of numbers (the reason in the message).
+    """
+    try:
+        return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as err:
+        reason = str(err)
+        if "unsafely" in reason:
+            # numpy takes any file without the .npy or .zip magic for a pickle and advises
+            # loading it unsafely: a record file is data, never code
+            reason = ("neither an .npy array nor an .npz archive: not loaded, as a pickle "
+                      "never is")
+        raise ValueError(reason) from None
+
+
 def _read_npy(path: Path, option: str) -> np.ndarray:
     try:
-        arr = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as err:
-        # allow_pickle=False: object arrays and pickles are refused, never unpickled
+        arr = load_numpy(path)
+    except ValueError as err:
         raise ValueError(f"{option} file {str(path)!r} is not a numeric .npy array "
                          f"({err})") from None
     if not isinstance(arr, np.ndarray):
