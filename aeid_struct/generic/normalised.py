@@ -13,7 +13,7 @@ import numpy as np
 from aeid_struct.generic.scoring import ccf
 from aeid_struct.structures import CCF, MCF, Structure
 
-__all__ = ["Model", "common_cost", "denominator_of", "feedthrough_of", "separable", "stable_only",
+__all__ = ["Model", "common_cost", "denominator_of", "feedthrough_of", "held_stable", "separable",
            "structure_of"]
 
 
@@ -91,7 +91,7 @@ def separable(structure) -> bool:
     return isinstance(structure, (CCF, MCF)) and not structure.fixed_values
 
 
-def stable_only(structure) -> bool:
+def held_stable(structure) -> bool:
     """Whether a structure spec holds its models stable by construction: the modal form
     (``"mcf"`` or an MCF, ``Re(eig) < 0``; ``stable=True`` of one channel).
 

@@ -88,7 +88,7 @@ from aeid_struct.generic.classical import classical_candidates
 from aeid_struct.generic.delay import arx_delay
 from aeid_struct.generic.feedback import feedback_test, warn_feedback
 from aeid_struct.generic.holdout import residual_ratio, warn_holdout
-from aeid_struct.generic.normalised import Model, stable_only, structure_of
+from aeid_struct.generic.normalised import Model, held_stable, structure_of
 from aeid_struct.generic.polish import (
     better_of,
     iterate,
@@ -338,7 +338,7 @@ def _fit(call, order: int, structure, refine: bool, method: str, iterations: int
     work, max_delay, feedthrough = call.work, call.max_delay, call.feedthrough
     fit = _encoder_fit(call.identifiers[order], work.y, work.u, order, work.delay, max_delay,
                        feedthrough, classical and not refine, work.intersample, classical,
-                       stable_only(structure))
+                       held_stable(structure))
     model = Model.of_ccf(fit.den, fit.projection)
     spec, structure = structure, structure_of(structure, order, fit.den)
     refined = False

@@ -18,8 +18,8 @@ from aeid_struct.generic.normalised import (
     Model,
     common_cost,
     denominator_of,
+    held_stable,
     separable,
-    stable_only,
     structure_of,
 )
 from aeid_struct.generic.scoring import delay_margin, select
@@ -365,7 +365,7 @@ def refine_model(spec, structure: Structure, model: Model, work, order: int,
         better, about = refine_starts(structure, model, work, max_delay,
                                       split=isinstance(spec, MCF), classical=classical,
                                       origin=origin)
-        if (better is not None and stable_only(spec)
+        if (better is not None and held_stable(spec)
                 and better_of([model, better], work.y) is not better):
             # the start fits better than the separable optimum found stable (the start's own
             # optimum left the stable form): the fit held stable from the start, by CasADi
@@ -387,10 +387,10 @@ def refine_model(spec, structure: Structure, model: Model, work, order: int,
             # CasADi did not run (a record beyond its largest bucket) or failed: the
             # free optimum's delay and poles are still the better start to project
             model = start_model
-    # a structure held stable takes its refined model over an unstable start (the start was
-    # kept where it fitted 1 % better: an estimate outside its own structure)
-    if better is not None and (better_of([model, better], work.y) is better or (
-            stable_only(spec) and not np.all(np.linalg.eigvals(model.A).real < 0))):
+    # a structure held stable compares stable models only: its starts are mirrored into the
+    # left half-plane (``pipeline._encoder_fit``), and a start that fits better than the
+    # separable optimum was refined by CasADi above, in the start's own structure
+    if better is not None and better_of([model, better], work.y) is better:
         model, refined = better, True
     return model, structure, refined, about
 
