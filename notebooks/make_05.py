@@ -44,7 +44,6 @@ from IPython.display import Image, display
 
 import aeid_struct as ae
 from aeid_struct import baselines
-from aeid_struct.identification import Head
 from aeid_struct.online import Tracker, TrackerConfig
 from aeid_struct.studies.wear import drifting
 from symbolic import mechanisms
@@ -95,8 +94,7 @@ config = ae.TrainConfig(steps=steps, dt=dt, epochs=10_000, seconds=20 if FAST el
                         count=2_000 if FAST else 20_000, excitation="prbs",
                         noise=(0.0, 0.03), warmup=200, initial="fitted", progress=False)
 t0 = time.perf_counter()
-ident = ae.train(structure, family, config)
-ident.head = Head(iterations=5)        # the one pass: encoder, then five head iterations
+ident = ae.train(structure, family, config)   # its one pass: encoder, five head iterations
 print(f"trained in {time.perf_counter() - t0:.0f} s ({ident.meta['train']['epochs']} epochs)")"""),
     ("md", r"""## One pass and refinement against a cold grey-box fit
 
@@ -134,6 +132,24 @@ for noise in (0.0, 0.02):
         err = np.median(np.abs(np.array(values) / true - 1), axis=0) * 100
         print(f"  {label:<17}" + " ".join(f"{e:7.3f}" for e in err)
               + f"   {np.median(ms[label]):7.1f}")"""),
+    ("md", r"""## Saving it: a file of data, the map given back
+
+`ident.save` writes the weights and, for the map, its name and the SHA-256 of its
+serialisation, never the map itself (a model file holds no code). Reading it back needs the map
+again, from the same `ae.Physical(two_mass, bounds=box)`; another Function of that name is
+refused by its hash. On the command line the same comes from the Python file that builds the
+structure (run as your own code, not as `__main__`):
+`aeid-struct identify two_mass.aeid --y record.csv --maps machine.py`."""),
+    ("code", r"""path = ident.save("two_mass.aeid")
+try:
+    ae.load(path)
+except ValueError as err:
+    print("without the map:", str(err).split(". ")[0])
+again = ae.load(path, maps={structure.function.name(): structure.function})
+check = ae.data.records(family, 1, steps=steps, dt=dt, excitation_kind="prbs", seed=11)
+print("same one pass:", all(np.array_equal(again.identify(check.y, check.u).physical[k],
+                                           ident.identify(check.y, check.u).physical[k])
+                            for k in names))"""),
     ("md", r"""## Tracking a drifting spring
 
 A stream of the machine running under a PRBS force while the wall spring `k1` loses 10 % of
@@ -176,6 +192,56 @@ record = ae.Record(np.stack([rec.y[0][0], rec.y[1][0]], 1), rec.u[0][0], dt=cart
 one, refined = cart.identify(record), cart.identify(record, refine=True)
 print(f"{'':>4} {'truth':>8} {'one pass':>9} {'refined':>9} {'std':>8}")
 for k in cart.structure.element_names:
+    print(f"{k:>4} {rec.systems.params[k][0]:8.4f} {one.physical[k]:9.4f} "
+          f"{refined.physical[k]:9.4f} {refined.info['std'][k]:8.4f}")"""),
+    ("md", r"""## Coupled inputs: one experiment per input
+
+With a force on each of the two masses (`mechanisms.coupled_masses()`), each position answers
+both forces: a record of both forces at once cannot be split by channel, and the structure says
+so (the next section models such a record as each output's sum of channels). Recorded one
+force at a time (the other at rest), the four channels of the two experiments make one
+identifier (`experiments=True`); the identifiability check reads exactly the channels
+measured. The records go in as a sequence, one per channel, in the order of `channels`."""),
+    ("code", r"""masses = mechanisms.coupled_masses()
+try:
+    ae.Physical(masses, bounds=box, channels=[(0, 0), (1, 1)])
+except ValueError as err:
+    print("one record of both forces:", str(err).split(" (its")[0])
+pairs = [(0, 0), (1, 0), (0, 1), (1, 1)]
+print(identifiability(masses, box, pairs=pairs))
+coupled = ae.Physical(masses, bounds=box, channels=pairs, experiments=True)
+coupled_family = ae.ParameterFamily(coupled)
+grid = {"steps": (steps,) * 4, "dt": (dt,) * 4}
+coupled_ident = ae.train(coupled, coupled_family, ae.TrainConfig(
+    **grid, epochs=10_000, seconds=15 if FAST else 120, count=1_000 if FAST else 20_000,
+    excitation="prbs", noise=(0.0, 0.03), progress=False))
+rec = ae.data.records(coupled_family, 1, **grid, excitation_kind="prbs", seed=9, noise=0.02)
+ys, us = tuple(y[0] for y in rec.y), tuple(u[0] for u in rec.u)
+one, refined = coupled_ident.identify(ys, us), coupled_ident.identify(ys, us, refine=True)
+print(f"{'':>4} {'truth':>8} {'one pass':>9} {'refined':>9} {'std':>8}")
+for k in coupled.element_names:
+    print(f"{k:>4} {rec.systems.params[k][0]:8.4f} {one.physical[k]:9.4f} "
+          f"{refined.physical[k]:9.4f} {refined.info['std'][k]:8.4f}")"""),
+    ("md", r"""## Both forces at once: one record
+
+A machine in normal operation drives all its actuators together, and cannot always be run one
+input at a time. `ae.Physical(masses, outputs=[0, 1], inputs=[0, 1])` is the structure of one
+such record: its records are the four channels `(output, input)`, and each output is the sum of
+its two channels' responses (`groups`), with one free response. One `ae.Record` of both
+positions and both forces goes in; the identifiability check reads every output of every input."""),
+    ("code", r"""together = ae.Physical(masses, bounds=box, outputs=[0, 1], inputs=[0, 1])
+print("channels", together.channels, "summed per output", together.groups)
+together_family = ae.ParameterFamily(together)
+together_ident = ae.train(together, together_family, ae.TrainConfig(
+    **grid, epochs=10_000, seconds=15 if FAST else 120, count=1_000 if FAST else 20_000,
+    excitation="prbs", noise=(0.0, 0.03), progress=False))
+rec = ae.data.records(together_family, 1, **grid, excitation_kind="prbs", seed=9, noise=0.02)
+record = ae.Record(y=np.stack([rec.y[0][0], rec.y[2][0]], 1),
+                   u=np.stack([rec.u[0][0], rec.u[1][0]], 1), dt=dt)
+one, refined = together_ident.identify(record), together_ident.identify(record, refine=True)
+print(f"fit per output: {refined.fit[0]:.1f} % and {refined.fit[2]:.1f} %")
+print(f"{'':>4} {'truth':>8} {'one pass':>9} {'refined':>9} {'std':>8}")
+for k in together.element_names:
     print(f"{k:>4} {rec.systems.params[k][0]:8.4f} {one.physical[k]:9.4f} "
           f"{refined.physical[k]:9.4f} {refined.info['std'][k]:8.4f}")"""),
     ("md", r"""## What this shows

@@ -136,5 +136,6 @@ def write_machine(folder, ratio: float = 1.5):
     if ratio != 1.5:
         return script, None, structure
     ident = ae.train(structure, ae.ParameterFamily(structure), ae.TrainConfig(
-        steps=100, dt=0.02, epochs=1, count=100, excitation="prbs", progress=False, seed=0))
+        steps=100, dt=0.02, epochs=1, count=100, excitation="prbs", noise=(0.0, 0.03),
+        progress=False, seed=0))
     return script, ident.save(Path(folder) / "myplant.aeid"), structure

@@ -493,6 +493,37 @@ def test_a_head_given_to_train_is_calibrated_with():
     assert recalibrate(ident, family).meta["training_range"]["fit"] < calibrated["fit"]
     with pytest.raises(ValueError, match=r"head must be an identification.Head .* got int"):
         train(structure, family, config, head=5)
+    with pytest.raises(ValueError, match=r"head must be .* None or 'auto'; got str"):
+        train(structure, family, config, head="none")
+
+
+def test_a_physical_identifier_carries_a_head_unless_told_not_to():
+    # the default head="auto": a physical structure's one pass iterates in the parameters
+    # (the encoder alone, one epoch here, is far from them); a canonical one is the encoder
+    from aeid_struct.identification import Head
+    from aeid_struct.training import ParameterFamily
+    from aeid_struct.training.loop import PHYSICAL_HEAD
+    from symbolic import mechanisms
+
+    structure = ae.Physical(mechanisms.lever(), bounds={"m": (0.5, 2.0), "k": (10.0, 50.0),
+                                                        "d": (0.5, 3.0)}, known={"r": 1.5})
+    family = ParameterFamily(structure)
+    config = TrainConfig(steps=100, dt=0.02, epochs=1, count=200, excitation="prbs",
+                         progress=False)
+    ident = train(structure, family, config)
+    assert ident.head == PHYSICAL_HEAD == Head(iterations=5)
+    # oracle: the noise-free record's true parameters, which the encoder alone misses
+    rec = ae.data.records(family, 4, steps=100, dt=0.02, excitation_kind="prbs", seed=3)
+    truth = np.stack([rec.systems.params[k] for k in structure.element_names], 1)
+    one = ident.identify(rec.y, rec.u)
+    headed = np.stack([one.physical[k] for k in structure.element_names], 1)
+    ident.head = None
+    alone = ident.identify(rec.y, rec.u)
+    bare = np.stack([alone.physical[k] for k in structure.element_names], 1)
+    assert np.median(np.abs(headed / truth - 1)) < 1e-4
+    assert np.median(np.abs(bare / truth - 1)) > 1e-2
+    assert train(structure, family, config, head=None).head is None
+    assert train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL).head is None
 
 
 def test_calibration_identifies_at_most_its_share_of_the_held_out_records(monkeypatch):

@@ -177,9 +177,11 @@ def train_variant(variant: Variant, *, noisy: bool, count: int, epochs: int, see
             return Identifier.load(path)
     config = training_config(variant.subsystem, seconds=None, seed=seed, count=count,
                              noise=NOISE if noisy else 0.0, progress=progress, epochs=epochs)
+    # head=None: the paper's study compares the encoders alone (a physical structure's
+    # identifier otherwise carries train()'s head)
     ident = train(variant.structure, variant.family, config,
                   encoder=leg_encoder(variant.subsystem), inverse=variant.inverse,
-                  meta={"name": variant.name, "noisy": noisy, "seed": seed})
+                  meta={"name": variant.name, "noisy": noisy, "seed": seed}, head=None)
     if path is not None:
         ident.save(path)
     return ident

@@ -1,7 +1,7 @@
 """Your own mechanism, measured: for mechanisms written as Lagrangians (``symbolic.mechanisms``),
 the identifiability report, an identifier trained through exactly the user's API
-(``Physical(mechanism)``, ``ParameterFamily``, ``train``, a ``Head``) within a time budget,
-and its accuracy and speed against a cold grey-box fit and n4sid, side by side in one run
+(``Physical(mechanism)``, ``ParameterFamily``, ``train`` and its physical head) within a time
+budget, and its accuracy and speed against a cold grey-box fit and n4sid, side by side in one run
 (``aeid-struct bench-mechanism``).
 
 Per case and noise level, on records the training never saw (PRBS from rest), the median
@@ -367,7 +367,6 @@ def bench_mechanism(*, seconds: float = 120.0, noises=(0.0, 0.02, 0.05), records
     ValueError
         A case name not in :data:`CASES`.
     """
-    from aeid_struct.identification import Head
     from aeid_struct.training import ParameterFamily, TrainConfig, train
 
     unknown = sorted(set(cases or ()) - {c.name for c in CASES})
@@ -387,10 +386,9 @@ def bench_mechanism(*, seconds: float = 120.0, noises=(0.0, 0.02, 0.05), records
                                  excitation="prbs", noise=(0.0, 0.03), seed=seed,
                                  progress=False)
             t0 = time.perf_counter()
-            ident = train(structure, family, config)
+            ident = train(structure, family, config)      # with train()'s physical head
             row["training"] = {"seconds": time.perf_counter() - t0,
                                "epochs": ident.meta["train"]["epochs"]}
-            ident.head = Head(iterations=5)
             row["parameters"] = list(structure.element_names)
             row["levels"] = []
             for noise in noises:

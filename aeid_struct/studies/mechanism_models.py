@@ -82,7 +82,6 @@ def train_shipped(name: str, *, seconds: float = 240.0, seed: int = 0,
     Identifier
         With its head, and the training range calibrated with that head.
     """
-    from aeid_struct.identification import Head
     from aeid_struct.training import ParameterFamily, TrainConfig, train
 
     case, warmup = _case(name), SHIPPED[name][3]
@@ -92,7 +91,7 @@ def train_shipped(name: str, *, seconds: float = 240.0, seed: int = 0,
                          excitation="prbs", noise=(0.0, 0.03), warmup=warmup,
                          initial="fitted" if warmup else "rest", fresh=True, seed=seed,
                          progress=progress, checkpoint=checkpoint)
-    return train(structure, family, config, head=Head(iterations=5))
+    return train(structure, family, config)      # with train()'s physical head
 
 
 def accuracy_table(name: str, ident, *, records: int = 30, seed: int = 1) -> list[str]:
