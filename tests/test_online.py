@@ -1,6 +1,7 @@
 """The sliding-window tracker: windows, hop, smoothing and alarm against closed forms, on a stub
 identifier whose estimate is known exactly; the wearing leg against the decoder."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -434,6 +435,8 @@ def test_the_tracker_caps_the_head_on_a_copy_and_gives_identify_with_that_head()
         assert ident.head is stored                            # the caller's identifier
         engine_head = (t.identifier if t.runner is None else t.runner).head
         assert engine_head == Head(iterations=1, fixed=stored.fixed)
+        # a canonical structure's estimates carry no standard errors: the threshold alone
+        assert up.limit == {k: 0.05 for k in up.estimate}
         ident.head = Head(iterations=1, fixed=stored.fixed)
         one = ident.identify(rec.y[0], rec.u[0]).physical
         ident.head = stored
@@ -441,9 +444,17 @@ def test_the_tracker_caps_the_head_on_a_copy_and_gives_identify_with_that_head()
             assert up.estimate[k] == pytest.approx(one[k], rel=1e-6)
     assert Tracker(ident, TrackerConfig(iterations=None), engine="identifier").identifier \
         is ident
-    for bad in (-1, 1.5, True):
-        with pytest.raises(ValueError, match="iterations must be None or an integer >= 0"):
+    # the default "auto": a canonical structure's separable head capped at one iteration
+    auto = Tracker(ident, TrackerConfig(), engine="identifier")
+    assert TrackerConfig().iterations == "auto"
+    assert auto.runner.head == Head(iterations=1, fixed=stored.fixed)
+    for bad in (-1, 1.5, True, "all"):
+        with pytest.raises(ValueError, match="iterations must be None, 'auto' or an integer "
+                                             ">= 0"):
             TrackerConfig(iterations=bad)
+    for bad in (-1.0, math.inf, "3", None):
+        with pytest.raises(ValueError, match="sigmas must be a finite number >= 0"):
+            TrackerConfig(sigmas=bad)
 
 
 def test_push_is_feed_with_the_old_argument_order_and_warns():
@@ -504,3 +515,46 @@ def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs():
     with pytest.raises(ValueError, match=r"y and u must be \(k, 2\) and \(k, 1\) sample "
                                          r"arrays of one length \(the channels"):
         tracker.feed(y[:10, 0], u[:10])
+    # "auto": a physical structure's head runs whole (the identifier itself, uncapped)
+    assert ident.head.iterations == 5 and tracker.runner is ident
+
+
+def test_a_physical_trackers_limits_are_its_baseline_windows_standard_errors():
+    # each parameter's limit: max(threshold, sigmas * median of the baseline windows' standard
+    # errors / |reference|); the oracle is the estimate's own standard errors per window
+    # (identification.physical_errors, checked against the spread over noise draws in
+    # tests/test_physical_head.py); sigmas=0, or a canonical identifier, the threshold alone
+    from aeid_struct.identification.polish import with_standard_errors
+    from aeid_struct.studies.mechanism_models import shipped_structure
+
+    structure = shipped_structure("drive-train")
+    family = ae.ParameterFamily(structure)
+    ident = ae.train(structure, family, ae.TrainConfig(
+        steps=(300, 300), dt=(0.005, 0.005), epochs=1, count=100, warmup=50,
+        initial="fitted", excitation="prbs", progress=False))
+    stream = ae.data.records(family, 1, steps=(600, 600), dt=(0.005, 0.005),
+                             excitation_kind="prbs", seed=4, noise=0.02)
+    y = np.stack([stream.y[0][0], stream.y[1][0]], 1)
+    u = stream.u[0][0]
+    config = TrackerConfig(hop=100, baseline=3, threshold=0.01)
+    tracker = Tracker(ident, config, engine="identifier")
+    updates = tracker.feed(y, u)
+    assert [up.limit for up in updates[:2]] == [{}, {}]          # no reference yet
+    errors, values = [], []
+    for end in (300, 400, 500):
+        est = with_standard_errors(ident.identify((y[end - 300: end, 0], y[end - 300: end, 1]),
+                                                  (u[end - 300: end], u[end - 300: end])))
+        errors.append(est.info["std"])
+        values.append(est.physical)
+    names = structure.element_names
+    for k in names:
+        reference = np.median([v[k] for v in values])
+        e = np.median([abs(x[k]) for x in errors])
+        expected = max(0.01, 6.0 * e / abs(reference))
+        assert tracker.limits[k] == pytest.approx(expected, rel=1e-9)
+        assert all(up.limit[k] == tracker.limits[k] for up in updates[2:])
+    # at 2 % noise some parameter's limit is above the threshold: its scatter does not alarm
+    assert max(tracker.limits.values()) > 0.01
+    bare = Tracker(ident, dataclasses.replace(config, sigmas=0.0), engine="identifier")
+    bare.feed(y, u)
+    assert bare.limits == {k: 0.01 for k in names}

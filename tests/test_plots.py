@@ -359,6 +359,21 @@ def test_wear_draws_units_the_alarm_threshold_and_the_alarm(tmp_path):
         wear_figure(_wear_result(), config={"threshold": 0.1})
 
 
+def test_wear_draws_a_parameters_own_limit_where_the_tracker_set_one():
+    # Tracker.limits: k's limit 30 % (its standard errors), d's the threshold
+    import dataclasses
+
+    result = dataclasses.replace(_wear_result(), limit={"k": 0.3, "d": 0.1, "m": 0.1})
+    fig = wear_figure(result, config=TrackerConfig(threshold=0.1, baseline=3))
+    ax_k, ax_d, _ = fig.axes
+    levels = sorted(line.get_ydata()[0] for line in ax_k.lines if line.get_linestyle() == "-.")
+    np.testing.assert_allclose(levels, [25.1 * 0.7, 25.1 * 1.3])
+    assert [t.get_text() for t in ax_k.texts] == ["limit ±30%"] and not ax_d.texts
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "alarm limit: 6 standard errors of a window" in legend
+    assert "alarm threshold: reference ±10%" in legend
+
+
 def test_track_command_draws_its_own_threshold(tmp_path, monkeypatch):
     from aeid_struct.cli import main
 

@@ -66,8 +66,11 @@ def test_a_measured_stream_is_tracked_with_a_mechanism_identifier(tmp_path, caps
                  "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "stream: 900 samples at dt = 0.005 s (4.5 s), 2 outputs, 1 input" in text
-    assert re.search(r"alarm \(J1, J2, k, c, b beyond 5 % of the reference for 3 windows\): "
-                     r"raised at t = ", text)
+    assert re.search(r"alarm \(J1, J2, k, c, b beyond their limits, 5 % of the reference or 6 "
+                     r"standard errors of a window where larger, for 3 windows\): raised at "
+                     r"t = ", text)
+    # noise-free, a window's standard errors are nil: every limit is the threshold
+    assert re.search(r"\nk +[0-9.e+-]+ +[0-9.e+-]+ +-?[0-9.]+ % +5\.00 %\n", text)
     with (out / "track.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == 7 and rows[0]["t"] == repr(299 * DT)
@@ -85,6 +88,8 @@ def test_a_measured_stream_is_tracked_with_a_mechanism_identifier(tmp_path, caps
     assert summary["window"] == 300 and summary["hop"] == 100 and summary["alarm_time_s"] > 0
     assert summary["parameters"]["k"]["drift"] < -0.2          # the spring weakened by 33 %
     assert abs(summary["parameters"]["J2"]["drift"]) < 0.05    # the load did not change
+    assert summary["sigmas"] == 6.0
+    assert {p["limit"] for p in summary["parameters"].values()} == {0.05}
     assert (out / "track.png").stat().st_size > 10_000
 
 

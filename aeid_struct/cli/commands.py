@@ -113,7 +113,7 @@ def run_track(args: argparse.Namespace) -> int:
         config = TrackerConfig(hop=args.hop, smoothing=args.smoothing, median=args.median,
                                threshold=args.threshold,
                                baseline=args.baseline, patience=args.patience,
-                               watch=tuple(watch), iterations=iterations)
+                               sigmas=args.sigmas, watch=tuple(watch), iterations=iterations)
     except ValueError as err:
         raise InputError(f"track: {err}") from None
     if stream:

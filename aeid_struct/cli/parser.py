@@ -144,9 +144,10 @@ def _add_track(sub, names: str) -> None:
     by_head = {"median": f"{m1} for an identifier whose separable head iterates, {m0} "
                          "without", "smoothing": f"{s1} for an identifier whose separable head "
                                                  f"iterates, {s0} without",
-               "iterations": f"{tracker.iterations} in the wear scenario; the identifier's "
-                             "own head for a measured stream, whose mechanism's encoder may be "
-                             "a poor start"}
+               "iterations": f"{tracker.iterations!r} in the wear scenario (1 for a "
+                             "canonical structure's head, the whole head for a physical "
+                             "structure's); the identifier's own head for a measured stream, "
+                             "whose mechanism's encoder may be a poor start"}
     for name, kind, text in (
             ("hop", int, "samples between identifications"),
             ("smoothing", float, "moving-average weight"),
@@ -154,6 +155,9 @@ def _add_track(sub, names: str) -> None:
             ("threshold", float, "relative drift that alarms"),
             ("baseline", int, "windows in the reference"),
             ("patience", int, "windows over the threshold"),
+            ("sigmas", float, "standard errors of a window's parameters that a drift must "
+                              "exceed as well (a physical structure's; 0: the threshold "
+                              "alone)"),
             ("iterations", int, "at most this many iterations of the identifier's separable "
                                 "head per window")):
         trk.add_argument(f"--{name}", type=kind,

@@ -67,11 +67,15 @@ def run_track_stream(args: argparse.Namespace, ident, config) -> int:
           f"{tracker.steps} samples every {used.hop}: {len(result.t)} windows"
           + (f", {failed} of them not identified (NaN in the CSV)" if failed else ""))
     rows = _drifts(result)
-    print(f"{'parameter':<10} {'reference':>12} {'last smoothed':>14} {'drift':>9}")
+    limits = tracker.limits
+    print(f"{'parameter':<10} {'reference':>12} {'last smoothed':>14} {'drift':>9} "
+          f"{'limit':>9}")
     for k, (reference, last, drift) in rows.items():
-        print(f"{k:<10} {reference:>12.6g} {last:>14.6g} {100 * drift:>8.2f} %")
+        print(f"{k:<10} {reference:>12.6g} {last:>14.6g} {100 * drift:>8.2f} % "
+              f"{100 * limits.get(k, math.nan):>7.2f} %")
     watched = list(used.watch) or names
-    print(f"alarm ({', '.join(watched)} beyond {100 * used.threshold:g} % of the reference for "
+    print(f"alarm ({', '.join(watched)} beyond their limits, {100 * used.threshold:g} % of the "
+          f"reference or {used.sigmas:g} standard errors of a window where larger, for "
           f"{used.patience} windows): "
           + (f"raised at t = {result.alarm_time:.3f} s" if math.isfinite(result.alarm_time)
              else "not raised"))
@@ -101,7 +105,9 @@ def run_track_stream(args: argparse.Namespace, ident, config) -> int:
         "latency_p95_ms": result.latency_p95_ms,
         "alarm_time_s": None if not math.isfinite(result.alarm_time) else result.alarm_time,
         "not_identified": failed,
-        "parameters": {k: {"reference": r, "last_smoothed": last, "drift": d}
+        "sigmas": used.sigmas,
+        "parameters": {k: {"reference": r, "last_smoothed": last, "drift": d,
+                           "limit": limits.get(k, math.nan)}
                        for k, (r, last, d) in rows.items()},
         "t": result.t, "estimate": result.estimate, "smoothed": result.smoothed,
         "alarm": result.alarm}))

@@ -8,7 +8,7 @@ state machine.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 __all__ = ["DEFAULT_SMOOTHING", "PushError", "TrackerConfig", "Update"]
 
@@ -45,13 +45,29 @@ class TrackerConfig:
         The physical parameters to track (empty: all the estimate has).
     watch : tuple of str
         Those of them whose drift raises the alarm (empty: all tracked ones).
-    iterations : int or None
-        At most this many Gauss-Newton iterations of the identifier's separable head per window
-        (>= 0; the tracker runs a copy of the identifier with the head capped); None: the head
-        as the identifier has it. The default 1: consecutive windows of a stream are the
-        identifier's own kind of record, from which the encoder starts close to the
-        least-squares optimum, and the update keeps within its time budget (more iterations
-        barely move the tracked estimates: ``aeid-struct bench-online``).
+    iterations : int, None or "auto"
+        At most this many Gauss-Newton iterations of the identifier's head per window (>= 0;
+        the tracker runs a copy of the identifier with the head capped); None: the head as the
+        identifier has it. ``"auto"`` (the default): 1 for a canonical structure's separable
+        head, whose encoder starts close to the least-squares optimum on the identifier's own
+        kind of record, so that the update keeps within its time budget (more iterations
+        barely move the tracked estimates: ``aeid-struct bench-online``); the head as it is
+        for a physical structure, whose encoder lands some tens of percent from the
+        parameters and whose head (``identification.physical_head``) closes that gap only in
+        all its iterations (capped at one, noise-free windows of the drive train scatter by
+        tens of percent).
+    sigmas : float
+        A drift counts toward the alarm only beyond this many standard errors of a window's
+        parameters (>= 0): each parameter's limit is ``max(threshold, sigmas * e / |r|)``
+        with ``r`` its reference and ``e`` the median of its standard errors over the
+        baseline windows (``sqrt(diag(s^2 (J^T J)^-1))`` at the window's estimate, as
+        ``greyest`` gives them: ``identification.physical_errors``), so that a parameter a
+        window determines poorly does not raise the alarm on its scatter. Six, not the three
+        of a Gaussian rule: an ill-conditioned window's cost is far from quadratic, and its
+        optimum moves between windows by several of its linearised standard errors (the
+        drive train's inertias and shaft damping at 1-5 % noise). Only for a physical
+        structure (a canonical one's estimates carry no standard errors); 0: the threshold
+        alone.
 
     Raises
     ------
@@ -67,7 +83,8 @@ class TrackerConfig:
     patience: int = 3
     parameters: tuple[str, ...] = ()
     watch: tuple[str, ...] = ()
-    iterations: int | None = 1
+    iterations: int | None | str = "auto"
+    sigmas: float = 6.0
 
     def __post_init__(self) -> None:
         for name in ("hop", "median", "baseline", "patience"):
@@ -76,9 +93,10 @@ class TrackerConfig:
                 continue
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name} must be a positive integer; got {v!r}")
-        if self.iterations is not None and (not isinstance(self.iterations, int) or isinstance(
-                self.iterations, bool) or self.iterations < 0):
-            raise ValueError(f"iterations must be None or an integer >= 0; got "
+        if self.iterations is not None and self.iterations != "auto" and (
+                not isinstance(self.iterations, int) or isinstance(self.iterations, bool)
+                or self.iterations < 0):
+            raise ValueError(f"iterations must be None, 'auto' or an integer >= 0; got "
                              f"{self.iterations!r}")
 
         def number(v) -> bool:
@@ -90,6 +108,8 @@ class TrackerConfig:
         if not (number(self.threshold) and math.isfinite(self.threshold)
                 and self.threshold > 0):
             raise ValueError(f"threshold must be a finite number > 0; got {self.threshold!r}")
+        if not (number(self.sigmas) and math.isfinite(self.sigmas) and self.sigmas >= 0):
+            raise ValueError(f"sigmas must be a finite number >= 0; got {self.sigmas!r}")
         for name in ("parameters", "watch"):
             v = getattr(self, name)
             # a string is a sequence of letters: parameters="kd" would track 'k' and 'd'
@@ -125,6 +145,9 @@ class Update:
         the identifier's check, or a non-finite estimate): then ``estimate`` holds NaN for each
         tracked parameter known so far, and ``smoothed``, ``drift``, ``alarm`` are the
         tracker's state, unchanged by this window.
+    limit : dict of str to float
+        The relative drift beyond which each parameter counts toward the alarm
+        (``TrackerConfig.sigmas``); empty until the reference exists.
     """
 
     t: float
@@ -134,6 +157,7 @@ class Update:
     alarm: bool
     seconds: float
     error: str | None = None
+    limit: dict[str, float] = field(default_factory=dict)
 
 
 class PushError(ValueError):

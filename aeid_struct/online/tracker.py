@@ -36,6 +36,8 @@ class _State:
     smoothed: dict = field(default_factory=dict)
     history: list = field(default_factory=list)
     reference: dict | None = None
+    errors: list = field(default_factory=list)     # the baseline windows' standard errors
+    limit: dict = field(default_factory=dict)      # each parameter's alarm limit
     over: int = 0
     alarm: bool = False
 
@@ -83,9 +85,13 @@ class Tracker:
     tails (a stretch of weakly exciting input puts several windows off together), which an
     average passes on and a median does not. The reference is the median of the first
     ``baseline`` window estimates (not of the smoothed values, still settling then); the alarm
-    is raised once ``|s_j / reference - 1| > threshold`` holds for ``patience`` consecutive
-    windows for any watched parameter, and stays raised (a change alarm, not a level
-    indicator) until :meth:`reset`.
+    is raised once ``|s_j / reference - 1|`` exceeds the parameter's limit for ``patience``
+    consecutive windows for any watched parameter, and stays raised (a change alarm, not a
+    level indicator) until :meth:`reset`. The limit is ``threshold``, or for a physical
+    structure ``sigmas`` times the parameter's standard error in a baseline window
+    (relative to the reference) where that is larger: a parameter the windows determine
+    poorly (the drive train's shaft damping at 1 % noise) scatters from window to window by
+    more than any threshold a drift of the well-determined ones is caught with.
 
     *Bad stretches of a stream.* A window that the identifier cannot identify (the checks of
     ``records.check_records``, the same for both engines: an input that is zero over the whole
@@ -129,12 +135,22 @@ class Tracker:
             identifier, required=engine == "onnx")
         #: ``"onnx"`` where the windows run an ONNX back end, else ``"identifier"``.
         self.engine = "onnx" if _backend_name(runner) == "onnx" else "identifier"
-        if config.iterations is not None:
-            runner = _capped(runner, config.iterations)
+        cap = _cap(config.iterations, identifier)
+        if cap is not None:
+            runner = _capped(runner, cap)
+        #: Whether the baseline windows' standard errors set the alarm's limits (a physical
+        #: structure, ``TrackerConfig.sigmas > 0``).
+        self.uses_errors = config.sigmas > 0 and _physical(identifier)
         #: The identifier every window goes through (``identifier`` on the engine's back end).
         self.runner = runner
         self.config = _resolved(config, runner)
         self.reset()
+
+    @property
+    def limits(self) -> dict[str, float]:
+        """Each parameter's alarm limit, the relative drift beyond which it counts toward the
+        alarm (``Update.limit``; empty until the baseline is complete)."""
+        return dict(self._s.limit)
 
     def reset(self) -> None:
         """Forget the stream, the smoothing, the reference and the alarm."""
@@ -227,24 +243,25 @@ class Tracker:
                                     "PushError.consumed and .updates)", i, updates) from err
         return updates
 
-    def _physical(self) -> tuple[dict, float]:
-        """The physical parameters of the current window and the wall time it took."""
+    def _estimate(self) -> tuple:
+        """The estimate of the current window and the wall time it took."""
         s = self._s
         t0 = time.perf_counter()
         if self.channels is None:
-            out = self.runner.identify(s.y, s.u).physical
+            out = self.runner.identify(s.y, s.u)
         else:
             out = self.runner.identify(tuple(s.y[:, o] for o, _ in self.channels),
-                                       tuple(s.u[:, i] for _, i in self.channels)).physical
+                                       tuple(s.u[:, i] for _, i in self.channels))
         return out, time.perf_counter() - t0
 
     def _identify(self) -> Update:
         s, cfg = self._s, self.config
         t0 = time.perf_counter()
         try:
-            physical, seconds = self._physical()
+            est, seconds = self._estimate()
         except RecordError as err:   # the identifier's own check refused the window
             return self._skipped(str(err), time.perf_counter() - t0)
+        physical = est.physical or {}
         values = {k: float(v) for k, v in physical.items()
                   if not cfg.parameters or k in cfg.parameters}
         if not values:
@@ -256,6 +273,11 @@ class Tracker:
             return self._skipped("the window's estimate is not finite: "
                                  + ", ".join(f"{k} = {values[k]}" for k in bad), seconds)
         s.history.append(dict(values))
+        if self.uses_errors and s.reference is None:
+            from aeid_struct.identification.polish import with_standard_errors
+
+            std = with_standard_errors(est).info.get("std", {})
+            s.errors.append({k: abs(float(std.get(k, math.nan))) for k in values})
         recent = s.history[-cfg.median:]
         for k in values:
             # statistics.median: 2 us on 9 numbers against 22 us for np.median (a tenth of
@@ -268,15 +290,17 @@ class Tracker:
         if s.reference is None and len(s.history) >= cfg.baseline:
             s.reference = {k: float(np.median([h[k] for h in s.history[: cfg.baseline]]))
                            for k in values}
+            s.limit = {k: _limit(cfg, s.reference[k], [e[k] for e in s.errors])
+                       for k in values}
         if s.reference is not None and len(s.history) > cfg.median:
             del s.history[: -cfg.median]       # a stream may run for days: keep what is used
         if s.reference is not None:
             drift = {k: s.smoothed[k] / s.reference[k] - 1.0 for k in values}
-            watched = [v for k, v in drift.items() if not cfg.watch or k in cfg.watch]
-            s.over = s.over + 1 if any(abs(v) > cfg.threshold for v in watched) else 0
+            watched = [k for k in drift if not cfg.watch or k in cfg.watch]
+            s.over = s.over + 1 if any(abs(drift[k]) > s.limit[k] for k in watched) else 0
             s.alarm = s.alarm or s.over >= cfg.patience
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
-                      seconds)
+                      seconds, limit=dict(s.limit))
 
     def _skipped(self, reason: str, seconds: float) -> Update:
         """The update of a window that could not be identified: NaN estimates, the state as it
@@ -286,7 +310,8 @@ class Tracker:
         drift = {k: (s.smoothed[k] / s.reference[k] - 1.0 if s.reference is not None
                      else math.nan) for k in s.smoothed}
         return Update(s.samples * self.dt - self.dt, {k: math.nan for k in names},
-                      dict(s.smoothed), drift, s.alarm, seconds, error=reason)
+                      dict(s.smoothed), drift, s.alarm, seconds, error=reason,
+                      limit=dict(s.limit))
 
 
 def _check_identifier(identifier, engine: str):
@@ -320,6 +345,33 @@ def _columns(u: np.ndarray, y: np.ndarray, width: tuple, channels) -> tuple:
         raise ValueError(f"y and u must be (k, {p}) and (k, {m}) sample arrays of one length "
                          f"(the channels {list(channels)}); got shapes {y.shape} and {u.shape}")
     return u, y
+
+
+def _physical(identifier) -> bool:
+    """Whether ``identifier``'s structure is physical (its head iterates in the parameters,
+    its estimates carry standard errors); read by the structure's type name, so that an
+    identifier known by its description answers too."""
+    from aeid_struct.structures import type_of
+
+    return type_of(getattr(identifier, "structure", None)) == "Physical"
+
+
+def _cap(iterations, identifier) -> int | None:
+    """``TrackerConfig.iterations`` resolved for ``identifier``: ``"auto"`` by its structure
+    (its docstring), else as given."""
+    if iterations == "auto":
+        return None if _physical(identifier) else 1
+    return iterations
+
+
+def _limit(config: TrackerConfig, reference: float, errors: list) -> float:
+    """A parameter's alarm limit: ``max(threshold, sigmas * e / |reference|)``, ``e`` the
+    median of its finite standard errors over the baseline windows (the threshold alone
+    where there are none)."""
+    finite = [e for e in errors if math.isfinite(e)]
+    if not finite or reference == 0:
+        return config.threshold
+    return max(config.threshold, config.sigmas * statistics.median(finite) / abs(reference))
 
 
 def _capped(engine, iterations: int):

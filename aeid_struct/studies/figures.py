@@ -11,7 +11,8 @@ from aeid_struct.online import TrackerConfig
 
 def wear_figure(result, path=None, *, config=None, title=None, units=None):
     """True against tracked physical parameters of a wear scenario, one panel per parameter
-    (units from ``evaluation.PARAMETER_UNITS``), with the alarm threshold and the alarm time.
+    (units from ``evaluation.PARAMETER_UNITS``), with the alarm threshold (or a parameter's
+    own limit, ``Tracker.limits``) and the alarm time.
 
     The threshold band is the tracker's own rule (``online.Tracker``): the reference is the
     median of the first ``config.baseline`` window estimates, and the alarm is raised when a
@@ -86,12 +87,18 @@ def _panel(ax, result, p: str, config: TrackerConfig, watched: bool, units: dict
     ax.plot(result.t, drawn[2], "-", color="C3", lw=1.2, label="smoothed")
     if watched and estimates.size >= config.baseline:
         reference = float(np.median(estimates[: config.baseline]))
-        band = reference * (1 + config.threshold * np.array([1.0, -1.0]))
+        # the parameter's own limit where the tracker set one (TrackerConfig.sigmas)
+        limit = (result.limit or {}).get(p, config.threshold)
+        band = reference * (1 + limit * np.array([1.0, -1.0]))
         drawn.append(band)
+        label = (f"alarm threshold: reference ±{config.threshold:.0%}"
+                 if limit <= config.threshold else
+                 f"alarm limit: {config.sigmas:g} standard errors of a window")
         for i, level in enumerate(band):
-            ax.axhline(level, color="C1", ls="-.", lw=1,
-                       label=(f"alarm threshold: reference ±{config.threshold:.0%}"
-                              if i == 0 else None))
+            ax.axhline(level, color="C1", ls="-.", lw=1, label=label if i == 0 else None)
+        if limit > config.threshold:
+            ax.text(0.995, 0.03, f"limit ±{limit:.0%}", transform=ax.transAxes, ha="right",
+                    va="bottom", fontsize=7, color="C1")
     if np.isfinite(result.alarm_time):
         ax.axvline(result.alarm_time, color="C1", ls="--", lw=1, label="alarm raised")
     if np.isfinite(result.drift_time):

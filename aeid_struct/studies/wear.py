@@ -173,6 +173,9 @@ class WearResult:
     drift : dict of str to (W,) ndarray, optional
         The tracker's own drift of each smoothed parameter from its reference after each
         window (``Update.drift``: NaN until the reference exists).
+    limit : dict of str to float, optional
+        Each parameter's alarm limit (``Tracker.limits``: the relative drift beyond which it
+        counts toward the alarm; empty where the baseline never filled).
     """
 
     t: np.ndarray
@@ -188,6 +191,7 @@ class WearResult:
     latency_p95_ms: float = math.nan
     config: TrackerConfig | None = None
     drift: dict | None = None
+    limit: dict | None = None
 
     @property
     def delay(self) -> float:
@@ -307,7 +311,8 @@ def wear_study(identifier, *, seconds: float = 120.0, noise: float = 0.01, seed:
            for p in true}
     return WearResult(ts, true, est, smooth, alarm, drift_time, alarm_time, rms,
                       1e3 * float(np.median(times)), tracker.engine,
-                      1e3 * float(np.percentile(times, 95)), tracker.config, drift=drift)
+                      1e3 * float(np.percentile(times, 95)), tracker.config, drift=drift,
+                      limit=tracker.limits)
 
 
 def stream_study(tracker: Tracker, y, u) -> WearResult:
@@ -343,4 +348,5 @@ def stream_study(tracker: Tracker, y, u) -> WearResult:
     ts, est, smooth, drift, alarm, alarm_time = _series(updates)
     return WearResult(ts, {p: np.full(ts.size, math.nan) for p in est}, est, smooth, alarm,
                       math.nan, alarm_time, {}, 1e3 * float(np.median(times)), tracker.engine,
-                      1e3 * float(np.percentile(times, 95)), tracker.config, drift=drift)
+                      1e3 * float(np.percentile(times, 95)), tracker.config, drift=drift,
+                      limit=tracker.limits)
