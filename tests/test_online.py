@@ -555,6 +555,11 @@ def test_a_physical_trackers_limits_are_its_baseline_windows_standard_errors():
         assert all(up.limit[k] == tracker.limits[k] for up in updates[2:])
     # at 2 % noise some parameter's limit is above the threshold: its scatter does not alarm
     assert max(tracker.limits.values()) > 0.01
+    # a physical structure's smoothing is the heavier one, although its head iterates
+    from aeid_struct.online import DEFAULT_SMOOTHING
+
+    assert (tracker.config.median, tracker.config.smoothing) == DEFAULT_SMOOTHING["physical"]
+    assert DEFAULT_SMOOTHING["physical"] != DEFAULT_SMOOTHING["head"]
     bare = Tracker(ident, dataclasses.replace(config, sigmas=0.0), engine="identifier")
     bare.feed(y, u)
     assert bare.limits == {k: 0.01 for k in names}

@@ -61,9 +61,11 @@ def test_a_measured_stream_is_tracked_with_a_mechanism_identifier(tmp_path, caps
     u, y = _stream(k_end=100.0)
     files = _files(tmp_path, u, y)
     out = tmp_path / "out"
+    # seven windows: the light smoothing (a physical structure's default is heavier), so that
+    # the spring's fall shows within them
     assert main(["track", "--model", "drive-train", "--y", *files, "--baseline", "2",
-                 "--hop", "100", "--engine", "identifier",
-                 "--out", str(out)]) == 0
+                 "--hop", "100", "--median", "3", "--smoothing", "0.7", "--engine",
+                 "identifier", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "stream: 900 samples at dt = 0.005 s (4.5 s), 2 outputs, 1 input" in text
     assert re.search(r"alarm \(J1, J2, k, c, b beyond their limits, 5 % of the reference or 6 "

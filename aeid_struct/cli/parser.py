@@ -141,9 +141,11 @@ def _add_track(sub, names: str) -> None:
                      help="measurement noise, of max|y|")
     tracker = TrackerConfig()          # the tracker's own defaults, not copies of them
     (m0, s0), (m1, s1) = DEFAULT_SMOOTHING["encoder"], DEFAULT_SMOOTHING["head"]
+    m2, s2 = DEFAULT_SMOOTHING["physical"]
     by_head = {"median": f"{m1} for an identifier whose separable head iterates, {m0} "
-                         "without", "smoothing": f"{s1} for an identifier whose separable head "
-                                                 f"iterates, {s0} without",
+                         f"without, {m2} for a physical structure's",
+               "smoothing": f"{s1} for an identifier whose separable head iterates, {s0} "
+                            f"without, {s2} for a physical structure's",
                "iterations": f"{tracker.iterations!r} in the wear scenario (1 for a "
                              "canonical structure's head, the whole head for a physical "
                              "structure's); the identifier's own head for a measured stream, "

@@ -56,7 +56,8 @@ class Tracker:
         any other identifier of the protocol.
     config : TrackerConfig
         How the tracker windows, smooths and alarms; ``median`` and ``smoothing`` left None
-        are set by the identifier's head (:data:`DEFAULT_SMOOTHING`, at construction), and
+        are set by the identifier's structure and head (:data:`DEFAULT_SMOOTHING`, at
+        construction), and
         ``Tracker.config`` holds the values used.
     engine : str
         ``"auto"`` (default: the identifier's ONNX back end when onnxruntime is installed and
@@ -389,10 +390,11 @@ def _capped(engine, iterations: int):
 
 def _resolved(config: TrackerConfig, engine) -> TrackerConfig:
     """``config`` with ``median`` and ``smoothing`` set where None, by whether ``engine`` (the
-    identifier on the tracker's back end) has a separable head that iterates
-    (:data:`DEFAULT_SMOOTHING`)."""
+    identifier on the tracker's back end) has a physical structure, or a separable head that
+    iterates (:data:`DEFAULT_SMOOTHING`)."""
     head = getattr(engine, "head", None)
     median, smoothing = DEFAULT_SMOOTHING[
+        "physical" if _physical(engine) else
         "head" if head is not None and head.iterations >= 1 else "encoder"]
     return dataclasses.replace(
         config, median=median if config.median is None else config.median,
