@@ -489,9 +489,10 @@ def test_a_drifting_mechanism_is_the_wearing_leg_when_written_as_the_leg():
         drifting(legs, {"k": k, "d": d}, u, dt, **mechanisms.upright(legs))
 
 
-def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs():
-    # the drive train's motor and load angles from one torque: each window of the (k, 2)
-    # stream is split by channel, and an update is the identifier's estimate of that split
+@pytest.fixture(scope="module")
+def drive_train():
+    """The drive train's structure, family and an identifier of its windows (one epoch, with
+    train()'s physical head)."""
     from aeid_struct.studies.mechanism_models import shipped_structure
 
     structure = shipped_structure("drive-train")
@@ -499,6 +500,13 @@ def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs():
     ident = ae.train(structure, family, ae.TrainConfig(
         steps=(300, 300), dt=(0.005, 0.005), epochs=1, count=100, warmup=50,
         initial="fitted", excitation="prbs", progress=False))
+    return structure, family, ident
+
+
+def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs(drive_train):
+    # the drive train's motor and load angles from one torque: each window of the (k, 2)
+    # stream is split by channel, and an update is the identifier's estimate of that split
+    structure, family, ident = drive_train
     stream = ae.data.records(family, 1, steps=(700, 700), dt=(0.005, 0.005),
                              excitation_kind="prbs", seed=2, noise=0.01)
     y = np.stack([stream.y[0][0], stream.y[1][0]], 1)
@@ -519,19 +527,14 @@ def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs():
     assert ident.head.iterations == 5 and tracker.runner is ident
 
 
-def test_a_physical_trackers_limits_are_its_baseline_windows_standard_errors():
+def test_a_physical_trackers_limits_are_its_baseline_windows_standard_errors(drive_train):
     # each parameter's limit: max(threshold, sigmas * median of the baseline windows' standard
     # errors / |reference|); the oracle is the estimate's own standard errors per window
     # (identification.physical_errors, checked against the spread over noise draws in
     # tests/test_physical_head.py); sigmas=0, or a canonical identifier, the threshold alone
-    from aeid_struct.identification.polish import with_standard_errors
-    from aeid_struct.studies.mechanism_models import shipped_structure
+    from aeid_struct.identification import with_standard_errors
 
-    structure = shipped_structure("drive-train")
-    family = ae.ParameterFamily(structure)
-    ident = ae.train(structure, family, ae.TrainConfig(
-        steps=(300, 300), dt=(0.005, 0.005), epochs=1, count=100, warmup=50,
-        initial="fitted", excitation="prbs", progress=False))
+    structure, family, ident = drive_train
     stream = ae.data.records(family, 1, steps=(600, 600), dt=(0.005, 0.005),
                              excitation_kind="prbs", seed=4, noise=0.02)
     y = np.stack([stream.y[0][0], stream.y[1][0]], 1)

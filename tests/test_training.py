@@ -473,35 +473,14 @@ def test_training_records_its_range_and_estimates_outside_it_are_flagged():
     assert ident.identify(inside).outside is None        # unknown range: no verdict
 
 
-def test_a_head_given_to_train_is_calibrated_with():
-    # oracle: recalibrate, which re-creates the run's records and split, with the same head
-    # set afterwards; the encoder alone's range differs (its fits are lower)
+def test_a_physical_identifier_carries_a_head_calibrated_with_unless_told_not_to():
+    # the default head="auto": a physical structure's one pass iterates in the parameters
+    # (the encoder alone, one epoch here, is far from them), and its training range is
+    # calibrated with that head (oracle: recalibrate, which re-creates the run's records and
+    # split with the head set afterwards; the encoder alone's fits are lower); a canonical
+    # structure's identifier is the encoder alone
     from aeid_struct.identification import Head
     from aeid_struct.training import ParameterFamily, recalibrate
-    from symbolic import mechanisms
-
-    structure = ae.Physical(mechanisms.lever(), bounds={"m": (0.5, 2.0), "k": (10.0, 50.0),
-                                                        "d": (0.5, 3.0)}, known={"r": 1.5})
-    family = ParameterFamily(structure)
-    config = TrainConfig(steps=100, dt=0.02, epochs=1, count=200, excitation="prbs",
-                         progress=False)
-    ident = train(structure, family, config, head=Head(iterations=5))
-    assert ident.head == Head(iterations=5)
-    calibrated = ident.meta["training_range"]
-    assert recalibrate(ident, family).meta["training_range"] == calibrated
-    ident.head = None
-    assert recalibrate(ident, family).meta["training_range"]["fit"] < calibrated["fit"]
-    with pytest.raises(ValueError, match=r"head must be an identification.Head .* got int"):
-        train(structure, family, config, head=5)
-    with pytest.raises(ValueError, match=r"head must be .* None or 'auto'; got str"):
-        train(structure, family, config, head="none")
-
-
-def test_a_physical_identifier_carries_a_head_unless_told_not_to():
-    # the default head="auto": a physical structure's one pass iterates in the parameters
-    # (the encoder alone, one epoch here, is far from them); a canonical one is the encoder
-    from aeid_struct.identification import Head
-    from aeid_struct.training import ParameterFamily
     from aeid_struct.training.loop import PHYSICAL_HEAD
     from symbolic import mechanisms
 
@@ -512,18 +491,25 @@ def test_a_physical_identifier_carries_a_head_unless_told_not_to():
                          progress=False)
     ident = train(structure, family, config)
     assert ident.head == PHYSICAL_HEAD == Head(iterations=5)
-    # oracle: the noise-free record's true parameters, which the encoder alone misses
+    calibrated = ident.meta["training_range"]
+    assert recalibrate(ident, family).meta["training_range"] == calibrated
+    # oracle: the noise-free records' true parameters, which the encoder alone misses
     rec = ae.data.records(family, 4, steps=100, dt=0.02, excitation_kind="prbs", seed=3)
     truth = np.stack([rec.systems.params[k] for k in structure.element_names], 1)
     one = ident.identify(rec.y, rec.u)
     headed = np.stack([one.physical[k] for k in structure.element_names], 1)
     ident.head = None
+    assert recalibrate(ident, family).meta["training_range"]["fit"] < calibrated["fit"]
     alone = ident.identify(rec.y, rec.u)
     bare = np.stack([alone.physical[k] for k in structure.element_names], 1)
     assert np.median(np.abs(headed / truth - 1)) < 1e-4
     assert np.median(np.abs(bare / truth - 1)) > 1e-2
     assert train(structure, family, config, head=None).head is None
     assert train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL).head is None
+    with pytest.raises(ValueError, match=r"head must be an identification.Head .* got int"):
+        train(structure, family, config, head=5)
+    with pytest.raises(ValueError, match=r"head must be .* None or 'auto'; got str"):
+        train(structure, family, config, head="none")
 
 
 def test_calibration_identifies_at_most_its_share_of_the_held_out_records(monkeypatch):

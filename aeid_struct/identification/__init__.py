@@ -56,6 +56,7 @@ if TYPE_CHECKING:
     from aeid_struct.identification.onnx_backend import inverse_names as inverse_names
     from aeid_struct.identification.onnx_backend import read_onnx as read_onnx
     from aeid_struct.identification.physical_head import PhysicalHead as PhysicalHead
+    from aeid_struct.identification.polish import with_standard_errors as with_standard_errors
     from aeid_struct.identification.pretrained import PRETRAINED as PRETRAINED
     from aeid_struct.identification.pretrained import load_pretrained as load_pretrained
 
@@ -82,6 +83,7 @@ _LAZY = {
     "head_failure": "head",
     "pattern_of": "head",
     "PhysicalHead": "physical_head",
+    "with_standard_errors": "polish",
     "ERROR_MODES": "identifier",
     "INITIAL_STATES": "identifier",
     "SCALE_MODES": "identifier",
@@ -130,6 +132,7 @@ __all__ = [
     "to_exported",
     "to_onnx",
     "to_torchscript",
+    "with_standard_errors",
     "writable_file",
 ]
 

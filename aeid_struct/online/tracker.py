@@ -89,10 +89,9 @@ class Tracker:
     is raised once ``|s_j / reference - 1|`` exceeds the parameter's limit for ``patience``
     consecutive windows for any watched parameter, and stays raised (a change alarm, not a
     level indicator) until :meth:`reset`. The limit is ``threshold``, or for a physical
-    structure ``sigmas`` times the parameter's standard error in a baseline window
-    (relative to the reference) where that is larger: a parameter the windows determine
-    poorly (the drive train's shaft damping at 1 % noise) scatters from window to window by
-    more than any threshold a drift of the well-determined ones is caught with.
+    structure ``sigmas`` standard errors of a baseline window where larger: a parameter the
+    windows determine poorly (the drive train's shaft damping at 1 % noise) scatters more
+    than any threshold that catches a drift of the well-determined ones.
 
     *Bad stretches of a stream.* A window that the identifier cannot identify (the checks of
     ``records.check_records``, the same for both engines: an input that is zero over the whole
@@ -273,33 +272,13 @@ class Tracker:
         if bad:
             return self._skipped("the window's estimate is not finite: "
                                  + ", ".join(f"{k} = {values[k]}" for k in bad), seconds)
-        s.history.append(dict(values))
+        errors = None
         if self.uses_errors and s.reference is None:
-            from aeid_struct.identification.polish import with_standard_errors
+            from aeid_struct.identification import with_standard_errors
 
             std = with_standard_errors(est).info.get("std", {})
-            s.errors.append({k: abs(float(std.get(k, math.nan))) for k in values})
-        recent = s.history[-cfg.median:]
-        for k in values:
-            # statistics.median: 2 us on 9 numbers against 22 us for np.median (a tenth of
-            # an update, per parameter)
-            v = statistics.median([h[k] for h in recent]) if cfg.median > 1 else values[k]
-            prev = s.smoothed.get(k)
-            s.smoothed[k] = v if prev is None or not math.isfinite(prev) \
-                else prev + cfg.smoothing * (v - prev)
-        drift = {k: math.nan for k in values}
-        if s.reference is None and len(s.history) >= cfg.baseline:
-            s.reference = {k: float(np.median([h[k] for h in s.history[: cfg.baseline]]))
-                           for k in values}
-            s.limit = {k: _limit(cfg, s.reference[k], [e[k] for e in s.errors])
-                       for k in values}
-        if s.reference is not None and len(s.history) > cfg.median:
-            del s.history[: -cfg.median]       # a stream may run for days: keep what is used
-        if s.reference is not None:
-            drift = {k: s.smoothed[k] / s.reference[k] - 1.0 for k in values}
-            watched = [k for k in drift if not cfg.watch or k in cfg.watch]
-            s.over = s.over + 1 if any(abs(drift[k]) > s.limit[k] for k in watched) else 0
-            s.alarm = s.alarm or s.over >= cfg.patience
+            errors = {k: abs(float(std.get(k, math.nan))) for k in values}
+        drift = _advance(s, cfg, values, errors)
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
                       seconds, limit=dict(s.limit))
 
@@ -346,6 +325,37 @@ def _columns(u: np.ndarray, y: np.ndarray, width: tuple, channels) -> tuple:
         raise ValueError(f"y and u must be (k, {p}) and (k, {m}) sample arrays of one length "
                          f"(the channels {list(channels)}); got shapes {y.shape} and {u.shape}")
     return u, y
+
+
+def _advance(s: _State, cfg: TrackerConfig, values: dict, errors: dict | None) -> dict:
+    """The stream's state after one window's estimate ``values`` (and, in the baseline, its
+    standard errors ``errors``): the running median and moving average, the reference and
+    the limits once the baseline is full, the alarm (``Tracker``'s rule); the drift per
+    parameter (NaN before the reference)."""
+    s.history.append(dict(values))
+    if errors is not None:
+        s.errors.append(errors)
+    recent = s.history[-cfg.median:]
+    for k in values:
+        # statistics.median: 2 us on 9 numbers against 22 us for np.median (a tenth of an
+        # update, per parameter)
+        v = statistics.median([h[k] for h in recent]) if cfg.median > 1 else values[k]
+        prev = s.smoothed.get(k)
+        s.smoothed[k] = v if prev is None or not math.isfinite(prev) \
+            else prev + cfg.smoothing * (v - prev)
+    if s.reference is None and len(s.history) >= cfg.baseline:
+        s.reference = {k: float(np.median([h[k] for h in s.history[: cfg.baseline]]))
+                       for k in values}
+        s.limit = {k: _limit(cfg, s.reference[k], [e[k] for e in s.errors]) for k in values}
+    if s.reference is None:
+        return {k: math.nan for k in values}
+    if len(s.history) > cfg.median:
+        del s.history[: -cfg.median]           # a stream may run for days: keep what is used
+    drift = {k: s.smoothed[k] / s.reference[k] - 1.0 for k in values}
+    watched = [k for k in drift if not cfg.watch or k in cfg.watch]
+    s.over = s.over + 1 if any(abs(drift[k]) > s.limit[k] for k in watched) else 0
+    s.alarm = s.alarm or s.over >= cfg.patience
+    return drift
 
 
 def _physical(identifier) -> bool:
