@@ -566,3 +566,20 @@ def test_a_physical_trackers_limits_are_its_baseline_windows_standard_errors(dri
     bare = Tracker(ident, dataclasses.replace(config, sigmas=0.0), engine="identifier")
     bare.feed(y, u)
     assert bare.limits == {k: 0.01 for k in names}
+
+
+def test_a_window_without_standard_errors_leaves_the_limit_to_the_others(monkeypatch):
+    # closed form of the limit: max(threshold, sigmas * median of the finite errors / |ref|);
+    # a window whose standard errors fail gives NaN, never an exception in the stream
+    from aeid_struct import identification
+    from aeid_struct.online import tracker
+
+    def fail(est):
+        raise np.linalg.LinAlgError("singular")
+
+    monkeypatch.setattr(identification, "with_standard_errors", fail)
+    assert all(math.isnan(v) for v in tracker._errors(object(), {"k": 1.0, "d": 2.0}).values())
+    config = TrackerConfig(threshold=0.05)
+    assert tracker._limit(config, -2.0, [0.1, math.nan, 0.3]) == pytest.approx(6 * 0.2 / 2)
+    assert tracker._limit(config, 2.0, [0.001, 0.002]) == 0.05
+    assert tracker._limit(config, 2.0, [math.nan, math.nan]) == 0.05

@@ -57,8 +57,7 @@ class Tracker:
     config : TrackerConfig
         How the tracker windows, smooths and alarms; ``median`` and ``smoothing`` left None
         are set by the identifier's structure and head (:data:`DEFAULT_SMOOTHING`, at
-        construction), and
-        ``Tracker.config`` holds the values used.
+        construction), and ``Tracker.config`` holds the values used.
     engine : str
         ``"auto"`` (default: the identifier's ONNX back end when onnxruntime is installed and
         it can be exported, else the identifier as given), ``"onnx"`` (its ONNX back end,
@@ -272,12 +271,7 @@ class Tracker:
         if bad:
             return self._skipped("the window's estimate is not finite: "
                                  + ", ".join(f"{k} = {values[k]}" for k in bad), seconds)
-        errors = None
-        if self.uses_errors and s.reference is None:
-            from aeid_struct.identification import with_standard_errors
-
-            std = with_standard_errors(est).info.get("std", {})
-            errors = {k: abs(float(std.get(k, math.nan))) for k in values}
+        errors = _errors(est, values) if self.uses_errors and s.reference is None else None
         drift = _advance(s, cfg, values, errors)
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
                       seconds, limit=dict(s.limit))
@@ -325,6 +319,18 @@ def _columns(u: np.ndarray, y: np.ndarray, width: tuple, channels) -> tuple:
         raise ValueError(f"y and u must be (k, {p}) and (k, {m}) sample arrays of one length "
                          f"(the channels {list(channels)}); got shapes {y.shape} and {u.shape}")
     return u, y
+
+
+def _errors(est, values: dict) -> dict:
+    """The standard errors of a window's parameters ``values`` (NaN where they cannot be had:
+    a rank-deficient Jacobian, or a failure, which must not stop the stream)."""
+    from aeid_struct.identification import with_standard_errors
+
+    try:
+        std = with_standard_errors(est).info.get("std", {})
+    except (ValueError, RuntimeError, np.linalg.LinAlgError):
+        std = {}                 # no errors from this window: the limit is the others'
+    return {k: abs(float(std.get(k, math.nan))) for k in values}
 
 
 def _advance(s: _State, cfg: TrackerConfig, values: dict, errors: dict | None) -> dict:
