@@ -503,22 +503,30 @@ def drive_train():
     return structure, family, ident
 
 
+def _drive_stream(family, steps: int, seed: int, noise: float):
+    """``y (steps, 2), u (steps,)``: one PRBS record of both drive-train angles."""
+    stream = ae.data.records(family, 1, steps=(steps, steps), dt=(0.005, 0.005),
+                             excitation_kind="prbs", seed=seed, noise=noise)
+    return np.stack([stream.y[0][0], stream.y[1][0]], 1), stream.u[0][0]
+
+
+def _window(ident, y, u, end: int):
+    """``ident``'s estimate of the 300-sample window of ``y, u`` ending before ``end``."""
+    return ident.identify((y[end - 300: end, 0], y[end - 300: end, 1]),
+                          (u[end - 300: end], u[end - 300: end]))
+
+
 def test_a_several_channel_identifier_tracks_a_stream_of_several_outputs(drive_train):
     # the drive train's motor and load angles from one torque: each window of the (k, 2)
     # stream is split by channel, and an update is the identifier's estimate of that split
     structure, family, ident = drive_train
-    stream = ae.data.records(family, 1, steps=(700, 700), dt=(0.005, 0.005),
-                             excitation_kind="prbs", seed=2, noise=0.01)
-    y = np.stack([stream.y[0][0], stream.y[1][0]], 1)
-    u = stream.u[0][0]
+    y, u = _drive_stream(family, 700, seed=2, noise=0.01)
     tracker = Tracker(ident, TrackerConfig(hop=100, baseline=2), engine="identifier")
     assert tracker.channels == ((0, 0), (1, 0)) and tracker.width == (2, 1)
     updates = tracker.feed(y[:450], u[:450]) + tracker.feed(y[450:], u[450:, None])
     assert len(updates) == 5 and all(up.error is None for up in updates)
     for j, up in enumerate(updates):
-        end = 300 + 100 * j
-        window = ident.identify((y[end - 300: end, 0], y[end - 300: end, 1]),
-                                (u[end - 300: end], u[end - 300: end]))
+        window = _window(ident, y, u, 300 + 100 * j)
         assert up.estimate == {k: float(v) for k, v in window.physical.items()}
     with pytest.raises(ValueError, match=r"y and u must be \(k, 2\) and \(k, 1\) sample "
                                          r"arrays of one length \(the channels"):
@@ -535,18 +543,14 @@ def test_a_physical_trackers_limits_are_its_baseline_windows_standard_errors(dri
     from aeid_struct.identification import with_standard_errors
 
     structure, family, ident = drive_train
-    stream = ae.data.records(family, 1, steps=(600, 600), dt=(0.005, 0.005),
-                             excitation_kind="prbs", seed=4, noise=0.02)
-    y = np.stack([stream.y[0][0], stream.y[1][0]], 1)
-    u = stream.u[0][0]
+    y, u = _drive_stream(family, 600, seed=4, noise=0.02)
     config = TrackerConfig(hop=100, baseline=3, threshold=0.01)
     tracker = Tracker(ident, config, engine="identifier")
     updates = tracker.feed(y, u)
     assert [up.limit for up in updates[:2]] == [{}, {}]          # no reference yet
     errors, values = [], []
     for end in (300, 400, 500):
-        est = with_standard_errors(ident.identify((y[end - 300: end, 0], y[end - 300: end, 1]),
-                                                  (u[end - 300: end], u[end - 300: end])))
+        est = with_standard_errors(_window(ident, y, u, end))
         errors.append(est.info["std"])
         values.append(est.physical)
     names = structure.element_names
