@@ -508,7 +508,7 @@ def test_a_physical_identifier_carries_a_head_calibrated_with_unless_told_not_to
     assert train(ae.CCF(1, descartes=True), FAMILY, _config(), encoder=SMALL).head is None
     with pytest.raises(ValueError, match=r"head must be an identification.Head .* got int"):
         train(structure, family, config, head=5)
-    with pytest.raises(ValueError, match=r"head must be .* None or 'auto'; got str"):
+    with pytest.raises(ValueError, match=r"head must be .* None or 'auto'; got 'none'"):
         train(structure, family, config, head="none")
 
 

@@ -139,7 +139,7 @@ class Tracker:
             runner = _capped(runner, cap)
         #: Whether the baseline windows' standard errors set the alarm's limits (a physical
         #: structure, ``TrackerConfig.sigmas > 0``).
-        self.uses_errors = config.sigmas > 0 and _physical(identifier)
+        self._uses_errors = config.sigmas > 0 and _physical(identifier)
         #: The identifier every window goes through (``identifier`` on the engine's back end).
         self.runner = runner
         self.config = _resolved(config, runner)
@@ -271,7 +271,7 @@ class Tracker:
         if bad:
             return self._skipped("the window's estimate is not finite: "
                                  + ", ".join(f"{k} = {values[k]}" for k in bad), seconds)
-        errors = _errors(est, values) if self.uses_errors and s.reference is None else None
+        errors = _errors(est, values) if self._uses_errors and s.reference is None else None
         drift = _advance(s, cfg, values, errors)
         return Update(s.samples * self.dt - self.dt, values, dict(s.smoothed), drift, s.alarm,
                       seconds, limit=dict(s.limit))

@@ -163,8 +163,9 @@ def _head(structure: Structure, head) -> Head | None:
     if isinstance(head, str) and head == "auto":
         return PHYSICAL_HEAD if isinstance(structure, Physical) else None
     if head is not None and not isinstance(head, Head):
+        got = repr(head) if isinstance(head, str) else type(head).__name__
         raise ValueError(f"head must be an identification.Head (ae.Head(iterations=...)), "
-                         f"None or 'auto'; got {type(head).__name__}")
+                         f"None or 'auto'; got {got}")
     return head
 
 
